@@ -1,0 +1,121 @@
+"""The `jaxdefl` command line: thin wrappers that parse flags and call `pipeline`."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from ._errors import ConfigError, JaxdeflError
+
+app = typer.Typer(
+    add_completion=False,
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    help="Dynamic deflection of structures from range cameras.",
+)
+
+_state = {"debug": False}
+
+
+@app.callback()
+def _root(
+    debug: Annotated[bool, typer.Option("--debug", help="Show tracebacks on errors.")] = False,
+) -> None:
+    _state["debug"] = debug
+
+
+def _parse_axes(axes: str) -> tuple[str, ...]:
+    out = tuple(a.strip() for a in axes.split(",") if a.strip())
+    bad = [a for a in out if a not in ("z", "x", "y")]
+    if not out or bad:
+        raise ConfigError(f"--axes: expected a comma list of z, x, y; got {axes!r}")
+    return out
+
+
+@app.command()
+def fit(
+    traj: Annotated[Path, typer.Argument(help="Trajectory table (CSV or Parquet).")],
+    out: Annotated[Path, typer.Option("--out", help="Estimates table to write (CSV).")],
+    window: Annotated[float | None, typer.Option(help="Window length in s (default: whole segment).")] = None,
+    step: Annotated[float | None, typer.Option(help="Window step in s (default: the window length).")] = None,
+    axes: Annotated[str, typer.Option(help="Axes to fit, comma separated.")] = "z,x,y",
+    fmin: Annotated[float | None, typer.Option(help="Lowest frequency searched, Hz.")] = None,
+    fmax: Annotated[float | None, typer.Option(help="Highest frequency searched, Hz (default: Nyquist).")] = None,
+    oversampling: Annotated[float, typer.Option(help="Periodogram oversampling factor.")] = 5.0,
+    fap_max: Annotated[float, typer.Option(help="Largest peak false-alarm probability that is fitted.")] = 0.01,
+    reference: Annotated[Path | None, typer.Option(help="Reference (LDS) table t, plate, z.")] = None,
+) -> None:
+    """Estimate loading frequency and deflection amplitude per segment, window, plate and axis."""
+    from . import pipeline
+
+    pipeline.fit_file(
+        traj,
+        out,
+        window_s=window,
+        step_s=step,
+        axes=_parse_axes(axes),
+        fmin_hz=fmin,
+        fmax_hz=fmax,
+        oversampling=oversampling,
+        fap_max=fap_max,
+        reference=reference,
+    )
+
+
+@app.command()
+def simulate(
+    config: Annotated[Path, typer.Argument(help="Simulation config (TOML), e.g. configs/exp1.toml.")],
+    out: Annotated[Path, typer.Option("--out", help="Output directory.")],
+    duration: Annotated[float | None, typer.Option(help="Override the recording duration, s.")] = None,
+    seed: Annotated[int | None, typer.Option(help="Random seed (default: from the config).")] = None,
+) -> None:
+    """Simulate a recording: DIR/recording.zarr, DIR/truth.csv, DIR/lds.csv."""
+    from .simulate import simulate_to_dir
+
+    simulate_to_dir(config, out, duration_s=duration, seed=seed)
+
+
+@app.command()
+def demo(
+    out: Annotated[Path, typer.Option("--out", help="Report directory.")] = Path("demo_out"),
+    duration: Annotated[float, typer.Option(help="Simulated duration, s.")] = 600.0,
+    seed: Annotated[int, typer.Option(help="Random seed.")] = 1,
+) -> None:
+    """Run the main job on the built-in default (Experiment II, 3 Hz, SR4000 at 20 Hz) to a report."""
+    from . import pipeline
+
+    pipeline.demo(out, duration_s=duration, seed=seed)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Console entry point: one-line errors, exit 2 for bad config/arguments, 1 otherwise."""
+    try:
+        app(args=argv, standalone_mode=False)
+    except JaxdeflError as err:
+        if _state["debug"]:
+            raise
+        print(f"jaxdefl: error: {err}", file=sys.stderr)
+        return err.exit_code
+    except typer.Exit as ex:
+        return ex.exit_code
+    except (typer.BadParameter, typer.Abort) as err:  # pragma: no cover - click handles most
+        print(f"jaxdefl: error: {err}", file=sys.stderr)
+        return 2
+    except Exception as err:  # click usage errors
+        import click
+
+        if isinstance(err, click.ClickException):
+            err.show()
+            return err.exit_code
+        if _state["debug"]:
+            raise
+        print(f"jaxdefl: error: {type(err).__name__}: {err}", file=sys.stderr)
+        return 1
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
