@@ -182,9 +182,5 @@ def write_trajectory(df: pd.DataFrame, path: Path | str) -> None:
     if path.suffix.lower() in (".parquet", ".pq"):
         df[cols].to_parquet(path, index=False)
         return
-    out = df[cols].copy()
-    out["t"] = out["t"].map(lambda v: f"{v:.6f}")
-    for a in ("x", "y", "z"):
-        if a in out:
-            out[a] = out[a].map(lambda v: "" if not np.isfinite(v) else f"{v:.5f}")
-    out.to_csv(path, index=False)
+    # %.6f keeps epoch seconds to the microsecond and lengths to the nanometre.
+    df[cols].to_csv(path, index=False, float_format="%.6f")
