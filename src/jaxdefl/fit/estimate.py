@@ -1,0 +1,127 @@
+"""The estimation stage end to end: windows -> periodogram peak -> harmonic fit -> estimates table."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from ..series import Windows
+from ..spectral import Periodogram, lomb_peaks
+from .harmonic import N_PARAMS, HarmonicFit, fit_harmonics
+
+__all__ = ["ESTIMATE_COLUMNS", "STATUSES", "Estimates", "estimate_windows"]
+
+ESTIMATE_COLUMNS = [
+    "segment", "window", "t_start", "t_end", "plate", "axis", "n", "f0_hz", "sigma_f0_hz",
+    "amplitude_mm", "sigma_amplitude_mm", "phase_rad", "offset_mm", "sigma_residual_mm",
+    "peak_fap", "status",
+]
+STATUSES = ("converged", "too_few_samples", "too_few_cycles", "no_significant_peak", "did_not_converge")
+
+
+@dataclass(frozen=True)
+class Estimates:
+    """Estimates of a batch of windows: the table of DESIGN.md plus the arrays behind it."""
+
+    table: pd.DataFrame
+    windows: Windows
+    periodogram: Periodogram
+    fit: HarmonicFit
+
+
+def estimate_windows(
+    w: Windows,
+    fmin_hz: float | None = None,
+    fmax_hz: float | None = None,
+    oversampling: float = 5.0,
+    fap_max: float = 0.01,
+    min_cycles: float = 2.0,
+    weights: np.ndarray | None = None,
+    keep: tuple[int, ...] = (),
+    block: int = 4096,
+    on_block: Callable[[int], None] | None = None,
+) -> Estimates:
+    """Estimate f0, A and their σ's for every window; failures become statuses.
+
+    Statuses: ``too_few_samples`` (fewer than the windowing's minimum), ``too_few_cycles`` (the
+    peak frequency times the window span is below ``min_cycles``), ``no_significant_peak``
+    (false-alarm probability above ``fap_max``), ``did_not_converge`` (Gauss-Newton failed or
+    gave non-finite numbers), else ``converged``.
+
+    Args:
+        block: windows per periodogram/fit call; ``on_block(k)`` is called after each with the
+            number of windows done (for progress bars).
+    """
+    b = len(w)
+    status = w.table["status"].to_numpy(dtype=object).copy()
+    todo = np.flatnonzero((status == "converged") & (w.mask.sum(axis=1) > N_PARAMS + 1))
+    status[(status == "converged") & (w.mask.sum(axis=1) <= N_PARAMS + 1)] = "too_few_samples"
+    nan = np.full(b, np.nan)
+    per = {k: nan.copy() for k in ("freq_hz", "power", "fap", "n_indep", "fmin_hz", "fmax_hz", "df_hz")}
+    method = np.full(b, "", dtype=object)
+    spectra: dict = {}
+    fit_parts = []
+    for c0 in range(0, max(todo.size, 1), block):
+        rows = todo[c0 : c0 + block]
+        if rows.size == 0:
+            break
+        sub = w.select(rows)
+        kk = tuple(int(np.flatnonzero(rows == r)[0]) for r in keep if r in set(rows.tolist()))
+        p = lomb_peaks(sub, fmin_hz=fmin_hz, fmax_hz=fmax_hz, oversampling=oversampling, keep=kk)
+        for k in per:
+            per[k][rows] = getattr(p, k)
+        method[rows] = p.method
+        for local, spec in p.spectra.items():
+            spectra[int(rows[local])] = spec
+        span = _span(sub)
+        few_cycles = p.freq_hz * span < min_cycles
+        insignificant = ~(p.fap <= fap_max)
+        go = ~few_cycles & ~insignificant
+        st = np.where(few_cycles, "too_few_cycles", np.where(insignificant, "no_significant_peak", "converged"))
+        sub_w = None if weights is None else weights[rows]
+        f = fit_harmonics(sub, p.freq_hz, rows=np.flatnonzero(go), weights=sub_w)
+        st = np.where(go & ~f.converged, "did_not_converge", st)
+        status[rows] = st
+        fit_parts.append((rows, f))
+        if on_block is not None:
+            on_block(rows.size)
+    fit = _merge_fits(b, fit_parts)
+    periodogram = Periodogram(per["freq_hz"], per["power"], per["fap"], per["n_indep"],
+                              per["fmin_hz"], per["fmax_hz"], per["df_hz"], method, spectra)
+    tab = w.table.copy()
+    tab["status"] = status
+    tab["f0_hz"] = fit.f0_hz
+    tab["sigma_f0_hz"] = fit.sigma_f0_hz
+    tab["amplitude_mm"] = fit.amplitude_mm
+    tab["sigma_amplitude_mm"] = fit.sigma_amplitude_mm
+    tab["phase_rad"] = fit.phase_rad
+    tab["offset_mm"] = fit.offset_mm
+    tab["sigma_residual_mm"] = fit.sigma_residual_mm
+    tab["peak_fap"] = periodogram.fap
+    return Estimates(tab[ESTIMATE_COLUMNS], w, periodogram, fit)
+
+
+def _span(w: Windows) -> np.ndarray:
+    n = w.mask.sum(axis=1)
+    lo = np.where(w.mask, w.t, np.inf).min(axis=1)
+    hi = np.where(w.mask, w.t, -np.inf).max(axis=1)
+    return np.where(n > 1, (hi - lo) * n / np.maximum(n - 1, 1), 0.0)
+
+
+def _merge_fits(b: int, parts: list[tuple[np.ndarray, HarmonicFit]]) -> HarmonicFit:
+    fields = HarmonicFit.__dataclass_fields__
+    out = {}
+    for name in fields:
+        if parts:
+            proto = getattr(parts[0][1], name)
+        else:
+            proto = np.zeros((0, 4, 4)) if name == "cov" else np.zeros((0, 4)) if name == "params" else np.zeros(0)
+        shape = (b,) + proto.shape[1:]
+        arr = np.zeros(shape, proto.dtype) if proto.dtype.kind in "biu" else np.full(shape, np.nan)
+        for rows, f in parts:
+            arr[rows] = getattr(f, name)
+        out[name] = arr
+    return HarmonicFit(**out)

@@ -1,0 +1,48 @@
+"""Figures: periodogram with significance levels, raw vs fitted trajectory."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from ..spectral import THESIS_ALPHAS, significance_level  # noqa: E402
+
+__all__ = ["plot_periodogram", "plot_fit"]
+
+
+def plot_periodogram(freq_hz, power, n_indep, path: Path, title: str = "", alphas=THESIS_ALPHAS):
+    """Lomb normalised periodogram with the thesis' significance levels (as in its Fig. 5.16)."""
+    fig, ax = plt.subplots(figsize=(7, 3.6), constrained_layout=True)
+    ax.semilogy(freq_hz, np.maximum(power, 1e-3), lw=0.7, color="k")
+    for a in alphas:
+        z = float(significance_level(a, n_indep))
+        ax.axhline(z, ls="--", lw=0.8, color=plt.cm.viridis(a / max(alphas)))
+        ax.text(freq_hz[-1], z, f" α={a:g}", va="center", fontsize=7)
+    ax.set_xlabel("frequency (Hz)")
+    ax.set_ylabel("normalised power $P_N$")
+    ax.set_title(title, fontsize=9)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_fit(t_s, y_mm, f0_hz, amplitude_mm, phase_rad, offset_mm, path: Path, title: str = "",
+             seconds: float = 5.0):
+    """Raw samples and the fitted harmonic over the first ``seconds`` of a window (t from t_mid)."""
+    t_s = np.asarray(t_s)
+    sel = t_s <= t_s.min() + seconds
+    tt = np.linspace(t_s[sel].min(), t_s[sel].max(), 2000)
+    model = offset_mm + amplitude_mm * np.cos(2 * np.pi * f0_hz * tt - phase_rad)
+    fig, ax = plt.subplots(figsize=(7, 3.2), constrained_layout=True)
+    ax.plot(t_s[sel], np.asarray(y_mm)[sel], ".", ms=3, color="tab:blue", label="raw")
+    ax.plot(tt, model, "-", lw=1.2, color="k", label="fitted harmonic")
+    ax.set_xlabel("time from window centre (s)")
+    ax.set_ylabel("mm")
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=8, loc="upper right")
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
