@@ -25,10 +25,10 @@ from ..series import Windows
 __all__ = ["HarmonicFit", "fit_harmonic", "fit_harmonics", "N_PARAMS"]
 
 N_PARAMS = 4
-# Relative and absolute step tolerance of Gauss-Newton. Started from the refined periodogram
+# Step tolerances of Gauss-Newton (optimistix checks every parameter and every residual).
 # peak and the linear fit, it converges quadratically: 3-5 steps reach these.
-RTOL = 1e-10
-ATOL = 1e-10
+RTOL = 1e-6
+ATOL = 1e-6
 MAX_STEPS = 30
 _CHUNK_CELLS = 1 << 21
 

@@ -23,7 +23,7 @@ STATUS_FEW_SAMPLES = "too_few_samples"
 
 # A window is on the frame clock when every timestamp is within this fraction of a frame
 # interval of t_first + k * dt: then the masked-grid FFT periodogram is exact to that level.
-CLOCK_TOLERANCE = 1e-4
+CLOCK_TOLERANCE = 1e-5
 
 
 @dataclass(frozen=True)
