@@ -55,7 +55,7 @@ def _load_frame(path: Path) -> pd.DataFrame:
         if suffix in (".parquet", ".pq"):
             return pd.read_parquet(path)
         if suffix in (".csv", ".txt", ".gz"):
-            return pd.read_csv(path, float_precision="round_trip", comment="#", dtype=str)
+            return pd.read_csv(path, comment="#", dtype=str)
     except (ValueError, OSError, pd.errors.ParserError) as err:
         first = str(err).splitlines()[0] if str(err) else type(err).__name__
         raise InputError(f"{path}: cannot be read as a table ({first})") from None
@@ -139,8 +139,8 @@ def validate_trajectory(
         j = int(np.flatnonzero(back)[0])
         raise InputError(
             f"{path}: row {out['_row'].iat[j + 1]}: t must increase within plate "
-            f"{out['plate'].iat[j + 1]}, got t={out['t'].iat[j + 1]!r} after "
-            f"t={out['t'].iat[j]!r} (row {out['_row'].iat[j]})"
+            f"{out['plate'].iat[j + 1]}, got t={float(out['t'].iat[j + 1])!r} after "
+            f"t={float(out['t'].iat[j])!r} (row {out['_row'].iat[j]})"
         )
     rep = same_series & (dt == 0)
     if rep.any():
@@ -151,7 +151,7 @@ def validate_trajectory(
             j = int(np.flatnonzero(conflict)[0])
             raise InputError(
                 f"{path}: row {out['_row'].iat[j + 1]}: plate {out['plate'].iat[j + 1]} repeats "
-                f"t={out['t'].iat[j + 1]!r} of row {out['_row'].iat[j]} with different values"
+                f"t={float(out['t'].iat[j + 1])!r} of row {out['_row'].iat[j]} with different values"
             )
         out = out.drop(index=np.flatnonzero(rep) + 1).reset_index(drop=True)
     finite = np.isfinite(out[axes].to_numpy()).any(axis=1)

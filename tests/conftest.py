@@ -1,0 +1,30 @@
+import jax
+import numpy as np
+import pandas as pd
+import pytest
+
+jax.config.update("jax_enable_x64", True)
+
+
+def harmonic_table(
+    n_plates=1, duration_s=60.0, fs=20.0, f0=3.0672, amp=2.4, sigma=0.76, dropout=0.03,
+    t0=1.7e9, seed=0, axes=("z",), phase=None,
+):
+    """A trajectory table of harmonic motion with white noise and frame drop-outs."""
+    rng = np.random.default_rng(seed)
+    n = int(round(duration_s * fs))
+    t = t0 + np.arange(n) / fs
+    t = t[rng.random(n) >= dropout]
+    frames = []
+    for plate in range(1, n_plates + 1):
+        ph = rng.uniform(0, 2 * np.pi) if phase is None else phase
+        cols = {"t": t, "plate": plate}
+        for a in axes:
+            cols[a] = 5.0 + amp * np.cos(2 * np.pi * f0 * (t - t0) + ph) + sigma * rng.standard_normal(t.size)
+        frames.append(pd.DataFrame(cols))
+    return pd.concat(frames, ignore_index=True)
+
+
+@pytest.fixture
+def make_table():
+    return harmonic_table

@@ -1,0 +1,123 @@
+import numpy as np
+import pandas as pd
+import pytest
+from astropy.timeseries import LombScargle
+
+from jaxdefl import ConfigError
+from jaxdefl.io import validate_trajectory
+from jaxdefl.series import make_windows
+from jaxdefl.spectral import (
+    false_alarm_probability,
+    lomb_peaks,
+    lomb_slow,
+    significance_level,
+)
+
+
+def _windows(make_table, t0=0.0, **kw):
+    return make_windows(validate_trajectory(make_table(t0=t0, **kw)), axes=("z",))
+
+
+@pytest.mark.parametrize("dropout", [0.0, 0.03, 0.3])
+def test_grid_equals_slow_reference(make_table, dropout):
+    w = _windows(make_table, duration_s=20, dropout=dropout, seed=3)
+    assert w.on_clock[0]
+    p = lomb_peaks(w, method="grid", keep=(0,))
+    f, power = p.spectra[0]
+    m = w.mask[0]
+    ref = lomb_slow(w.t[0, m], w.y[0, m], f)
+    np.testing.assert_allclose(power, ref, rtol=1e-8, atol=1e-8 * ref.max())
+
+
+def test_nufft_equals_slow_reference_on_irregular_times():
+    rng = np.random.default_rng(1)
+    t = np.sort(rng.uniform(0, 30, 500))
+    y = 1.5 * np.sin(2 * np.pi * 1.03 * t) + rng.standard_normal(t.size)
+    w = make_windows(validate_trajectory(pd.DataFrame({"t": t, "plate": 1, "z": y})), axes=("z",))
+    assert not w.on_clock[0]
+    p = lomb_peaks(w, keep=(0,))
+    assert p.method[0] == "nufft"
+    f, power = p.spectra[0]
+    m = w.mask[0]
+    ref = lomb_slow(w.t[0, m], w.y[0, m], f)
+    np.testing.assert_allclose(power, ref, atol=1e-6 * ref.max())
+    assert abs(p.freq_hz[0] - 1.03) < 0.01
+
+
+def test_thesis_pn_equals_astropy_standard_without_floating_mean(make_table):
+    w = _windows(make_table, duration_s=15, seed=4)
+    p = lomb_peaks(w, keep=(0,))
+    f, power = p.spectra[0]
+    m = w.mask[0]
+    n = m.sum()
+    ls = LombScargle(w.t[0, m], w.y[0, m], fit_mean=False, center_data=True, normalization="standard")
+    ref = ls.power(f, method="slow") * (n - 1) / 2
+    # The last bin is the exact Nyquist frequency, where astropy evaluates 0/0 without a guard.
+    np.testing.assert_allclose(power[:-1], ref[:-1], rtol=1e-7, atol=1e-9)
+
+
+def test_peak_is_refined_between_bins(make_table):
+    w = _windows(make_table, duration_s=60, sigma=0.05, f0=2.71828, seed=5)
+    p = lomb_peaks(w)
+    assert abs(p.freq_hz[0] - 2.71828) < 0.05 * p.df_hz[0] * 5
+
+
+def test_nyquist_bin_is_finite():
+    t = np.arange(400) * 0.05
+    y = np.cos(np.pi * t / 0.05) + 0.01 * np.random.default_rng(0).standard_normal(t.size)
+    w = make_windows(validate_trajectory(pd.DataFrame({"t": t, "plate": 1, "z": y})), axes=("z",))
+    p = lomb_peaks(w, keep=(0,))
+    f, power = p.spectra[0]
+    assert np.all(np.isfinite(power))
+    assert f[-1] == pytest.approx(10.0)
+
+
+def test_fap_round_trip_and_monotone():
+    m = np.array([1.0, 10.0, 1000.0])
+    for a in (0.001, 0.01, 0.5):
+        z = significance_level(a, m)
+        np.testing.assert_allclose(false_alarm_probability(z, m), a, rtol=1e-10)
+    z = np.linspace(0, 30, 50)
+    assert np.all(np.diff(false_alarm_probability(z, 100)) <= 0)
+
+
+def test_fap_is_calibrated_on_null_data():
+    """On white noise the peak FAP is (close to) uniform: P(FAP < a) ~ a."""
+    rng = np.random.default_rng(7)
+    n_win, n = 800, 256
+    t = np.tile(np.arange(n) * 0.05, n_win)
+    frames = pd.DataFrame({"t": t, "plate": np.repeat(np.arange(n_win), n), "z": rng.standard_normal(n * n_win)})
+    w = make_windows(validate_trajectory(frames), axes=("z",))
+    fap = lomb_peaks(w).fap
+    for a in (0.1, 0.5):
+        frac = np.mean(fap < a)
+        # Press's M = N is approximate (oversampled grids and the floor on M): within a third.
+        assert 0.6 * a < frac < 1.35 * a, (a, frac)
+
+
+def test_band_errors(make_table):
+    w = _windows(make_table, duration_s=10)
+    with pytest.raises(ConfigError, match=r"--fmin/--fmax: expected fmin < fmax, got 5 and 2"):
+        lomb_peaks(w, fmin_hz=5, fmax_hz=2)
+    with pytest.raises(ConfigError, match=r"--fmin: expected >= 0 Hz, got -1"):
+        lomb_peaks(w, fmin_hz=-1)
+    with pytest.raises(ConfigError, match=r"fewer than 3 frequencies"):
+        lomb_peaks(w, fmin_hz=3.0, fmax_hz=3.01)
+    with pytest.raises(ConfigError, match=r"--oversampling: expected >= 1, got 0.5"):
+        lomb_peaks(w, oversampling=0.5)
+    with pytest.raises(ConfigError, match=r"method: expected one of auto, grid, nufft; got 'fft'"):
+        lomb_peaks(w, method="fft")
+
+
+def test_grid_method_refuses_irregular_times():
+    t = np.sort(np.random.default_rng(0).uniform(0, 10, 100))
+    w = make_windows(validate_trajectory(pd.DataFrame({"t": t, "plate": 1, "z": np.sin(t)})), axes=("z",))
+    with pytest.raises(ConfigError, match=r"not on a regular frame clock; use 'nufft'"):
+        lomb_peaks(w, method="grid")
+
+
+def test_time_shift_invariance(make_table):
+    a = lomb_peaks(_windows(make_table, t0=0.0, duration_s=30, seed=9))
+    b = lomb_peaks(_windows(make_table, t0=1e9, duration_s=30, seed=9))
+    np.testing.assert_allclose(a.freq_hz, b.freq_hz, rtol=1e-9)
+    np.testing.assert_allclose(a.power, b.power, rtol=1e-6)
