@@ -151,10 +151,9 @@ def fit_file(
 
 def _demo_trajectories(duration_s: float, seed: int) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Trajectories of Experiment II at 3 Hz (SR4000 at 20 Hz) and the LDS reference."""
-    from .simulate import load_config, simulate_trajectories
+    from .synthetic import harmonic_experiment
 
-    cfg = load_config(Path(__file__).parent / "data" / "exp2_tof_3hz.toml")
-    return simulate_trajectories(cfg, duration_s=duration_s, seed=seed)
+    return harmonic_experiment(duration_s=duration_s, seed=seed)
 
 
 def demo(out: Path, duration_s: float = 600.0, seed: int = 1) -> None:
@@ -170,7 +169,7 @@ def demo(out: Path, duration_s: float = 600.0, seed: int = 1) -> None:
     write_trajectory(lds, out / "lds.csv")
     t_sim = time.perf_counter() - t0
     t1 = time.perf_counter()
-    whole = estimate_table(traj, keep=(0,))
+    whole = estimate_table(traj, keep=tuple(range(3 * traj['plate'].nunique())))
     t_whole = time.perf_counter() - t1
     t1 = time.perf_counter()
     windowed = estimate_table(traj, window_s=60.0)

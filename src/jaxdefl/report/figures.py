@@ -21,8 +21,8 @@ def plot_periodogram(freq_hz, power, n_indep, path: Path, title: str = "", alpha
     ax.semilogy(freq_hz, np.maximum(power, 1e-3), lw=0.7, color="k")
     for a in alphas:
         z = float(significance_level(a, n_indep))
-        ax.axhline(z, ls="--", lw=0.8, color=plt.cm.viridis(a / max(alphas)))
-        ax.text(freq_hz[-1], z, f" α={a:g}", va="center", fontsize=7)
+        ax.axhline(z, ls="--", lw=0.8, color=plt.cm.viridis(a / max(alphas)), label=f"α = {a:g}")
+    ax.legend(fontsize=7, loc="upper right", ncol=2, title="significance", title_fontsize=7)
     ax.set_xlabel("frequency (Hz)")
     ax.set_ylabel("normalised power $P_N$")
     ax.set_title(title, fontsize=9)

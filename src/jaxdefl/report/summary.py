@@ -14,7 +14,7 @@ __all__ = ["write_demo_report"]
 def _md_table(df: pd.DataFrame, floatfmt: dict[str, str]) -> str:
     cols = list(df.columns)
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
-    for _, r in df.iterrows():
+    for r in df.to_dict("records"):
         cells = []
         for c in cols:
             v = r[c]

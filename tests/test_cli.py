@@ -1,0 +1,94 @@
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from jaxdefl.cli import main
+from jaxdefl.fit import ESTIMATE_COLUMNS
+from jaxdefl.io import write_trajectory
+from jaxdefl.synthetic import harmonic_experiment
+
+
+@pytest.fixture
+def recording(tmp_path):
+    traj, lds = harmonic_experiment(duration_s=40, seed=3)
+    traj = traj[traj["plate"].isin([3, 7])]
+    write_trajectory(traj, tmp_path / "traj.csv")
+    write_trajectory(lds, tmp_path / "lds.csv")
+    return tmp_path
+
+
+def test_fit_writes_the_estimates_contract(recording):
+    out = recording / "est.csv"
+    assert main(["fit", str(recording / "traj.csv"), "--out", str(out), "--window", "20"]) == 0
+    est = pd.read_csv(out)
+    assert list(est.columns) == ESTIMATE_COLUMNS
+    assert len(est) == 2 * 3 * 2  # plates x axes x windows
+    z = est[est["axis"] == "z"]
+    assert (z["status"] == "converged").all()
+    assert np.all(np.abs(z["f0_hz"] - 3.0672) < 5 * z["sigma_f0_hz"])
+    meta = json.loads(out.with_suffix(".json").read_text())
+    assert meta["window_s"] == 20 and meta["command"] == "fit"
+
+
+def test_fit_with_reference_writes_differences(recording):
+    out = recording / "est.csv"
+    args = ["fit", str(recording / "traj.csv"), "--out", str(out), "--axes", "z",
+            "--reference", str(recording / "lds.csv")]
+    assert main(args) == 0
+    cmp = pd.read_csv(recording / "est_comparison.csv")
+    assert sorted(cmp["plate"]) == [3, 7]
+    assert np.all(np.abs(cmp["delta_amplitude_mm"]) < 5 * cmp["sigma_delta_amplitude_mm"])
+    assert np.all(np.abs(cmp["delta_f0_hz"]) < 5 * cmp["sigma_delta_f0_hz"])
+    ref = pd.read_csv(recording / "est_reference.csv")
+    assert (ref["status"] == "converged").all()
+
+
+def test_bad_input_is_one_line_and_exit_2(recording, capsys):
+    bad = recording / "bad.csv"
+    bad.write_text("t,plate,z\n0,1,1\n0.05,1,x\n")
+    assert main(["fit", str(bad), "--out", str(recording / "e.csv")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "row 3 column 'z'" in err[0]
+
+
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["--axes", "z,w"], "--axes: expected a comma list of z, x, y; got 'z,w'"),
+        (["--window", "-3"], "--window: expected a positive length in s, got -3.0"),
+        (["--step", "5"], "--step: needs --window"),
+        (["--fap-max", "0"], "--fap-max: expected a probability in (0, 1], got 0.0"),
+    ],
+)
+def test_bad_arguments_exit_2(recording, capsys, args, message):
+    code = main(["fit", str(recording / "traj.csv"), "--out", str(recording / "e.csv"), *args])
+    assert code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_reference_without_common_plates(recording, capsys):
+    ref = recording / "ref.csv"
+    pd.DataFrame({"t": [1.7e9, 1.7e9 + 1], "plate": [99, 99], "z": [0.0, 1.0]}).to_csv(ref, index=False)
+    code = main(["fit", str(recording / "traj.csv"), "--out", str(recording / "e.csv"), "--reference", str(ref)])
+    assert code == 2
+    assert "no plate of the reference table" in capsys.readouterr().err
+
+
+def test_missing_axis_column(tmp_path, capsys):
+    p = tmp_path / "z_only.csv"
+    pd.DataFrame({"t": np.arange(100) * 0.05, "plate": 1, "z": np.sin(np.arange(100))}).to_csv(p, index=False)
+    assert main(["fit", str(p), "--out", str(tmp_path / "e.csv")]) == 2
+    assert "--axes: the table has no column x, y" in capsys.readouterr().err
+
+
+def test_demo_writes_a_report(tmp_path):
+    out = tmp_path / "demo"
+    assert main(["demo", "--out", str(out), "--duration", "60"]) == 0
+    for name in ("summary.md", "psd.png", "fit.png", "estimates_whole.csv", "comparison_lds.csv"):
+        assert (out / name).exists(), name
+    est = pd.read_csv(out / "estimates_whole.csv")
+    z = est[est["axis"] == "z"]
+    assert (z["status"] == "converged").all()
+    assert np.all(np.abs(z["f0_hz"] - 3.0672) < 5 * z["sigma_f0_hz"])
