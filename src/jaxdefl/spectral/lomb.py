@@ -94,9 +94,22 @@ def lomb_direct(t, y, mask, freq_hz):
     return lomb_from_sums(c @ h, s @ h, c2, s2, n, var)
 
 
+@partial(jax.jit, static_argnames=("n_fft", "j_lo", "j_hi"))
+def _tau_sums(masks, *, n_fft, j_lo, j_hi):
+    """Σ exp(-2i ω_j t) over the samples of each distinct mask: bins 2j of the mask's FFT."""
+    fm = jnp.fft.rfft(masks, n=n_fft, axis=-1)
+    q = (2 * np.arange(j_lo, j_hi + 1)) % n_fft
+    # A real signal's FFT bin M - q is the conjugate of bin q: read bins past M/2 from there.
+    upper = q > n_fft // 2
+    z = fm[:, np.where(upper, n_fft - q, q)]
+    return jnp.where(upper, jnp.conj(z), z)
+
+
 @partial(jax.jit, static_argnames=("n_fft", "j_lo", "j_hi", "keep"))
-def _grid_batch(y, mask, k, *, n_fft, j_lo, j_hi, keep):
-    power = jax.vmap(lambda a, b, c: lomb_grid(a, b, c, n_fft, j_lo, j_hi))(y, mask, k)
+def _grid_batch(h_dense, z2, n, var, *, n_fft, j_lo, j_hi, keep):
+    """Peak search on dense, centred, zero-filled frame grids (window, frame) of one chunk."""
+    zh = jnp.fft.rfft(h_dense, n=n_fft, axis=-1)[:, j_lo : j_hi + 1]
+    power = lomb_from_sums(zh.real, -zh.imag, z2.real, -z2.imag, n[:, None], var[:, None])
     i = jnp.argmax(power, axis=1)
     rows = jnp.arange(power.shape[0])
     p0 = power[rows, i]
@@ -142,6 +155,21 @@ def _pow2_at_least(n: int) -> int:
     return 1 << max(0, math.ceil(math.log2(max(n, 1))))
 
 
+def _dense_grid(w: Windows, rows: np.ndarray, length: int):
+    """Centred values and masks of ``rows`` laid on their frame grids: (window, frame) each."""
+    y, m, k = w.y[rows], w.mask[rows], w.k[rows]
+    n = m.sum(axis=1).astype(np.float64)
+    ybar = np.where(m, y, 0.0).sum(axis=1) / n
+    h = np.where(m, y - ybar[:, None], 0.0)
+    var = (h**2).sum(axis=1) / (n - 1)  # (5.26)
+    r = np.broadcast_to(np.arange(rows.size)[:, None], m.shape)
+    dense_h = np.zeros((rows.size, length))
+    dense_m = np.zeros((rows.size, length), bool)
+    dense_h[r[m], k[m]] = h[m]
+    dense_m[r[m], k[m]] = True
+    return dense_h, dense_m, n, var
+
+
 def _peaks_grid(w: Windows, rows, out, fmin, fmax, oversampling, keep):
     dt = float(np.mean(w.dt[rows]))
     length = int(w.k[rows].max()) + 1
@@ -157,16 +185,22 @@ def _peaks_grid(w: Windows, rows, out, fmin, fmax, oversampling, keep):
     n_freq = j_hi - j_lo + 1
     per_chunk = max(1, _CHUNK_CELLS // n_fft)
     chunk = min(_pow2_at_least(len(rows)), 1 << int(math.log2(per_chunk)))
-    s_used = int(w.mask[rows].sum(axis=1).max())
-    s_pad = min(w.t.shape[1], -(-s_used // 64) * 64)
     keep_set = set(keep)
     for c0 in range(0, len(rows), chunk):
         sel = rows[c0 : c0 + chunk]
         pad = np.concatenate([sel, np.repeat(sel[:1], chunk - sel.size)])
         want = bool(keep_set.intersection(sel.tolist()))
+        h, m, n, var = _dense_grid(w, pad, length)
+        # Frame drop-outs hit every plate and axis of a frame alike: windows of the same span
+        # share their mask, so its FFT (the tau sums) is computed once per distinct mask.
+        uniq, inverse = np.unique(np.packbits(m, axis=1), axis=0, return_inverse=True)
+        u_pad = _pow2_at_least(uniq.shape[0])
+        masks = np.unpackbits(uniq, axis=1, count=length).astype(np.float64)
+        masks = np.concatenate([masks, np.zeros((u_pad - masks.shape[0], length))])
+        z2 = np.asarray(_tau_sums(jnp.asarray(masks), n_fft=n_fft, j_lo=j_lo, j_hi=j_hi))[inverse.ravel()]
         i, p0, pm, pp, power = _grid_batch(
-            jnp.asarray(w.y[pad, :s_pad]), jnp.asarray(w.mask[pad, :s_pad]),
-            jnp.asarray(w.k[pad, :s_pad]), n_fft=n_fft, j_lo=j_lo, j_hi=j_hi, keep=want,
+            jnp.asarray(h), jnp.asarray(z2), jnp.asarray(n), jnp.asarray(var),
+            n_fft=n_fft, j_lo=j_lo, j_hi=j_hi, keep=want,
         )
         i, p0, pm, pp = (np.asarray(a)[: sel.size] for a in (i, p0, pm, pp))
         out["freq_hz"][sel] = (j_lo + i + _parabola(i, p0, pm, pp, n_freq)) * df
