@@ -178,3 +178,13 @@ def test_windows_split_and_align(make_table):
     est = estimate_windows(w)
     assert (est.table["status"] == "converged").all()
     assert np.all(np.abs(est.table["f0_hz"] - 3.0672) < 5 * est.table["sigma_f0_hz"])
+
+
+@pytest.mark.parametrize("scale", [1.0, 1e3, 1e6])
+def test_sincos_matches_numpy(scale):
+    from jaxdefl.fit._sincos import sincos
+
+    x = (np.random.default_rng(0).random(200_000) - 0.5) * 2 * scale
+    s, c = jax.jit(sincos)(jnp.asarray(x))
+    np.testing.assert_allclose(np.asarray(s), np.sin(x), rtol=0, atol=3e-16 * max(1.0, scale / 1e4))
+    np.testing.assert_allclose(np.asarray(c), np.cos(x), rtol=0, atol=3e-16 * max(1.0, scale / 1e4))

@@ -21,6 +21,7 @@ import optimistix as optx
 
 from .. import _jax  # noqa: F401
 from ..series import Windows
+from ._sincos import sincos
 
 __all__ = ["HarmonicFit", "fit_harmonic", "fit_harmonics", "N_PARAMS"]
 
@@ -30,12 +31,12 @@ N_PARAMS = 4
 RTOL = 1e-6
 ATOL = 1e-6
 MAX_STEPS = 30
-_CHUNK_CELLS = 1 << 21
+_CHUNK_CELLS = 1 << 16  # small chunks: cache-resident, and a slow window holds few others back
 
 
 def _model(p, t):
-    wt = p[3] * t
-    return p[0] * jnp.cos(wt) + p[1] * jnp.sin(wt) + p[2]
+    s, c = sincos(p[3] * t)
+    return p[0] * c + p[1] * s + p[2]
 
 
 def fit_harmonic(t, y, w, omega0, rtol=RTOL, atol=ATOL, max_steps=MAX_STEPS):
@@ -52,7 +53,7 @@ def fit_harmonic(t, y, w, omega0, rtol=RTOL, atol=ATOL, max_steps=MAX_STEPS):
     yc = jnp.where(valid, y - ybar, 0.0)  # centring y conditions the offset column
 
     # Linear least squares at the periodogram frequency (5.33-5.35 with R^-1 = diag(w)).
-    c0, s0 = jnp.cos(omega0 * t), jnp.sin(omega0 * t)
+    s0, c0 = sincos(omega0 * t)
     g = jnp.stack([c0, s0, jnp.ones_like(t)], axis=-1) * sw[:, None]
     lin = jnp.linalg.solve(g.T @ g, g.T @ (sw * yc))
     p0 = jnp.concatenate([lin, jnp.atleast_1d(omega0)])
@@ -65,8 +66,7 @@ def fit_harmonic(t, y, w, omega0, rtol=RTOL, atol=ATOL, max_steps=MAX_STEPS):
     p = sol.value
 
     # Jacobian of the model (5.40, with t_i in every row), covariance (5.42-5.43).
-    wt = p[3] * t
-    c, s = jnp.cos(wt), jnp.sin(wt)
+    s, c = sincos(p[3] * t)
     jac = jnp.stack([c, s, jnp.ones_like(t), t * (-p[0] * s + p[1] * c)], axis=-1) * sw[:, None]
     r = yc - (p[0] * c + p[1] * s + p[2])
     dof = n - N_PARAMS
