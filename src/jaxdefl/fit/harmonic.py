@@ -34,9 +34,22 @@ MAX_STEPS = 30
 _CHUNK_CELLS = 1 << 16  # small chunks: cache-resident, and a slow window holds few others back
 
 
+@jax.custom_jvp
 def _model(p, t):
     s, c = sincos(p[3] * t)
     return p[0] * c + p[1] * s + p[2]
+
+
+@_model.defjvp
+def _model_jvp(primals, tangents):
+    # The Jacobian columns (5.40) reuse the primal's sines and cosines: no autodiff through
+    # the polynomial kernels, and linearising costs a few multiply-adds per sample.
+    p, t = primals
+    dp, dt = tangents
+    s, c = sincos(p[3] * t)
+    out = p[0] * c + p[1] * s + p[2]
+    slope = -p[0] * s + p[1] * c
+    return out, c * dp[0] + s * dp[1] + dp[2] + slope * (t * dp[3] + p[3] * dt)
 
 
 def fit_harmonic(t, y, w, omega0, rtol=RTOL, atol=ATOL, max_steps=MAX_STEPS):
@@ -55,15 +68,26 @@ def fit_harmonic(t, y, w, omega0, rtol=RTOL, atol=ATOL, max_steps=MAX_STEPS):
     # Linear least squares at the periodogram frequency (5.33-5.35 with R^-1 = diag(w)).
     s0, c0 = sincos(omega0 * t)
     g = jnp.stack([c0, s0, jnp.ones_like(t)], axis=-1) * sw[:, None]
-    lin = jnp.linalg.solve(g.T @ g, g.T @ (sw * yc))
+    gtg = g.T @ g
+    lin = jnp.linalg.solve(gtg, g.T @ (sw * yc))
     p0 = jnp.concatenate([lin, jnp.atleast_1d(omega0)])
 
-    def residual(p, _):
-        return sw * (yc - _model(p, t))
+    # Solve in units of standard deviations: parameters scaled by their approximate σ (linear
+    # fit covariance; Fisher information A²/2 Σ w t² for ω) and residuals by the noise σ, so
+    # that the tolerances mean "a step below 1e-4 σ" for every window, short or long.
+    r_lin = sw * yc - g @ lin
+    noise = jnp.sqrt(jnp.maximum(jnp.sum(r_lin**2) / jnp.maximum(n - 3, 1), 1e-300))
+    sig_lin = noise * jnp.sqrt(jnp.abs(jnp.diag(jnp.linalg.inv(gtg))))
+    amp0 = jnp.maximum(jnp.hypot(lin[0], lin[1]), 1e-300)
+    sig_om = noise / (amp0 * jnp.sqrt(0.5 * jnp.sum(w * t**2)))
+    scale = jnp.concatenate([sig_lin, jnp.atleast_1d(sig_om)])
+
+    def residual(u, _):
+        return sw * (yc - _model(p0 + u * scale, t)) / noise
 
     solver = optx.GaussNewton(rtol=rtol, atol=atol, linear_solver=lx.Normal(lx.Cholesky()))
-    sol = optx.least_squares(residual, solver, p0, max_steps=max_steps, throw=False)
-    p = sol.value
+    sol = optx.least_squares(residual, solver, jnp.zeros(N_PARAMS), max_steps=max_steps, throw=False)
+    p = p0 + sol.value * scale
 
     # Jacobian of the model (5.40, with t_i in every row), covariance (5.42-5.43).
     s, c = sincos(p[3] * t)

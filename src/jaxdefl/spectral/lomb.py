@@ -43,17 +43,10 @@ def lomb_from_sums(ch, sh, c2, s2, n, var):
     |Z2| = sqrt(C2² + S2²). At zero and at the exact Nyquist frequency on a regular clock
     Σsin² is 0 and so is its numerator: that 0/0 term is set to 0.
     """
-    r2 = jnp.sqrt(c2**2 + s2**2)
-    cos2 = jnp.where(r2 > 0, c2 / jnp.where(r2 > 0, r2, 1.0), 1.0)
-    cwt = jnp.sqrt(jnp.clip(0.5 * (1 + cos2), 0.0, 1.0))
-    swt = jnp.where(s2 >= 0, 1.0, -1.0) * jnp.sqrt(jnp.clip(0.5 * (1 - cos2), 0.0, 1.0))
+    cwt, swt, inv_cc, inv_ss = _tau_terms(c2, s2, n)
     yc = ch * cwt + sh * swt
     ys = sh * cwt - ch * swt
-    cc = 0.5 * (n + r2)
-    ss = 0.5 * (n - r2)
-    ok = ss > 1e-9 * n
-    term_s = jnp.where(ok, ys**2 / jnp.where(ok, ss, 1.0), 0.0)
-    return (yc**2 / cc + term_s) / (2 * var)
+    return (yc**2 * inv_cc + ys**2 * inv_ss) / (2 * var)
 
 
 def _centre(y, mask):
@@ -94,22 +87,43 @@ def lomb_direct(t, y, mask, freq_hz):
     return lomb_from_sums(c @ h, s @ h, c2, s2, n, var)
 
 
+def _tau_terms(c2, s2, n):
+    """cos ωτ, sin ωτ, 1/Σcos²ω(t-τ), 1/Σsin²ω(t-τ) from the τ sums (see `lomb_from_sums`)."""
+    r2 = jnp.sqrt(c2**2 + s2**2)
+    cos2 = jnp.where(r2 > 0, c2 / jnp.where(r2 > 0, r2, 1.0), 1.0)
+    cwt = jnp.sqrt(jnp.clip(0.5 * (1 + cos2), 0.0, 1.0))
+    swt = jnp.where(s2 >= 0, 1.0, -1.0) * jnp.sqrt(jnp.clip(0.5 * (1 - cos2), 0.0, 1.0))
+    ss = 0.5 * (n - r2)
+    ok = ss > 1e-9 * n
+    return cwt, swt, 1.0 / (0.5 * (n + r2)), jnp.where(ok, 1.0 / jnp.where(ok, ss, 1.0), 0.0)
+
+
 @partial(jax.jit, static_argnames=("n_fft", "j_lo", "j_hi"))
-def _tau_sums(masks, *, n_fft, j_lo, j_hi):
-    """Σ exp(-2i ω_j t) over the samples of each distinct mask: bins 2j of the mask's FFT."""
+def _mask_terms(masks, *, n_fft, j_lo, j_hi):
+    """τ terms of each distinct mask (mask, freq): from bins 2j of the mask's FFT."""
     fm = jnp.fft.rfft(masks, n=n_fft, axis=-1)
     q = (2 * np.arange(j_lo, j_hi + 1)) % n_fft
     # A real signal's FFT bin M - q is the conjugate of bin q: read bins past M/2 from there.
     upper = q > n_fft // 2
     z = fm[:, np.where(upper, n_fft - q, q)]
-    return jnp.where(upper, jnp.conj(z), z)
+    z = jnp.where(upper, jnp.conj(z), z)
+    n = jnp.sum(masks, axis=-1, keepdims=True)
+    return jnp.stack(_tau_terms(z.real, -z.imag, n))
 
 
 @partial(jax.jit, static_argnames=("n_fft", "j_lo", "j_hi", "keep"))
-def _grid_batch(h_dense, z2, n, var, *, n_fft, j_lo, j_hi, keep):
-    """Peak search on dense, centred, zero-filled frame grids (window, frame) of one chunk."""
+def _grid_batch(h_dense, terms, which, var, *, n_fft, j_lo, j_hi, keep):
+    """Peak search on dense, centred, zero-filled frame grids (window, frame) of one chunk.
+
+    ``terms`` (4, mask, freq) are the τ terms of the distinct masks, ``which`` (window,) the
+    mask of each window: the per-window work is one real FFT and a few multiply-adds.
+    """
     zh = jnp.fft.rfft(h_dense, n=n_fft, axis=-1)[:, j_lo : j_hi + 1]
-    power = lomb_from_sums(zh.real, -zh.imag, z2.real, -z2.imag, n[:, None], var[:, None])
+    ch, sh = zh.real, -zh.imag
+    cwt, swt, inv_cc, inv_ss = (t[which] for t in terms)
+    yc = ch * cwt + sh * swt
+    ys = sh * cwt - ch * swt
+    power = (yc**2 * inv_cc + ys**2 * inv_ss) / (2 * var[:, None])
     i = jnp.argmax(power, axis=1)
     rows = jnp.arange(power.shape[0])
     p0 = power[rows, i]
@@ -190,16 +204,16 @@ def _peaks_grid(w: Windows, rows, out, fmin, fmax, oversampling, keep):
         sel = rows[c0 : c0 + chunk]
         pad = np.concatenate([sel, np.repeat(sel[:1], chunk - sel.size)])
         want = bool(keep_set.intersection(sel.tolist()))
-        h, m, n, var = _dense_grid(w, pad, length)
+        h, m, _, var = _dense_grid(w, pad, length)
         # Frame drop-outs hit every plate and axis of a frame alike: windows of the same span
         # share their mask, so its FFT (the tau sums) is computed once per distinct mask.
         uniq, inverse = np.unique(np.packbits(m, axis=1), axis=0, return_inverse=True)
         u_pad = _pow2_at_least(uniq.shape[0])
         masks = np.unpackbits(uniq, axis=1, count=length).astype(np.float64)
         masks = np.concatenate([masks, np.zeros((u_pad - masks.shape[0], length))])
-        z2 = np.asarray(_tau_sums(jnp.asarray(masks), n_fft=n_fft, j_lo=j_lo, j_hi=j_hi))[inverse.ravel()]
+        terms = _mask_terms(jnp.asarray(masks), n_fft=n_fft, j_lo=j_lo, j_hi=j_hi)
         i, p0, pm, pp, power = _grid_batch(
-            jnp.asarray(h), jnp.asarray(z2), jnp.asarray(n), jnp.asarray(var),
+            jnp.asarray(h), terms, jnp.asarray(inverse.ravel()), jnp.asarray(var),
             n_fft=n_fft, j_lo=j_lo, j_hi=j_hi, keep=want,
         )
         i, p0, pm, pp = (np.asarray(a)[: sel.size] for a in (i, p0, pm, pp))
