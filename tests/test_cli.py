@@ -59,6 +59,7 @@ def test_bad_input_is_one_line_and_exit_2(recording, capsys):
         (["--axes", "z,w"], "--axes: expected a comma list of z, x, y; got 'z,w'"),
         (["--window", "-3"], "--window: expected a positive length in s, got -3.0"),
         (["--step", "5"], "--step: needs --window"),
+        (["--window", "10", "--step", "0"], "--step: expected a positive length in s, got 0.0"),
         (["--fap-max", "0"], "--fap-max: expected a probability in (0, 1], got 0.0"),
     ],
 )

@@ -116,3 +116,10 @@ def test_segments_sort_independently(tmp_path):
     p = _csv(tmp_path, "segment,t,plate,z\nday2,0,1,5\nday1,10,1,1\nday1,11,1,2\nday2,1,1,6\n")
     df = read_trajectory(p)
     assert df["segment"].tolist() == ["day1", "day1", "day2", "day2"]
+
+
+def test_unreadable_table(tmp_path):
+    p = tmp_path / "broken.parquet"
+    p.write_bytes(b"not a parquet file at all")
+    with pytest.raises(InputError, match=r"broken.parquet: cannot be read as a table"):
+        read_trajectory(p)
