@@ -77,10 +77,12 @@ def test_reference_without_common_plates(recording, capsys):
     assert "no plate of the reference table" in capsys.readouterr().err
 
 
-def test_missing_axis_column(tmp_path, capsys):
+def test_axes_default_to_the_columns_present_and_missing_ones_are_errors(tmp_path, capsys):
     p = tmp_path / "z_only.csv"
-    pd.DataFrame({"t": np.arange(100) * 0.05, "plate": 1, "z": np.sin(np.arange(100))}).to_csv(p, index=False)
-    assert main(["fit", str(p), "--out", str(tmp_path / "e.csv")]) == 2
+    pd.DataFrame({"t": np.arange(100) * 0.05, "plate": 1, "z": np.sin(2 * np.pi * 3 * np.arange(100) * 0.05)}).to_csv(p, index=False)
+    assert main(["fit", str(p), "--out", str(tmp_path / "e.csv")]) == 0
+    assert pd.read_csv(tmp_path / "e.csv")["axis"].tolist() == ["z"]
+    assert main(["fit", str(p), "--out", str(tmp_path / "e.csv"), "--axes", "z,x,y"]) == 2
     assert "--axes: the table has no column x, y" in capsys.readouterr().err
 
 

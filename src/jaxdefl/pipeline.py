@@ -107,7 +107,7 @@ def fit_file(
     out: Path,
     window_s: float | None = None,
     step_s: float | None = None,
-    axes: tuple[str, ...] = ("z", "x", "y"),
+    axes: tuple[str, ...] | None = None,
     fmin_hz: float | None = None,
     fmax_hz: float | None = None,
     oversampling: float = 5.0,
@@ -117,6 +117,8 @@ def fit_file(
     """`jaxdefl fit`: read, estimate, write OUT (and OUT stem + _reference/_comparison.csv)."""
     t0 = time.perf_counter()
     df = read_trajectory(traj)
+    if axes is None:
+        axes = tuple(a for a in ("z", "x", "y") if a in df.columns)
     kw = dict(fmin_hz=fmin_hz, fmax_hz=fmax_hz, oversampling=oversampling, fap_max=fap_max)
     est = estimate_table(df, axes=axes, window_s=window_s, step_s=step_s, **kw)
     out = Path(out)
