@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 
 import numpy as np
@@ -43,6 +45,7 @@ def estimate_windows(
     keep: tuple[int, ...] = (),
     block: int = 4096,
     on_block: Callable[[int], None] | None = None,
+    workers: int | None = None,
 ) -> Estimates:
     """Estimate f0, A and their σ's for every window; failures become statuses.
 
@@ -52,8 +55,9 @@ def estimate_windows(
     gave non-finite numbers), else ``converged``.
 
     Args:
-        block: windows per periodogram/fit call; ``on_block(k)`` is called after each with the
-            number of windows done (for progress bars).
+        block: most windows per periodogram/fit call; ``on_block(k)`` is called after each
+            with the number of windows done (for progress bars).
+        workers: threads running blocks at once (default: one per core).
     """
     b = len(w)
     status = w.table["status"].to_numpy(dtype=object).copy()
@@ -64,30 +68,34 @@ def estimate_windows(
     method = np.full(b, "", dtype=object)
     spectra: dict = {}
     fit_parts = []
-    for c0 in range(0, max(todo.size, 1), block):
-        rows = todo[c0 : c0 + block]
-        if rows.size == 0:
-            break
+
+    def run(rows: np.ndarray):
         sub = w.select(rows)
         kk = tuple(int(np.flatnonzero(rows == r)[0]) for r in keep if r in set(rows.tolist()))
         p = lomb_peaks(sub, fmin_hz=fmin_hz, fmax_hz=fmax_hz, oversampling=oversampling, keep=kk)
-        for k in per:
-            per[k][rows] = getattr(p, k)
-        method[rows] = p.method
-        for local, spec in p.spectra.items():
-            spectra[int(rows[local])] = spec
-        span = _span(sub)
-        few_cycles = p.freq_hz * span < min_cycles
+        few_cycles = p.freq_hz * _span(sub) < min_cycles
         insignificant = ~(p.fap <= fap_max)
         go = ~few_cycles & ~insignificant
         st = np.where(few_cycles, "too_few_cycles", np.where(insignificant, "no_significant_peak", "converged"))
         sub_w = None if weights is None else weights[rows]
         f = fit_harmonics(sub, p.freq_hz, rows=np.flatnonzero(go), weights=sub_w)
-        st = np.where(go & ~f.converged, "did_not_converge", st)
-        status[rows] = st
-        fit_parts.append((rows, f))
-        if on_block is not None:
-            on_block(rows.size)
+        return rows, p, np.where(go & ~f.converged, "did_not_converge", st), f
+
+    # Blocks run on a thread per core: XLA and the FFTs release the GIL.
+    workers = max(1, os.cpu_count() or 1) if workers is None else max(1, workers)
+    size = min(block, max(256, -(-todo.size // workers)))
+    blocks = [todo[i : i + size] for i in range(0, todo.size, size)]
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        for rows, p, st, f in (fut.result() for fut in [pool.submit(run, r) for r in blocks]):
+            for k in per:
+                per[k][rows] = getattr(p, k)
+            method[rows] = p.method
+            for local, spec in p.spectra.items():
+                spectra[int(rows[local])] = spec
+            status[rows] = st
+            fit_parts.append((rows, f))
+            if on_block is not None:
+                on_block(rows.size)
     fit = _merge_fits(b, fit_parts)
     periodogram = Periodogram(per["freq_hz"], per["power"], per["fap"], per["n_indep"],
                               per["fmin_hz"], per["fmax_hz"], per["df_hz"], method, spectra)

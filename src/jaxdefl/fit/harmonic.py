@@ -53,6 +53,18 @@ def _model_jvp(primals, tangents):
     return out, c * dp[0] + s * dp[1] + dp[2] + slope * (t * dp[3] + p[3] * dt)
 
 
+def _normal_equations(cols, w, y):
+    """GᵀWG and GᵀWy for design columns ``cols`` (explicit sums: XLA fuses them, while a batched
+    (sample x param) matmul is slow on the CPU)."""
+    k = len(cols)
+    wc = [w * c for c in cols]
+    gtg = [[None] * k for _ in range(k)]
+    for i in range(k):
+        for j in range(i, k):
+            gtg[i][j] = gtg[j][i] = jnp.sum(wc[i] * cols[j])
+    return jnp.stack([jnp.stack(row) for row in gtg]), jnp.stack([jnp.sum(a * y) for a in wc])
+
+
 def fit_harmonic(t, y, w, omega0, rtol=RTOL, atol=ATOL, max_steps=MAX_STEPS):
     """Fit one window. Arrays are (sample,); ``w`` are weights (1/variance, 0 = masked).
 
@@ -68,15 +80,14 @@ def fit_harmonic(t, y, w, omega0, rtol=RTOL, atol=ATOL, max_steps=MAX_STEPS):
 
     # Linear least squares at the periodogram frequency (5.33-5.35 with R^-1 = diag(w)).
     s0, c0 = sincos(omega0 * t)
-    g = jnp.stack([c0, s0, jnp.ones_like(t)], axis=-1) * sw[:, None]
-    gtg = g.T @ g
-    lin = jnp.linalg.solve(gtg, g.T @ (sw * yc))
+    gtg, gty = _normal_equations([c0, s0, jnp.ones_like(t)], w, yc)
+    lin = jnp.linalg.solve(gtg, gty)
     p0 = jnp.concatenate([lin, jnp.atleast_1d(omega0)])
 
     # Solve in units of standard deviations: parameters scaled by their approximate σ (linear
     # fit covariance; Fisher information A²/2 Σ w t² for ω) and residuals by the noise σ, so
     # that the tolerances mean "a step below 1e-4 σ" for every window, short or long.
-    r_lin = sw * yc - g @ lin
+    r_lin = sw * (yc - (lin[0] * c0 + lin[1] * s0 + lin[2]))
     noise = jnp.sqrt(jnp.maximum(jnp.sum(r_lin**2) / jnp.maximum(n - 3, 1), 1e-300))
     sig_lin = noise * jnp.sqrt(jnp.abs(jnp.diag(jnp.linalg.inv(gtg))))
     amp0 = jnp.maximum(jnp.hypot(lin[0], lin[1]), 1e-300)
@@ -92,11 +103,11 @@ def fit_harmonic(t, y, w, omega0, rtol=RTOL, atol=ATOL, max_steps=MAX_STEPS):
 
     # Jacobian of the model (5.40, with t_i in every row), covariance (5.42-5.43).
     s, c = sincos(p[3] * t)
-    jac = jnp.stack([c, s, jnp.ones_like(t), t * (-p[0] * s + p[1] * c)], axis=-1) * sw[:, None]
     r = yc - (p[0] * c + p[1] * s + p[2])
+    jtj, _ = _normal_equations([c, s, jnp.ones_like(t), t * (-p[0] * s + p[1] * c)], w, r)
     dof = n - N_PARAMS
     s0sq = jnp.sum(w * r**2) / dof
-    cov = s0sq * jnp.linalg.inv(jac.T @ jac)
+    cov = s0sq * jnp.linalg.inv(jtj)
     amp = jnp.hypot(p[0], p[1])
     alpha = jnp.stack([p[0], p[1]]) / amp  # (5.45)
     var_a = alpha @ cov[:2, :2] @ alpha  # (5.44)
