@@ -184,7 +184,7 @@ def test_windows_split_and_align(make_table):
 
 @pytest.mark.parametrize("scale", [1.0, 1e3, 1e6])
 def test_sincos_matches_numpy(scale):
-    from jaxdefl.fit._sincos import sincos
+    from jaxdefl._sincos import sincos
 
     x = (np.random.default_rng(0).random(200_000) - 0.5) * 2 * scale
     s, c = jax.jit(sincos)(jnp.asarray(x))

@@ -121,3 +121,14 @@ def test_time_shift_invariance(make_table):
     b = lomb_peaks(_windows(make_table, t0=1e9, duration_s=30, seed=9))
     np.testing.assert_allclose(a.freq_hz, b.freq_hz, rtol=1e-9)
     np.testing.assert_allclose(a.power, b.power, rtol=1e-6)
+
+
+def test_float32_search_reports_the_exact_float64_peak(make_table):
+    w = _windows(make_table, duration_s=60, seed=12, n_plates=4)
+    a = lomb_peaks(w, search_dtype="float64")
+    b = lomb_peaks(w, search_dtype="float32")
+    np.testing.assert_allclose(b.power, a.power, rtol=1e-10)
+    np.testing.assert_allclose(b.fap, a.fap, rtol=1e-8)
+    np.testing.assert_allclose(b.freq_hz, a.freq_hz, atol=1e-4 * a.df_hz[0])
+    with pytest.raises(ConfigError, match=r"search_dtype: expected float64 or float32, got 'float16'"):
+        lomb_peaks(w, search_dtype="float16")

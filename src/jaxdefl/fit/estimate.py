@@ -72,7 +72,8 @@ def estimate_windows(
     def run(rows: np.ndarray):
         sub = w.select(rows)
         kk = tuple(int(np.flatnonzero(rows == r)[0]) for r in keep if r in set(rows.tolist()))
-        p = lomb_peaks(sub, fmin_hz=fmin_hz, fmax_hz=fmax_hz, oversampling=oversampling, keep=kk)
+        p = lomb_peaks(sub, fmin_hz=fmin_hz, fmax_hz=fmax_hz, oversampling=oversampling, keep=kk,
+                       search_dtype="float32")
         few_cycles = p.freq_hz * _span(sub) < min_cycles
         insignificant = ~(p.fap <= fap_max)
         go = ~few_cycles & ~insignificant

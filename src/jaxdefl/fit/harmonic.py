@@ -21,7 +21,7 @@ import optimistix as optx
 
 from .. import _jax  # noqa: F401
 from ..series import Windows
-from ._sincos import sincos
+from .._sincos import sincos
 
 __all__ = ["HarmonicFit", "fit_harmonic", "fit_harmonics", "N_PARAMS"]
 
