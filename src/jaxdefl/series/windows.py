@@ -97,9 +97,13 @@ def _bounds(t_seg: np.ndarray, window_s: float | None, step_s: float | None) -> 
     return [(t0 + i * step_s, t0 + i * step_s + window_s) for i in range(n)]
 
 
-def _pack(series: list[tuple[dict, np.ndarray, np.ndarray]], min_samples: int) -> Windows:
-    """Pad (meta, t_abs, y) triples into a Windows batch."""
-    n_max = max((len(t) for _, t, _ in series), default=1)
+def _pack(series: list[tuple], min_samples: int) -> Windows:
+    """Pad (meta, t_abs, y[, (dt, k, on_clock)]) tuples into a Windows batch.
+
+    The optional clock triple comes from a clock fitted to the whole series; without it (or
+    when it is off the clock) the window's own clock is fitted.
+    """
+    n_max = max((len(item[1]) for item in series), default=1)
     s = max(n_max, 1)
     b = len(series)
     T = np.zeros((b, s))
@@ -109,12 +113,14 @@ def _pack(series: list[tuple[dict, np.ndarray, np.ndarray]], min_samples: int) -
     dt = np.full(b, np.nan)
     on = np.zeros(b, bool)
     rows = []
-    for i, (meta, t_abs, y) in enumerate(series):
+    for i, (meta, t_abs, y, *clock) in enumerate(series):
         n = t_abs.size
         T[i, :n] = t_abs - meta["t_mid"]
         Y[i, :n] = y
         M[i, :n] = True
-        if n:
+        if clock and clock[0][2] and n:
+            dt[i], K[i, :n], on[i] = clock[0][0], clock[0][1] - clock[0][1][0], True
+        elif n:
             dt[i], K[i, :n], on[i] = frame_clock(t_abs - t_abs[0])
         rows.append({**meta, "n": n, "status": STATUS_OK if n >= min_samples else STATUS_FEW_SAMPLES})
     cols = ["segment", "window", "t_start", "t_end", "t_mid", "plate", "axis", "n", "status"]
@@ -163,6 +169,10 @@ def make_windows(
         bounds = _bounds(g["t"].to_numpy(), window_s, step_s)
         for plate, gp in g.groupby("plate", sort=True):
             t_all = gp["t"].to_numpy()
+            # One clock for the whole series (all axes share the timestamps); a window where
+            # it does not hold to CLOCK_TOLERANCE gets its own clock fitted in `_pack`.
+            dt_all, k_all, _ = frame_clock(t_all - t_all[0])
+            resid_ok = np.abs(t_all - t_all[0] - k_all * dt_all) <= CLOCK_TOLERANCE * dt_all
             for axis in axes:
                 v = gp[axis].to_numpy()
                 ok = np.isfinite(v)
@@ -174,7 +184,8 @@ def make_windows(
                     sel = ok[lo:hi]
                     meta = dict(segment=seg, window=w, t_start=a, t_end=b, t_mid=0.5 * (a + b),
                                 plate=int(plate), axis=axis)
-                    series.append((meta, t_all[lo:hi][sel], v[lo:hi][sel]))
+                    clock = (dt_all, k_all[lo:hi][sel], bool(resid_ok[lo:hi][sel].all()))
+                    series.append((meta, t_all[lo:hi][sel], v[lo:hi][sel], clock))
     return _pack(series, min_samples)
 
 
