@@ -79,6 +79,18 @@ def simulate(
 
 
 @app.command()
+def run(
+    config: Annotated[Path, typer.Argument(help="Campaign config (TOML).")],
+    out: Annotated[Path, typer.Option("--out", help="Output directory (reused: finished units are kept).")] = Path("campaign_out"),
+    scheduler: Annotated[str, typer.Option(help="none (in-process), local (a dask LocalCluster) or a scheduler address.")] = "none",
+) -> None:
+    """Reprocess a campaign (days x cameras) to tables, a Zarr dataset, figures and a report."""
+    from . import pipeline
+
+    pipeline.run_file(config, out, scheduler=scheduler)
+
+
+@app.command()
 def demo(
     out: Annotated[Path, typer.Option("--out", help="Report directory.")] = Path("demo_out"),
     duration: Annotated[float, typer.Option(help="Simulated duration, s.")] = 600.0,

@@ -147,6 +147,21 @@ def fit_file(
     return tab, comparison
 
 
+def run_file(config: Path, out: Path, scheduler: str = "none") -> pd.DataFrame:
+    """`jaxdefl run`: a campaign config to ``out`` (see `jaxdefl.bulk`)."""
+    from .bulk import load_campaign, run_campaign
+
+    t0 = time.perf_counter()
+    campaign = load_campaign(config)
+    units = run_campaign(campaign, out, scheduler=scheduler)
+    n_ok = int((units["status"] == "ok").sum())
+    console.print(f"[bold]jaxdefl run[/]: {campaign.name}: {n_ok}/{len(units)} recordings estimated "
+                  f"({int(units['skipped'].sum())} reused) in {time.perf_counter() - t0:.1f} s -> {Path(out) / 'report.md'}")
+    for r in units[units["status"] != "ok"].itertuples():
+        console.print(f"  [red]failed[/] {r.unit}: {r.reason}")
+    return units
+
+
 # --------------------------------------------------------------------------------------------
 # demo
 

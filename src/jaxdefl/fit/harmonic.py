@@ -20,6 +20,7 @@ import numpy as np
 import optimistix as optx
 
 from .. import _jax  # noqa: F401
+from .._shapes import bucket, pow2_at_least
 from ..series import Windows
 from .._sincos import sincos
 
@@ -157,8 +158,11 @@ class HarmonicFit:
     converged: np.ndarray
 
 
-def _pow2_at_least(n: int) -> int:
-    return 1 << max(0, math.ceil(math.log2(max(n, 1))))
+def _width(a: np.ndarray, s: int) -> np.ndarray:
+    """``a`` (window, sample) cut or zero-padded to ``s`` samples."""
+    if a.shape[1] >= s:
+        return a[:, :s]
+    return np.concatenate([a, np.zeros((a.shape[0], s - a.shape[1]), a.dtype)], axis=1)
 
 
 def fit_harmonics(
@@ -191,16 +195,16 @@ def fit_harmonics(
     ok = np.zeros(b, bool)
     if rows.size:
         s_used = int(w.mask[rows].sum(axis=1).max())
-        # Valid samples come first in every row; pad the sample axis to a multiple of 64 and
+        # Valid samples come first in every row; pad the sample axis to a shape bucket and
         # the batch to a power of two so that few shapes are ever compiled.
-        s_pad = min(s_all, -(-s_used // 64) * 64)
-        chunk = min(_pow2_at_least(rows.size), max(1, 1 << int(math.log2(max(1, _CHUNK_CELLS // s_pad)))))
+        s_pad = bucket(s_used)
+        chunk = min(pow2_at_least(rows.size), max(1, 1 << int(math.log2(max(1, _CHUNK_CELLS // s_pad)))))
         for c0 in range(0, rows.size, chunk):
             sel = rows[c0 : c0 + chunk]
             pad = np.concatenate([sel, np.repeat(sel[:1], chunk - sel.size)])
             out = _fit_batch(
-                jnp.asarray(w.t[pad, :s_pad]), jnp.asarray(w.y[pad, :s_pad]),
-                jnp.asarray(wt[pad, :s_pad]), jnp.asarray(2 * np.pi * np.asarray(freq0_hz)[pad]),
+                jnp.asarray(_width(w.t[pad], s_pad)), jnp.asarray(_width(w.y[pad], s_pad)),
+                jnp.asarray(_width(wt[pad], s_pad)), jnp.asarray(2 * np.pi * np.asarray(freq0_hz)[pad]),
                 rtol=rtol, atol=atol, max_steps=max_steps,
             )
             out = {k: np.asarray(v)[: sel.size] for k, v in out.items()}

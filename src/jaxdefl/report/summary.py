@@ -8,10 +8,10 @@ import pandas as pd
 
 from .figures import plot_fit, plot_periodogram
 
-__all__ = ["write_demo_report"]
+__all__ = ["md_table", "write_demo_report"]
 
 
-def _md_table(df: pd.DataFrame, floatfmt: dict[str, str]) -> str:
+def md_table(df: pd.DataFrame, floatfmt: dict[str, str]) -> str:
     cols = list(df.columns)
     lines = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
     for r in df.to_dict("records"):
@@ -61,18 +61,18 @@ Timings: simulation {timings['simulate_s']:.1f} s, whole-series fits {timings['f
 
 ## Whole-series estimates (vertical axis)
 
-{_md_table(z[keep_cols], fmt)}
+{md_table(z[keep_cols], fmt)}
 
 ## 60-s windows (vertical axis): mean amplitude, scatter between windows and median σ_A
 
-{_md_table(per_plate, {"amplitude_mm": ".4f", "scatter_mm": ".4f", "median_sigma_mm": ".4f"})}
+{md_table(per_plate, {"amplitude_mm": ".4f", "scatter_mm": ".4f", "median_sigma_mm": ".4f"})}
 
 The scatter of the windowed amplitudes should match the median σ_A if the linearised
 uncertainty is honest.
 
 ## Camera minus LDS (thesis-style ΔA and Δf0)
 
-{_md_table(comparison[["plate", "amplitude_mm", "amplitude_ref_mm", "delta_amplitude_mm", "sigma_delta_amplitude_mm", "delta_f0_hz"]], cmp_fmt)}
+{md_table(comparison[["plate", "amplitude_mm", "amplitude_ref_mm", "delta_amplitude_mm", "sigma_delta_amplitude_mm", "delta_f0_hz"]], cmp_fmt)}
 
 ![periodogram](psd.png)
 

@@ -24,6 +24,7 @@ import numpy as np
 import scipy.fft
 
 from .. import _jax  # noqa: F401
+from .._shapes import bucket, pow2_at_least
 from .._errors import ConfigError
 from .._sincos import sincos
 from ..series import Windows
@@ -178,10 +179,6 @@ class Periodogram:
     spectra: dict = field(default_factory=dict)
 
 
-def _pow2_at_least(n: int) -> int:
-    return 1 << max(0, math.ceil(math.log2(max(n, 1))))
-
-
 def _dense_grid(w: Windows, rows: np.ndarray, length: int):
     """Centred values and masks of ``rows`` laid on their frame grids: (window, frame) each."""
     y, m, k = w.y[rows], w.mask[rows], w.k[rows]
@@ -199,7 +196,7 @@ def _dense_grid(w: Windows, rows: np.ndarray, length: int):
 
 def _peaks_grid(w: Windows, rows, out, fmin, fmax, oversampling, keep, search_dtype):
     dt = float(np.mean(w.dt[rows]))
-    length = int(w.k[rows].max()) + 1
+    length = bucket(int(w.k[rows].max()) + 1)  # few distinct shapes: few compilations
     n_fft = scipy.fft.next_fast_len(int(math.ceil(oversampling * length)), real=True)
     n_fft += n_fft % 2
     df = 1.0 / (n_fft * dt)
@@ -211,7 +208,7 @@ def _peaks_grid(w: Windows, rows, out, fmin, fmax, oversampling, keep, search_dt
         raise ConfigError(f"--fmin/--fmax: the band {f_lo:g}..{f_hi:g} Hz holds fewer than 3 frequencies")
     n_freq = j_hi - j_lo + 1
     per_chunk = max(1, _CHUNK_CELLS // n_fft)
-    chunk = min(_pow2_at_least(len(rows)), 1 << int(math.log2(per_chunk)))
+    chunk = min(pow2_at_least(len(rows)), 1 << int(math.log2(per_chunk)))
     keep_set = set(keep)
     for c0 in range(0, len(rows), chunk):
         sel = rows[c0 : c0 + chunk]
@@ -221,7 +218,7 @@ def _peaks_grid(w: Windows, rows, out, fmin, fmax, oversampling, keep, search_dt
         # Frame drop-outs hit every plate and axis of a frame alike: windows of the same span
         # share their mask, so its FFT (the tau sums) is computed once per distinct mask.
         uniq, inverse = np.unique(np.packbits(m, axis=1), axis=0, return_inverse=True)
-        u_pad = _pow2_at_least(uniq.shape[0])
+        u_pad = pow2_at_least(uniq.shape[0])
         masks = np.unpackbits(uniq, axis=1, count=length).astype(np.float64)
         masks = np.concatenate([masks, np.zeros((u_pad - masks.shape[0], length))])
         terms = _mask_terms(jnp.asarray(masks), n_fft=n_fft, j_lo=j_lo, j_hi=j_hi)

@@ -1,0 +1,20 @@
+"""Shape buckets: pad array sizes to a few values so that jitted kernels compile rarely."""
+
+from __future__ import annotations
+
+import math
+
+__all__ = ["bucket", "pow2_at_least"]
+
+
+def bucket(n: int) -> int:
+    """Smallest size >= n of the form m * 2**k with 8 <= m <= 16 (at most 12.5 % padding)."""
+    n = max(int(n), 1)
+    if n <= 16:
+        return n
+    step = 1 << (n.bit_length() - 4)
+    return -(-n // step) * step
+
+
+def pow2_at_least(n: int) -> int:
+    return 1 << max(0, math.ceil(math.log2(max(n, 1))))

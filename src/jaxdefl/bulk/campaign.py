@@ -1,0 +1,182 @@
+"""Campaign configs: many recordings (days x cameras) and the processing options.
+
+```toml
+[campaign]
+name = "exp2-3hz"
+
+[processing]               # every key optional
+window_s = 600.0           # windows within each recording (default: one fit per recording)
+step_s = 600.0
+axes = ["z", "x", "y"]
+fmin_hz = 0.5
+fmax_hz = 10.0
+oversampling = 5.0
+fap_max = 0.01
+reference_plate = 7        # the plate of the per-day tables and the fatigue curve
+plate_x_mm = [...]         # plate positions along the beam (default: 13 plates at 250 mm)
+span_mm = 3400.0           # beam span and load-point distance for the profile fit
+load_a_mm = 1200.0
+
+[[recording]]              # one per day and camera
+day = 1
+camera = "cam2"
+cycles = 32400
+trajectories = "day01/traj.csv"   # relative to this file
+lds = "day01/lds.csv"             # optional reference
+```
+
+Instead of ``[[recording]]`` entries, a ``[simulate]`` table makes the recordings with the
+simulator (see `jaxdefl.bulk.simulated`).
+"""
+
+from __future__ import annotations
+
+import json
+import tomllib
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from .._errors import ConfigError
+
+__all__ = ["Campaign", "Processing", "Recording", "load_campaign"]
+
+
+@dataclass(frozen=True)
+class Processing:
+    window_s: float | None = None
+    step_s: float | None = None
+    axes: tuple[str, ...] = ("z", "x", "y")
+    fmin_hz: float | None = None
+    fmax_hz: float | None = None
+    oversampling: float = 5.0
+    fap_max: float = 0.01
+    reference_plate: int = 7
+    plate_x_mm: tuple[float, ...] = tuple(200.0 + 250.0 * i for i in range(13))
+    span_mm: float = 3400.0
+    load_a_mm: float = 1200.0
+
+    def estimation_kwargs(self) -> dict:
+        return dict(window_s=self.window_s, step_s=self.step_s, axes=self.axes, fmin_hz=self.fmin_hz,
+                    fmax_hz=self.fmax_hz, oversampling=self.oversampling, fap_max=self.fap_max)
+
+    def digest_source(self) -> str:
+        return json.dumps(asdict(self), sort_keys=True)
+
+
+@dataclass(frozen=True)
+class Recording:
+    day: int
+    camera: str
+    cycles: int
+    trajectories: Path | None = None
+    lds: Path | None = None
+    simulate: dict | None = None  # simulator arguments when the campaign makes its own data
+
+    @property
+    def unit_id(self) -> str:
+        return f"day{self.day:02d}-{self.camera}"
+
+
+@dataclass(frozen=True)
+class Campaign:
+    name: str
+    path: Path
+    processing: Processing
+    recordings: tuple[Recording, ...] = field(default_factory=tuple)
+    simulate: dict | None = None
+
+
+_TOP = {"campaign", "processing", "recording", "simulate"}
+_PROC_TYPES = {
+    "window_s": (int, float), "step_s": (int, float), "axes": list, "fmin_hz": (int, float),
+    "fmax_hz": (int, float), "oversampling": (int, float), "fap_max": (int, float),
+    "reference_plate": int, "plate_x_mm": list, "span_mm": (int, float), "load_a_mm": (int, float),
+}
+_REC_KEYS = {"day": int, "camera": str, "cycles": int, "trajectories": str, "lds": str}
+
+
+def _err(path: Path, key: str, msg: str) -> ConfigError:
+    return ConfigError(f"{path}: key '{key}': {msg}")
+
+
+def load_campaign(path: Path | str) -> Campaign:
+    """Read and validate a campaign TOML.
+
+    Raises:
+        ConfigError: unreadable TOML, unknown keys, wrong types, missing or duplicate
+            recordings, non-positive windows (one line naming the file and key).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{path}: campaign file not found")
+    try:
+        raw = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as err:
+        raise ConfigError(f"{path}: not valid TOML ({err})") from None
+    for key in raw:
+        if key not in _TOP:
+            raise _err(path, key, f"unknown key; expected one of {', '.join(sorted(_TOP))}")
+    name = str(raw.get("campaign", {}).get("name", path.stem))
+    for key in raw.get("campaign", {}):
+        if key != "name":
+            raise _err(path, f"campaign.{key}", "unknown key; expected name")
+    proc_raw = dict(raw.get("processing", {}))
+    for key, val in proc_raw.items():
+        if key not in _PROC_TYPES:
+            raise _err(path, f"processing.{key}", f"unknown key; expected one of {', '.join(_PROC_TYPES)}")
+        if not isinstance(val, _PROC_TYPES[key]) or isinstance(val, bool):
+            raise _err(path, f"processing.{key}", f"expected {_type_name(_PROC_TYPES[key])}, got {val!r}")
+    for key in ("window_s", "step_s", "oversampling", "span_mm", "fap_max"):
+        if key in proc_raw and not proc_raw[key] > 0:
+            raise _err(path, f"processing.{key}", f"expected a positive number, got {proc_raw[key]!r}")
+    if "axes" in proc_raw:
+        bad = [a for a in proc_raw["axes"] if a not in ("z", "x", "y")]
+        if bad or not proc_raw["axes"]:
+            raise _err(path, "processing.axes", f"expected a list of z, x, y; got {proc_raw['axes']!r}")
+        proc_raw["axes"] = tuple(proc_raw["axes"])
+    if "plate_x_mm" in proc_raw:
+        proc_raw["plate_x_mm"] = tuple(float(v) for v in proc_raw["plate_x_mm"])
+    proc = Processing(**{k: (float(v) if isinstance(v, int) and _PROC_TYPES[k] == (int, float) else v)
+                         for k, v in proc_raw.items()})
+    recs = []
+    entries = raw.get("recording", [])
+    if not isinstance(entries, list):
+        raise _err(path, "recording", "expected an array of tables ([[recording]])")
+    for i, rec in enumerate(entries):
+        where = f"recording[{i}]"
+        for key, val in rec.items():
+            if key not in _REC_KEYS:
+                raise _err(path, f"{where}.{key}", f"unknown key; expected one of {', '.join(_REC_KEYS)}")
+            if not isinstance(val, _REC_KEYS[key]) or isinstance(val, bool):
+                raise _err(path, f"{where}.{key}", f"expected {_type_name(_REC_KEYS[key])}, got {val!r}")
+        for key in ("day", "camera", "trajectories"):
+            if key not in rec:
+                raise _err(path, f"{where}.{key}", "missing")
+        if rec.get("cycles", 0) < 0:
+            raise _err(path, f"{where}.cycles", f"expected a count >= 0, got {rec['cycles']}")
+        recs.append(Recording(
+            day=rec["day"], camera=rec["camera"], cycles=rec.get("cycles", 0),
+            trajectories=(path.parent / rec["trajectories"]),
+            lds=(path.parent / rec["lds"]) if "lds" in rec else None,
+        ))
+    seen = set()
+    for r in recs:
+        if r.unit_id in seen:
+            raise _err(path, "recording", f"day {r.day} camera {r.camera!r} appears twice")
+        seen.add(r.unit_id)
+    sim = raw.get("simulate")
+    if sim is not None and recs:
+        raise _err(path, "simulate", "a campaign either lists [[recording]] entries or simulates them, not both")
+    if sim is None and not recs:
+        raise _err(path, "recording", "no recordings: add [[recording]] entries or a [simulate] table")
+    if sim is not None:
+        from .simulated import simulated_recordings
+
+        recs = simulated_recordings(sim, path)
+    return Campaign(name=name, path=path, processing=proc, recordings=tuple(recs), simulate=sim)
+
+
+def _type_name(t) -> str:
+    if isinstance(t, tuple):
+        return "a number"
+    return {int: "an integer", str: "a string", list: "a list", float: "a number"}[t]

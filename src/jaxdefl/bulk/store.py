@@ -1,0 +1,99 @@
+"""Unit outputs that survive a SIGKILL: atomic files and manifests written last.
+
+A unit writes its outputs into ``DIR/units/<unit id>/`` through temporary files renamed into
+place (rename is atomic on POSIX), then writes ``manifest.json`` the same way. A unit is
+finished exactly when its manifest exists, names the same input digests, config hash and
+package version, and every output it lists still has the recorded size and digest. Anything
+else (no manifest, a stale one, a missing or altered output) is recomputed; a half-written file
+is never read because it only ever exists under a temporary name.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from pathlib import Path
+
+from .. import __version__
+
+__all__ = ["atomic_write_bytes", "atomic_write_text", "digest_path", "digest_text", "is_finished",
+           "read_manifest", "write_manifest"]
+
+MANIFEST = "manifest.json"
+
+
+def digest_text(text: str) -> str:
+    """sha256 of a string (config hashes)."""
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+def digest_path(path: Path) -> str:
+    """sha256 of a file's bytes, or of a directory's files (names and bytes, sorted)."""
+    path = Path(path)
+    h = hashlib.sha256()
+    files = sorted(p for p in path.rglob("*") if p.is_file()) if path.is_dir() else [path]
+    for f in files:
+        if path.is_dir():
+            h.update(str(f.relative_to(path)).encode())
+        with open(f, "rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                h.update(block)
+    return h.hexdigest()
+
+
+def atomic_write_bytes(path: Path, data: bytes) -> None:
+    """Write ``data`` to ``path`` so that readers see the old file or the whole new one."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    atomic_write_bytes(path, text.encode())
+
+
+def write_manifest(unit_dir: Path, unit_id: str, inputs: dict, config_hash: str, outputs: list[str],
+                   status: str, reason: str = "", seconds: float = 0.0, extra: dict | None = None) -> dict:
+    """Record a finished unit; call after its outputs are in place. Returns the manifest."""
+    unit_dir = Path(unit_dir)
+    man = {
+        "unit": unit_id, "inputs": inputs, "config_hash": config_hash, "version": __version__,
+        "outputs": {name: {"sha256": digest_path(unit_dir / name),
+                           "bytes": (unit_dir / name).stat().st_size} for name in outputs},
+        "status": status, "reason": reason, "seconds": round(seconds, 3), **(extra or {}),
+    }
+    atomic_write_text(unit_dir / MANIFEST, json.dumps(man, indent=1, sort_keys=True))
+    return man
+
+
+def read_manifest(unit_dir: Path) -> dict | None:
+    try:
+        return json.loads((Path(unit_dir) / MANIFEST).read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def is_finished(unit_dir: Path, inputs: dict, config_hash: str) -> dict | None:
+    """The manifest of a finished, fresh unit, else None."""
+    man = read_manifest(unit_dir)
+    if man is None or man.get("inputs") != inputs or man.get("config_hash") != config_hash:
+        return None
+    if man.get("version") != __version__:
+        return None
+    for name, meta in man.get("outputs", {}).items():
+        p = Path(unit_dir) / name
+        if not p.is_file() or p.stat().st_size != meta["bytes"] or digest_path(p) != meta["sha256"]:
+            return None
+    return man

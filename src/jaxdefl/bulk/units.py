@@ -1,0 +1,97 @@
+"""Units of work: plain functions of paths that write their outputs and manifest, then return it.
+
+They run in-process or as dask tasks unchanged (top-level functions, picklable arguments).
+"""
+
+from __future__ import annotations
+
+import time
+import traceback
+from pathlib import Path
+
+
+import pandas as pd
+
+from .._errors import JaxdeflError
+from .campaign import Processing, Recording
+from .store import atomic_write_text, digest_path, is_finished, write_manifest
+
+__all__ = ["estimate_unit", "unit_inputs"]
+
+
+def unit_inputs(rec: Recording) -> dict:
+    """Digests of a recording's input files ("missing" for an absent one)."""
+    out = {}
+    for name in ("trajectories", "lds"):
+        p = getattr(rec, name)
+        if p is not None:
+            out[name] = digest_path(p) if Path(p).exists() else "missing"
+    return out
+
+
+def _csv(df: pd.DataFrame) -> str:
+    return df.to_csv(index=False, float_format="%.10g")
+
+
+def estimate_unit(rec: Recording, proc: Processing, out_dir: Path, config_hash: str,
+                  inputs: dict | None = None) -> dict:
+    """Estimates of one recording: whole-record fits, windows, LDS fits and differences.
+
+    Writes ``whole.csv``, ``windows.csv`` (when windowed), ``lds.csv`` and ``comparison.csv``
+    (when a reference is given) under ``out_dir/units/<day-camera>/``. A failure (missing or
+    invalid file, no valid samples) is recorded in the manifest with its reason; it never raises.
+    """
+    from ..io import read_reference, read_trajectory
+    from ..pipeline import compare_with_reference, estimate_table, fit_reference
+
+    unit_dir = Path(out_dir) / "units" / rec.unit_id
+    inputs = unit_inputs(rec) if inputs is None else inputs
+    done = is_finished(unit_dir, inputs, config_hash)
+    if done is not None:
+        return {**done, "skipped": True}
+    unit_dir.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    tag = dict(day=rec.day, camera=rec.camera, cycles=rec.cycles)
+    try:
+        if inputs.get("trajectories") == "missing":
+            raise JaxdeflError(f"{rec.trajectories}: file not found")
+        traj = read_trajectory(rec.trajectories)
+        axes = tuple(a for a in proc.axes if a in traj.columns)
+        kw = dict(fmin_hz=proc.fmin_hz, fmax_hz=proc.fmax_hz, oversampling=proc.oversampling,
+                  fap_max=proc.fap_max)
+        whole = estimate_table(traj, axes=axes, progress=False, **kw)
+        if not (whole.table["status"] == "converged").any():
+            raise JaxdeflError(f"{rec.trajectories}: no plate and axis could be fitted "
+                               f"({', '.join(sorted(set(whole.table['status'])))})")
+        outputs = {"whole.csv": whole.table.assign(**tag)}
+        if proc.window_s is not None:
+            win = estimate_table(traj, axes=axes, window_s=proc.window_s, step_s=proc.step_s,
+                                 progress=False, **kw)
+            outputs["windows.csv"] = win.table.assign(**tag)
+        if rec.lds is not None:
+            if inputs.get("lds") == "missing":
+                raise JaxdeflError(f"{rec.lds}: file not found")
+            ref = fit_reference(read_reference(rec.lds), whole, **kw)
+            outputs["lds.csv"] = ref.table.assign(**tag)
+            outputs["comparison.csv"] = compare_with_reference(whole.table, ref.table).assign(**tag)
+        for name, df in outputs.items():
+            atomic_write_text(unit_dir / name, _csv(df))
+        status, reason, names = "ok", "", list(outputs)
+    except JaxdeflError as err:
+        status, reason, names = "failed", str(err), []
+    except Exception as err:  # one bad unit never stops the campaign
+        last = traceback.format_exception_only(type(err), err)[-1].strip()
+        status, reason, names = "failed", f"{rec.unit_id}: {last}", []
+    return write_manifest(unit_dir, rec.unit_id, inputs, config_hash, names, status, reason,
+                          time.perf_counter() - t0, extra={**tag, "computed_at": time.time()})
+
+
+def read_unit_tables(out_dir: Path, manifests: list[dict], name: str) -> pd.DataFrame:
+    """Concatenate one output table over all finished units (empty if none has it)."""
+    frames = []
+    for man in manifests:
+        if name in man.get("outputs", {}):
+            frames.append(pd.read_csv(Path(out_dir) / "units" / man["unit"] / name))
+    return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+
+
