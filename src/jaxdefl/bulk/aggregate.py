@@ -40,7 +40,7 @@ def _write_zarr(ds, path: Path) -> None:
     for p in (tmp, old):
         if p.exists():
             shutil.rmtree(p)
-    ds.to_zarr(tmp, mode="w", consolidated=False, zarr_format=2)
+    ds.to_zarr(tmp, mode="w", consolidated=True, zarr_format=2)
     if path.exists():
         path.rename(old)
     tmp.rename(path)
