@@ -26,13 +26,16 @@ def _bar():
 
 
 def _client(scheduler: str):
-    """A dask.distributed client for "local" (a LocalCluster of 2 workers) or an address."""
+    """A dask.distributed client for "local[:N]" (a LocalCluster of N = 2 workers) or an address."""
     try:
         from dask.distributed import Client, LocalCluster
     except ImportError as err:  # pragma: no cover - distributed is a dependency
         raise ConfigError(f"--scheduler {scheduler}: dask.distributed is not installed ({err})") from None
-    if scheduler == "local":
-        cluster = LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+    if scheduler == "local" or scheduler.startswith("local:"):
+        n = scheduler.partition(":")[2] or "2"
+        if not n.isdigit() or int(n) < 1:
+            raise ConfigError(f"--scheduler: expected local or local:N with N >= 1 workers, got {scheduler!r}")
+        cluster = LocalCluster(n_workers=int(n), threads_per_worker=1, processes=True,
                                dashboard_address=None, silence_logs=40)
         return Client(cluster), cluster
     try:
