@@ -25,7 +25,10 @@ from ..io import validate_trajectory
 from ..series import make_windows
 from ._posterior import PosteriorSummary
 
-__all__ = ["Z68", "Z95", "simulate_case", "case_coverage", "rice_interval", "debiased_amplitude"]
+__all__ = [
+    "Z68", "Z95", "simulate_case", "case_coverage", "window_scores", "rice_interval",
+    "debiased_amplitude",
+]
 
 Z68 = float(stats.norm.ppf(0.84))
 Z95 = float(stats.norm.ppf(0.975))
@@ -33,12 +36,15 @@ Z95 = float(stats.norm.ppf(0.975))
 
 def simulate_case(
     amplitude_mm: float, sigma_mm: float, window_s: float, dropout: float, n_windows: int,
-    seed: int = 0, fs_hz: float = 20.0, f0_range_hz=(2.9, 3.1),
+    seed: int = 0, fs_hz: float = 20.0, f0_range_hz=(2.9, 3.1), fap_max: float = 1.0,
+    band_hz: tuple[float, float] | None = (2.0, 4.0),
 ) -> tuple[Estimates, dict]:
     """Estimates of ``n_windows`` independent simulated windows and their truth (f0_hz, amplitude_mm).
 
     Each window is its own plate of a one-segment table on an epoch clock (t0 = 1.7e9 s); frames
-    drop out independently with probability ``dropout``.
+    drop out independently with probability ``dropout``. By default every window is fitted
+    (``fap_max`` 1: no detection cut, so coverage is not conditioned on a noise-selected peak)
+    with the periodogram searched in ``band_hz`` around the known loading frequency.
     """
     rng = np.random.default_rng(seed)
     n = int(round(window_s * fs_hz))
@@ -51,7 +57,9 @@ def simulate_case(
     plate = np.repeat(np.arange(n_windows), n).reshape(n_windows, n)
     df = pd.DataFrame({"t": np.broadcast_to(t + 1.7e9, (n_windows, n))[keep], "plate": plate[keep],
                        "z": 5.0 + y[keep]})
-    est = estimate_windows(make_windows(validate_trajectory(df), axes=("z",)))
+    fmin, fmax = (None, None) if band_hz is None else band_hz
+    est = estimate_windows(make_windows(validate_trajectory(df), axes=("z",)), fmin_hz=fmin,
+                           fmax_hz=fmax, fap_max=fap_max)
     return est, {"f0_hz": f0, "amplitude_mm": np.full(n_windows, float(amplitude_mm))}
 
 
@@ -98,7 +106,8 @@ def case_coverage(est: Estimates, truth: dict, post: PosteriorSummary | None = N
     fr, sf = f.f0_hz[ok], f.sigma_f0_hz[ok]
     at, ft = truth["amplitude_mm"][ok], truth["f0_hz"][ok]
     out = dict(
-        n_windows=len(est), detected=ok.size / max(len(est), 1),
+        n_windows=len(est.table), fitted=ok.size / max(len(est.table), 1),
+        detected=float(np.mean(est.table["peak_fap"].to_numpy() <= 0.01)),
         snr_window=float(np.median(at / sa)) if ok.size else np.nan,
         bias_a_rel=float(np.mean(a / at - 1)) if ok.size else np.nan,
         bias_a_sigma=float(np.mean((a - at) / sa)) if ok.size else np.nan,
@@ -123,3 +132,20 @@ def case_coverage(est: Estimates, truth: dict, post: PosteriorSummary | None = N
         out["bias_a_post_rel"] = float(np.mean(post.amplitude_mm / at_p - 1))
         out["chains_ok"] = float(np.mean(post.converged_chain))
     return out
+
+
+def window_scores(est: Estimates, truth: dict) -> pd.DataFrame:
+    """Per converged window: the honesty features of `honesty_features` and whether each
+    linearised 95 % interval covers the truth (for choosing flag thresholds)."""
+    from ._flags import honesty_features
+
+    ok = np.flatnonzero(est.table["status"].to_numpy() == "converged")
+    feat = honesty_features(est).iloc[ok].reset_index(drop=True)
+    f = est.fit
+    feat["z_a"] = (f.amplitude_mm[ok] - truth["amplitude_mm"][ok]) / f.sigma_amplitude_mm[ok]
+    feat["z_f0"] = (f.f0_hz[ok] - truth["f0_hz"][ok]) / f.sigma_f0_hz[ok]
+    lo, hi = rice_interval(f.amplitude_mm[ok], f.sigma_amplitude_mm[ok])
+    feat["rice_a_95"] = (lo <= truth["amplitude_mm"][ok]) & (truth["amplitude_mm"][ok] <= hi)
+    feat["lin_a_95"] = np.abs(feat["z_a"]) < Z95
+    feat["lin_f0_95"] = np.abs(feat["z_f0"]) < Z95
+    return feat
