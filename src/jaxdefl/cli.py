@@ -79,6 +79,19 @@ def simulate(
 
 
 @app.command()
+def extract(
+    recording: Annotated[Path, typer.Argument(help="Recording: a .zarr store, a TUM-style depth-PNG folder or an .npz.")],
+    out: Annotated[Path, typer.Option("--out", help="Trajectory table to write (CSV or Parquet).")],
+    realtime: Annotated[bool, typer.Option("--realtime/--full", help="Track plates detected once (fast) or detect in every frame.")] = False,
+    chunk_frames: Annotated[int, typer.Option(help="Frames per batch (bounds memory).")] = 256,
+) -> None:
+    """Extract the plates from every frame: 3D centroid trajectories (t, plate, x, y, z)."""
+    from .frames import extract_to_table
+
+    extract_to_table(recording, out, realtime=realtime, chunk_frames=chunk_frames)
+
+
+@app.command()
 def run(
     config: Annotated[Path, typer.Argument(help="Campaign config (TOML).")],
     out: Annotated[Path, typer.Option("--out", help="Output directory (reused: finished units are kept).")] = Path("campaign_out"),
