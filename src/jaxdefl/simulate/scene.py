@@ -1,0 +1,271 @@
+"""The scene: beam, plates, occluders and floor; beam kinematics; static per-pixel ray casting.
+
+The beam deflects with the elastic two-point-load shape (peak 1 at mid-span) scaled by the
+mid-span deflection ``defl(t) = mean + A(N(t)) sin(2 pi f0 (t - t0) + phase)``; the amplitude A
+grows with the number of cycles N (fatigue law). Plates move rigidly with the deflection at their
+centre plus an in-phase longitudinal and lateral motion.
+
+Everything that does not move (or only slides within its own plane) is ray-cast once per camera
+(`pixel_model`): every pixel is split into S x S sub-rays and each sub-ray records what it hits
+first, at which range, and how its range changes per millimetre of mid-span deflection. Plates
+are handled analytically (`PixelModel.plate_*`): the overlap of the pixel footprint with the
+moving plate rectangle gives a continuous coverage fraction, so plate edges are mixed pixels
+whose mixture follows the plate's longitudinal and lateral motion.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .config import SimConfig
+
+__all__ = [
+    "beam_shape", "Intrinsics", "intrinsics", "plate_centres_world", "plate_image_bounds",
+    "midspan_amplitude_mm", "kinematics", "PixelModel", "pixel_model", "KIND_STATIC",
+    "KIND_BEAM_TOP", "KIND_SPREADER",
+]
+
+KIND_STATIC, KIND_BEAM_TOP, KIND_SPREADER = 0, 1, 2
+
+
+def beam_shape(x_mm, span_mm: float, a_mm: float):
+    """Elastic deflection of a simply supported beam under two symmetric point loads, peak 1.
+
+    Loads at ``a`` from each support (span L): w(x) ∝ x (3 L a - 3 a² - x²) for x <= a and
+    a (3 L x - 3 x² - a²) between the loads; zero outside the supports.
+    """
+    x = np.asarray(x_mm, float)
+    xs = np.minimum(x, span_mm - x)
+    outer = xs * (3 * span_mm * a_mm - 3 * a_mm**2 - xs**2)
+    inner = a_mm * (3 * span_mm * xs - 3 * xs**2 - a_mm**2)
+    d = np.where(xs <= a_mm, outer, inner)
+    mid = a_mm * (3 * span_mm * span_mm / 2 - 3 * span_mm**2 / 4 - a_mm**2)
+    return np.where((x >= 0) & (x <= span_mm), d / mid, 0.0)
+
+
+@dataclass(frozen=True)
+class Intrinsics:
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+
+    def as_dict(self) -> dict:
+        return dict(fx=self.fx, fy=self.fy, cx=self.cx, cy=self.cy, width=self.width, height=self.height)
+
+
+def intrinsics(cfg: SimConfig) -> Intrinsics:
+    """Pinhole intrinsics from the field of view (pixel centres at integer coordinates)."""
+    cam = cfg.camera
+    fx = (cam.width / 2) / math.tan(math.radians(cam.fov_deg[0]) / 2)
+    fy = (cam.height / 2) / math.tan(math.radians(cam.fov_deg[1]) / 2)
+    return Intrinsics(fx, fy, (cam.width - 1) / 2, (cam.height - 1) / 2, cam.width, cam.height)
+
+
+def plate_centres_world(cfg: SimConfig) -> np.ndarray:
+    """(plate, 3) plate top-face centres in world coordinates (mm)."""
+    p = cfg.plates
+    x = np.asarray(cfg.plate_x_mm())
+    y = np.full_like(x, cfg.beam.width_mm / 2 + p.width_mm / 2)
+    z = np.full_like(x, -p.height_above_top_mm)
+    return np.stack([x, y, z], axis=1)
+
+
+def _to_camera(cfg: SimConfig, xyz_world: np.ndarray) -> np.ndarray:
+    cam = cfg.camera
+    return xyz_world - np.array([cam.x_mm, cam.y_mm, -cam.standoff_mm])
+
+
+def plate_image_bounds(cfg: SimConfig, plate: int) -> tuple[float, float, float, float]:
+    """Image extent (u0, u1, v0, v1) of a plate's top face, pixel edges (0..width)."""
+    k = intrinsics(cfg)
+    c = _to_camera(cfg, plate_centres_world(cfg)[plate - 1])
+    hl, hw = cfg.plates.length_mm / 2, cfg.plates.width_mm / 2
+    u = [k.fx * (c[0] + s * hl) / c[2] + k.cx + 0.5 for s in (-1, 1)]
+    v = [k.fy * (c[1] + s * hw) / c[2] + k.cy + 0.5 for s in (-1, 1)]
+    return min(u), max(u), min(v), max(v)
+
+
+def _fatigue_factor(cfg: SimConfig, cycles):
+    f = cfg.fatigue
+    n = np.maximum(np.asarray(cycles, float), 1.0)
+    if f.law == "none":
+        return np.ones_like(n)
+    (n0, n1), (a0, a1) = f.cycles, f.amplitude_mm
+    if f.law == "log":
+        b = (a1 - a0) / (math.log(n1) - math.log(n0))
+        return a0 + b * (np.log(n) - math.log(n0))
+    b = (a1 - a0) / (n1 - n0)
+    return a0 + b * (n - n0)
+
+
+def midspan_amplitude_mm(cfg: SimConfig, cycles):
+    """Mid-span amplitude after ``cycles`` load cycles: the configured amplitude at the start of
+    the recording, growing as the fatigue law (through the two anchors of ``[fatigue]``)."""
+    start = _fatigue_factor(cfg, cfg.recording.cycles_at_start)
+    return cfg.loading.amplitude_mm * _fatigue_factor(cfg, cycles) / start
+
+
+def kinematics(cfg: SimConfig, t_s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Mid-span deflection (downward +), longitudinal and lateral motion (mm) at epoch times t."""
+    ld = cfg.loading
+    tau = np.asarray(t_s, np.float64) - cfg.t0_s
+    cycles = cfg.recording.cycles_at_start + ld.frequency_hz * tau
+    s = np.sin(2 * np.pi * ld.frequency_hz * tau + ld.phase_rad)
+    amp = midspan_amplitude_mm(cfg, cycles)
+    return ld.mean_mm + amp * s, ld.longitudinal_mm * s, ld.lateral_mm * s
+
+
+@dataclass(frozen=True)
+class PixelModel:
+    """Static ray-cast of one camera; arrays are per pixel (p = row * width + col) and sub-ray."""
+
+    intr: Intrinsics
+    sub_range_mm: np.ndarray  # (p, s) range of the first hit, plates excluded
+    sub_depth_mm: np.ndarray  # (p, s) camera-frame Z of the hit
+    sub_kind: np.ndarray  # (p, s) KIND_*
+    sub_gain: np.ndarray  # (p, s) d range / d mid-span deflection
+    sub_gain_depth: np.ndarray  # (p, s) d depth / d mid-span deflection
+    sub_bright: np.ndarray  # (p, s) reflectivity x cos^3 / range_m^2
+    plate_idx: np.ndarray  # (p,) plate under the pixel footprint (0-based) or -1
+    plate_foot: np.ndarray  # (p, 4) footprint X0, X1, Y0, Y1 (world mm) at the plate plane
+    plate_range_mm: np.ndarray  # (p,) static range of the plate plane along the pixel ray
+    plate_depth_mm: np.ndarray  # (p,) camera Z of the plate plane
+    plate_gain: np.ndarray  # (p,) d range / d plate deflection (1 / cos)
+    plate_bright: np.ndarray  # (p,)
+    plate_occ: np.ndarray  # (p,) fraction of the footprint hidden by nearer objects
+    plate_edges: np.ndarray  # (plate, 4) xa, xb, ya, yb (world mm) at rest
+    plate_shape: np.ndarray  # (plate,) deflection / mid-span deflection
+
+
+def _boxes(cfg: SimConfig) -> list[tuple[np.ndarray, np.ndarray, float, str]]:
+    """(lo, hi, reflectivity, role) world boxes; role 'beam', 'spreader' or 'static'."""
+    b, sc, cam = cfg.beam, cfg.scene, cfg.camera
+    hw = b.width_mm / 2
+    boxes = [
+        (np.array([-b.overhang_mm, -hw, 0.0]), np.array([b.span_mm + b.overhang_mm, hw, b.height_mm]),
+         b.reflectivity, "beam"),
+    ]
+    for xs in (0.0, b.span_mm):  # supports under the beam ends
+        boxes.append((np.array([xs - 75, -150, b.height_mm]), np.array([xs + 75, 150, sc.floor_below_top_mm]),
+                      0.3, "static"))
+    if sc.occluders:
+        a = b.load_a_mm
+        boxes.append((np.array([a - 100, -75, -150.0]), np.array([b.span_mm - a + 100, 75, 0.0]), 0.35,
+                      "spreader"))
+        mid = b.span_mm / 2
+        top = -cam.standoff_mm - 800.0
+        boxes.append((np.array([mid - 120, -120, top]), np.array([mid + 120, 120, -150.0]), 0.3, "static"))
+    return boxes
+
+
+def _ray_grid(intr: Intrinsics, s: int, rows: slice) -> np.ndarray:
+    """(p, s*s, 3) ray directions (camera frame, z = 1) through a sub-pixel grid."""
+    v = np.arange(intr.height)[rows].astype(np.float64)
+    u = np.arange(intr.width, dtype=np.float64)
+    off = (np.arange(s) + 0.5) / s - 0.5
+    vv = v[:, None, None, None] + off[None, None, :, None]
+    uu = u[None, :, None, None] + off[None, None, None, :]
+    vv, uu = np.broadcast_arrays(vv, uu)
+    x = (uu - intr.cx) / intr.fx
+    y = (vv - intr.cy) / intr.fy
+    d = np.stack([x, y, np.ones_like(x)], axis=-1)
+    return d.reshape(-1, s * s, 3)
+
+
+def pixel_model(cfg: SimConfig, supersample: int | None = None) -> PixelModel:
+    """Ray-cast the static scene for the configured camera (plates handled analytically)."""
+    intr = intrinsics(cfg)
+    cam, b, sc, pl = cfg.camera, cfg.beam, cfg.scene, cfg.plates
+    s = supersample or cam.supersample
+    origin = np.array([cam.x_mm, cam.y_mm, -cam.standoff_mm])
+    boxes = _boxes(cfg)
+    shape_spreader = float(beam_shape(b.load_a_mm, b.span_mm, b.load_a_mm))
+    outs = {k: [] for k in ("range", "depth", "kind", "gain", "gdepth", "bright", "occz")}
+    rows_per = max(1, 2_000_000 // (intr.width * s * s * 8))
+    for r0 in range(0, intr.height, rows_per):
+        d = _ray_grid(intr, s, slice(r0, r0 + rows_per))  # (p, s2, 3), z component 1
+        norm = np.linalg.norm(d, axis=-1)
+        # floor plane
+        t_best = (sc.floor_below_top_mm - origin[2]) / d[..., 2]
+        hit = origin + t_best[..., None] * d
+        gx = np.mod(hit[..., 0], sc.target_spacing_mm) - sc.target_spacing_mm / 2
+        gy = np.mod(hit[..., 1], sc.target_spacing_mm) - sc.target_spacing_mm / 2
+        on_target = gx**2 + gy**2 < sc.target_radius_mm**2
+        refl = np.where(on_target, sc.target_reflectivity, sc.floor_reflectivity)
+        kind = np.full(t_best.shape, KIND_STATIC, np.int8)
+        gain_z = np.zeros_like(t_best)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            for lo, hi, rf, role in boxes:
+                t1 = (lo - origin) / d
+                t2 = (hi - origin) / d
+                tmin_ax = np.minimum(t1, t2)
+                tmax_ax = np.maximum(t1, t2)
+                tmin = tmin_ax.max(axis=-1)
+                tmax = tmax_ax.min(axis=-1)
+                entry_axis = tmin_ax.argmax(axis=-1)
+                ok = (tmax >= tmin) & (tmin > 0) & (tmin < t_best)
+                t_best = np.where(ok, tmin, t_best)
+                refl = np.where(ok, rf, refl)
+                top = entry_axis == 2
+                if role == "beam":
+                    xh = origin[0] + tmin * d[..., 0]
+                    k_new = np.where(top, KIND_BEAM_TOP, KIND_STATIC)
+                    g_new = np.where(top, beam_shape(xh, b.span_mm, b.load_a_mm), 0.0)
+                elif role == "spreader":
+                    k_new = np.where(top, KIND_SPREADER, KIND_STATIC)
+                    g_new = np.where(top, shape_spreader, 0.0)
+                else:
+                    k_new, g_new = KIND_STATIC, 0.0
+                kind = np.where(ok, k_new, kind).astype(np.int8)
+                gain_z = np.where(ok, g_new, gain_z)
+        depth = t_best * d[..., 2] + 0.0  # camera-frame Z (origin at the camera)
+        rng = t_best * norm
+        cosz = d[..., 2] / norm
+        outs["range"].append(rng)
+        outs["depth"].append(depth)
+        outs["kind"].append(kind)
+        outs["gain"].append(gain_z / cosz)  # vertical move dz of a horizontal face: d range = dz/cos
+        outs["gdepth"].append(gain_z)
+        outs["bright"].append(refl * cosz**3 / (rng / 1000.0) ** 2)
+        outs["occz"].append(depth)
+    cat = {k: np.concatenate(v, axis=0) for k, v in outs.items()}
+
+    # plates, analytically
+    centres = plate_centres_world(cfg)
+    depth_p = float(cam.standoff_mm - pl.height_above_top_mm)
+    v, u = np.meshgrid(np.arange(intr.height, dtype=float), np.arange(intr.width, dtype=float), indexing="ij")
+    u, v = u.ravel(), v.ravel()
+    x0 = origin[0] + depth_p * (u - 0.5 - intr.cx) / intr.fx
+    x1 = origin[0] + depth_p * (u + 0.5 - intr.cx) / intr.fx
+    y0 = origin[1] + depth_p * (v - 0.5 - intr.cy) / intr.fy
+    y1 = origin[1] + depth_p * (v + 0.5 - intr.cy) / intr.fy
+    xc = (x0 + x1) / 2
+    idx = np.argmin(np.abs(xc[:, None] - centres[None, :, 0]), axis=1)
+    edges = np.stack([centres[:, 0] - pl.length_mm / 2, centres[:, 0] + pl.length_mm / 2,
+                      centres[:, 1] - pl.width_mm / 2, centres[:, 1] + pl.width_mm / 2], axis=1)
+    margin = 5.0  # mm: pixels farther than this from any plate never see one
+    near = ((x1 > edges[idx, 0] - margin) & (x0 < edges[idx, 1] + margin)
+            & (y1 > edges[idx, 2] - margin) & (y0 < edges[idx, 3] + margin))
+    idx = np.where(near, idx, -1)
+    dx = (u - intr.cx) / intr.fx
+    dy = (v - intr.cy) / intr.fy
+    norm = np.sqrt(dx * dx + dy * dy + 1)
+    cosz = 1 / norm
+    rng_p = depth_p * norm
+    occ = (cat["occz"] < depth_p - 1e-6).mean(axis=1)
+    shape_p = beam_shape(centres[:, 0], b.span_mm, b.load_a_mm)
+    return PixelModel(
+        intr=intr,
+        sub_range_mm=cat["range"], sub_depth_mm=cat["depth"], sub_kind=cat["kind"],
+        sub_gain=cat["gain"], sub_gain_depth=cat["gdepth"], sub_bright=cat["bright"],
+        plate_idx=idx.astype(np.int32), plate_foot=np.stack([x0, x1, y0, y1], axis=1),
+        plate_range_mm=rng_p, plate_depth_mm=np.full_like(rng_p, depth_p), plate_gain=norm,
+        plate_bright=pl.reflectivity * cosz**3 / (rng_p / 1000.0) ** 2, plate_occ=occ,
+        plate_edges=edges, plate_shape=np.asarray(shape_p, float),
+    )

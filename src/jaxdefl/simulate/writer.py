@@ -1,0 +1,198 @@
+"""Simulate a recording to disk, streamed in chunks of frames; and the frame-free fast path.
+
+Output directory:
+- ``recording.zarr``: ``range`` (ToF, mm, wrapped at the NAR) or ``depth`` (structured light, mm),
+  ``amplitude`` (frame, h, w) float32 and ``timestamps`` (frame,) float64 epoch seconds, chunked
+  along time; camera facts and intrinsics as attributes.
+- ``truth.csv``: true plate centroids (segment, t, plate, x, y, z), camera frame, mm.
+- ``lds.csv``: laser displacement sensors (segment, t, plate, z), deflection downward positive.
+- ``config.json``: the effective config.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .._errors import ConfigError
+from .config import SimConfig, load_config
+from .lds import LDS_BLOCK_S, frame_clock, lds_block, truth_table
+from .scene import kinematics, pixel_model
+
+__all__ = ["simulate_to_dir", "simulate_trajectories", "tap_times", "render_frames"]
+
+_COLUMNS = ("segment", "t", "plate", "x", "y", "z")
+
+
+def _check_duration(cfg: SimConfig, duration_s: float | None) -> float:
+    if duration_s is None:
+        return cfg.recording.duration_s
+    if not np.isfinite(duration_s) or duration_s < 0:
+        raise ConfigError(f"{cfg.source}: key '--duration': expected a duration >= 0 s, got {duration_s:g}")
+    return float(duration_s)
+
+
+def tap_times(cfg: SimConfig, t_frame: np.ndarray) -> np.ndarray:
+    """(frame, 4) times of the four correlation samples (ToF) or the exposure (structured light)."""
+    cam = cfg.camera
+    if cam.sensor != "sr4000":
+        return np.repeat(np.asarray(t_frame, np.float64)[:, None], 4, axis=1)
+    off = np.asarray(cam.tap_offsets, np.float64) / cam.frame_rate_hz
+    return np.asarray(t_frame, np.float64)[:, None] + off[None, :]
+
+
+def simulate_trajectories(config: SimConfig | str | Path, duration_s: float | None = None,
+                          seed: int | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """True plate trajectories at the delivered frame times and the LDS table, no frames.
+
+    Returns exactly what `simulate_to_dir` writes to truth.csv and lds.csv for the same arguments.
+    """
+    cfg = config if isinstance(config, SimConfig) else load_config(config)
+    duration = _check_duration(cfg, duration_s)
+    seed = cfg.recording.seed if seed is None else int(seed)
+    _, t = frame_clock(cfg, duration, seed)
+    truth = truth_table(cfg, t)
+    nblocks = int(np.ceil(duration / LDS_BLOCK_S))
+    lds = pd.concat([lds_block(cfg, seed, b, duration) for b in range(nblocks)] or [lds_block(cfg, seed, 0, 0)],
+                    ignore_index=True)
+    return truth, lds
+
+
+class _Renderer:
+    """Holds the static pixel model of one camera and renders chunks of frames."""
+
+    def __init__(self, cfg: SimConfig, seed: int, duration_s: float):
+        self.cfg, self.seed, self.duration = cfg, seed, duration_s
+        self.pm = pixel_model(cfg, supersample=None if cfg.camera.sensor == "sr4000" else min(cfg.camera.supersample, 2))
+        self.intr = self.pm.intr
+        if cfg.camera.sensor == "sr4000":
+            from .tof import _device_model, tof_model
+
+            self.tm = tof_model(cfg, self.pm)
+            self.dev = _device_model(self.tm)
+            self.kind = "range"
+        else:
+            from .structured_light import kinect_model
+
+            self.km = kinect_model(cfg, self.pm)
+            self.kind = "depth"
+
+    def facts(self) -> dict:
+        cam = self.cfg.camera
+        d = dict(self.intr.as_dict(), sensor=cam.sensor, camera=cam.name, frame_rate_hz=cam.frame_rate_hz,
+                 segment=self.cfg.recording.segment, day=self.cfg.recording.day,
+                 cycles_at_start=self.cfg.recording.cycles_at_start, units="mm", seed=self.seed,
+                 frame_kind=self.kind, frame_axes=["frame", "h", "w"],
+                 coordinates="camera frame: x along columns (beam), y along rows, z depth (down)")
+        if cam.sensor == "sr4000":
+            d.update(modulation_mhz=cam.modulation_mhz, nar_mm=self.tm.nar_mm,
+                     integration_time_ms=self.tm.integration_ms, tap_offsets=list(cam.tap_offsets))
+        else:
+            d.update(modulation_mhz=None, baseline_mm=cam.baseline_mm, disparity_step_px=self.km.q_px)
+        return d
+
+    def render(self, frame_index: np.ndarray, t_frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        h, w = self.intr.height, self.intr.width
+        taps = tap_times(self.cfg, t_frame)
+        defl, dx, dy = kinematics(self.cfg, taps)
+        if self.kind == "range":
+            from .tof import render_tof
+
+            r, a = render_tof(self.tm, frame_index, defl, dx, dy, self.seed, device_model=self.dev)
+        else:
+            from .structured_light import render_kinect, session_offsets_mm
+
+            off = session_offsets_mm(self.cfg, t_frame, self.seed, self.duration)
+            r, a = render_kinect(self.km, self.cfg, frame_index, defl[:, 0], dx[:, 0], dy[:, 0], off, self.seed)
+        n = len(frame_index)
+        return r.reshape(n, h, w), np.asarray(a, np.float32).reshape(n, h, w)
+
+
+def render_frames(config: SimConfig | str | Path, duration_s: float | None = None, seed: int | None = None):
+    """All frames in memory (small simulations and tests): (timestamps, frames, amplitude, facts)."""
+    cfg = config if isinstance(config, SimConfig) else load_config(config)
+    duration = _check_duration(cfg, duration_s)
+    seed = cfg.recording.seed if seed is None else int(seed)
+    idx, t = frame_clock(cfg, duration, seed)
+    rend = _Renderer(cfg, seed, duration)
+    frames, amp = rend.render(idx, t)
+    return t, frames, amp, rend.facts()
+
+
+def _append_csv(df: pd.DataFrame, path: Path, first: bool) -> None:
+    # the format of jaxdefl.io.write_trajectory, appended chunk by chunk to bound memory
+    cols = [c for c in _COLUMNS if c in df.columns]
+    df[cols].to_csv(path, mode="w" if first else "a", header=first, index=False, float_format="%.6f")
+
+
+def simulate_to_dir(config_path: Path | str, out_dir: Path | str, duration_s: float | None = None,
+                    seed: int | None = None, progress: bool = True) -> Path:
+    """Simulate the recording described by ``config_path`` into ``out_dir`` (see module doc).
+
+    Frames are rendered and appended ``recording.chunk_frames`` at a time, so memory stays bounded
+    for long durations. Deterministic for a seed (the config's ``recording.seed`` by default).
+
+    Raises:
+        ConfigError: a bad config file or a negative duration.
+    """
+    import zarr
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+    cfg = load_config(config_path)
+    duration = _check_duration(cfg, duration_s)
+    seed = cfg.recording.seed if seed is None else int(seed)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    effective = cfg.to_dict()
+    effective["recording"]["duration_s"] = duration
+    effective["recording"]["seed"] = seed
+    (out / "config.json").write_text(json.dumps(effective, indent=2))
+
+    idx, t = frame_clock(cfg, duration, seed)
+    rend = _Renderer(cfg, seed, duration)
+    h, w = rend.intr.height, rend.intr.width
+    chunk = cfg.recording.chunk_frames
+    store = out / "recording.zarr"
+    if store.exists():
+        shutil.rmtree(store)
+    root = zarr.open_group(str(store), mode="w")
+    root.attrs.update(rend.facts())
+    frames = root.create_array(rend.kind, shape=(0, h, w), chunks=(chunk, h, w), dtype="float32",
+                               dimension_names=("frame", "h", "w"), fill_value=np.nan)
+    amp = root.create_array("amplitude", shape=(0, h, w), chunks=(chunk, h, w), dtype="float32",
+                            dimension_names=("frame", "h", "w"), fill_value=np.nan)
+    stamps = root.create_array("timestamps", shape=(0,), chunks=(max(chunk, 4096),), dtype="float64",
+                               dimension_names=("frame",))
+    frames.attrs.update(units="mm")
+    stamps.attrs.update(units="s since 1970-01-01 (UTC)")
+
+    truth_path, lds_path = out / "truth.csv", out / "lds.csv"
+    _append_csv(truth_table(cfg, t[:0]), truth_path, True)
+    nblocks = int(np.ceil(duration / LDS_BLOCK_S))
+    _append_csv(lds_block(cfg, seed, 0, 0.0), lds_path, True)
+    lds_done = 0
+    with Progress(TextColumn("simulate {task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total} frames"),
+                  TimeRemainingColumn(), disable=not progress, transient=True) as bar:
+        task = bar.add_task(f"{cfg.camera.sensor} {cfg.recording.segment}", total=len(idx))
+        for s in range(0, len(idx), chunk):
+            fi, ti = idx[s:s + chunk], t[s:s + chunk]
+            r, a = rend.render(fi, ti)
+            frames.append(r, axis=0)
+            amp.append(a, axis=0)
+            stamps.append(ti, axis=0)
+            _append_csv(truth_table(cfg, ti), truth_path, False)
+            # LDS blocks up to the time covered so far
+            covered = (fi[-1] + 1) / cfg.camera.frame_rate_hz if s + chunk < len(idx) else duration
+            while lds_done < nblocks and (lds_done + 1) * LDS_BLOCK_S <= covered + 1e-9:
+                _append_csv(lds_block(cfg, seed, lds_done, duration), lds_path, False)
+                lds_done += 1
+            bar.advance(task, len(fi))
+    while lds_done < nblocks:
+        _append_csv(lds_block(cfg, seed, lds_done, duration), lds_path, False)
+        lds_done += 1
+    root.attrs["n_frames"] = int(len(idx))
+    return out
