@@ -29,12 +29,15 @@ def make_campaign(root: Path, days: int, minutes: float, window_s: float) -> Pat
 
     lines = [f'[campaign]\nname = "bench-{days}d"\n', f"[processing]\nwindow_s = {window_s}\n"]
     for d in range(1, days + 1):
-        traj, lds = harmonic_experiment(duration_s=60 * minutes, seed=d, amplitude_mm=AMPS[(d - 1) % 11],
-                                        t0=1.7e9 + 86400 * d)
+        traj, lds = harmonic_experiment(
+            duration_s=60 * minutes, seed=d, amplitude_mm=AMPS[(d - 1) % 11], t0=1.7e9 + 86400 * d
+        )
         write_trajectory(traj, root / f"traj{d:02d}.csv")
         write_trajectory(lds, root / f"lds{d:02d}.csv")
-        lines.append(f'[[recording]]\nday = {d}\ncamera = "cam2"\ncycles = {CYCLES[(d - 1) % 11]}\n'
-                     f'trajectories = "traj{d:02d}.csv"\nlds = "lds{d:02d}.csv"\n')
+        lines.append(
+            f'[[recording]]\nday = {d}\ncamera = "cam2"\ncycles = {CYCLES[(d - 1) % 11]}\n'
+            f'trajectories = "traj{d:02d}.csv"\nlds = "lds{d:02d}.csv"\n'
+        )
     cfg = root / "campaign.toml"
     cfg.write_text("\n".join(lines))
     return cfg
@@ -53,8 +56,12 @@ print(json.dumps({"seconds": time.perf_counter() - t, "ok": int((units["status"]
 def run(cfg: Path, out: Path, scheduler: str) -> dict:
     if out.exists():
         shutil.rmtree(out)
-    res = subprocess.run([sys.executable, "-c", _CHILD, str(cfg), str(out), scheduler],
-                         capture_output=True, text=True, check=True)
+    res = subprocess.run(
+        [sys.executable, "-c", _CHILD, str(cfg), str(out), scheduler],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     return json.loads(res.stdout.strip().splitlines()[-1])
 
 
@@ -71,22 +78,30 @@ def main():
         t0 = time.perf_counter()
         cfg = make_campaign(tmp / "full", args.days, args.minutes, args.window)
         short = make_campaign(tmp / "short", 2, args.minutes, args.window)
-        print(f"campaign: {args.days} days x {args.minutes:g} min at 20 Hz, 13 plates, windows of "
-              f"{args.window:g} s (made in {time.perf_counter() - t0:.1f} s)")
+        print(
+            f"campaign: {args.days} days x {args.minutes:g} min at 20 Hz, 13 plates, windows of "
+            f"{args.window:g} s (made in {time.perf_counter() - t0:.1f} s)"
+        )
         windows = args.days * 13 * 3 * int(60 * args.minutes // args.window)
         rows = {}
         for sched in ("none", "local:1", "local:2"):
             r = run(cfg, tmp / f"out-{sched.replace(':', '')}", sched)
             rows[sched] = r
-            print(f"scheduler {sched:8s}: {r['seconds']:7.1f} s, {args.days / r['seconds'] * 60:6.2f} days/min, "
-                  f"{windows / r['seconds']:8.0f} windows/s, units ok {r['ok']}/{args.days}, "
-                  f"driver peak RSS {r['peak_rss_mb']:.0f} MB")
+            print(
+                f"scheduler {sched:8s}: {r['seconds']:7.1f} s, {args.days / r['seconds'] * 60:6.2f} days/min, "
+                f"{windows / r['seconds']:8.0f} windows/s, units ok {r['ok']}/{args.days}, "
+                f"driver peak RSS {r['peak_rss_mb']:.0f} MB"
+            )
         base = rows["none"]["seconds"]
-        print(f"speed-up: local:1 {base / rows['local:1']['seconds']:.2f}x, local:2 {base / rows['local:2']['seconds']:.2f}x "
-              "(cluster start-up and per-worker JIT compilation included)")
+        print(
+            f"speed-up: local:1 {base / rows['local:1']['seconds']:.2f}x, local:2 {base / rows['local:2']['seconds']:.2f}x "
+            "(cluster start-up and per-worker JIT compilation included)"
+        )
         r2 = run(short, tmp / "out-short", "none")
-        print(f"peak RSS in-process: 2 days {r2['peak_rss_mb']:.0f} MB, {args.days} days "
-              f"{rows['none']['peak_rss_mb']:.0f} MB (ratio {rows['none']['peak_rss_mb'] / r2['peak_rss_mb']:.2f})")
+        print(
+            f"peak RSS in-process: 2 days {r2['peak_rss_mb']:.0f} MB, {args.days} days "
+            f"{rows['none']['peak_rss_mb']:.0f} MB (ratio {rows['none']['peak_rss_mb'] / r2['peak_rss_mb']:.2f})"
+        )
 
 
 if __name__ == "__main__":

@@ -7,8 +7,17 @@ jax.config.update("jax_enable_x64", True)
 
 
 def harmonic_table(
-    n_plates=1, duration_s=60.0, fs=20.0, f0=3.0672, amp=2.4, sigma=0.76, dropout=0.03,
-    t0=1.7e9, seed=0, axes=("z",), phase=None,
+    n_plates=1,
+    duration_s=60.0,
+    fs=20.0,
+    f0=3.0672,
+    amp=2.4,
+    sigma=0.76,
+    dropout=0.03,
+    t0=1.7e9,
+    seed=0,
+    axes=("z",),
+    phase=None,
 ):
     """A trajectory table of harmonic motion with white noise and frame drop-outs."""
     rng = np.random.default_rng(seed)

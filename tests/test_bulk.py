@@ -21,15 +21,17 @@ AMPS = [2.37, 2.42, 2.43, 2.44, 2.46, 2.47]
 CYCLES = [32400, 60050, 92450, 154200, 226400, 332900]
 
 
-def make_campaign(tmp: Path, days=3, duration_s=40.0, extra="", processing='window_s = 20.0\n'):
+def make_campaign(tmp: Path, days=3, duration_s=40.0, extra="", processing="window_s = 20.0\n"):
     lines = ['[campaign]\nname = "t"\n', f"[processing]\n{processing}"]
     for d in range(1, days + 1):
         traj, lds = harmonic_experiment(duration_s=duration_s, seed=d, amplitude_mm=AMPS[d - 1])
         traj = traj[traj["plate"].isin([3, 5, 7, 9])]
         write_trajectory(traj, tmp / f"traj{d}.csv")
         write_trajectory(lds[lds["plate"].isin([5, 7])], tmp / f"lds{d}.csv")
-        lines.append(f'[[recording]]\nday = {d}\ncamera = "cam2"\ncycles = {CYCLES[d - 1]}\n'
-                     f'trajectories = "traj{d}.csv"\nlds = "lds{d}.csv"\n')
+        lines.append(
+            f'[[recording]]\nday = {d}\ncamera = "cam2"\ncycles = {CYCLES[d - 1]}\n'
+            f'trajectories = "traj{d}.csv"\nlds = "lds{d}.csv"\n'
+        )
     (tmp / "campaign.toml").write_text("\n".join(lines) + extra)
     return tmp / "campaign.toml"
 
@@ -45,9 +47,14 @@ def test_campaign_tables_follow_the_truth(tmp_path):
 
     truth = np.array(AMPS[:3]) * beam_shape(PLATE_X_M[6])
     assert np.all(np.abs(day["amplitude_mm"] - truth) < 4 * day["sigma_amplitude_mm"])
-    assert np.all(np.abs(day["delta_amplitude_mm"]) < 5 * np.hypot(day["sigma_amplitude_mm"], day["sigma_amplitude_mm_lds"]))
+    assert np.all(
+        np.abs(day["delta_amplitude_mm"])
+        < 5 * np.hypot(day["sigma_amplitude_mm"], day["sigma_amplitude_mm_lds"])
+    )
     prof = pd.read_csv(tmp_path / "out" / "profile.csv")
-    assert np.all(np.abs(prof["midspan_amplitude_mm"] - np.array(AMPS[:3])) < 4 * prof["sigma_midspan_mm"] + 0.01)
+    assert np.all(
+        np.abs(prof["midspan_amplitude_mm"] - np.array(AMPS[:3])) < 4 * prof["sigma_midspan_mm"] + 0.01
+    )
     ds = xr.open_zarr(tmp_path / "out" / "results.zarr")
     assert set(ds["amplitude_mm"].dims) == {"day", "camera", "window", "plate", "axis"}
     assert ds.sizes["day"] == 3 and ds.sizes["window"] == 2
@@ -56,12 +63,19 @@ def test_campaign_tables_follow_the_truth(tmp_path):
 
 
 def test_bad_units_get_reasons_and_the_rest_finishes(tmp_path):
-    cfg = make_campaign(tmp_path, days=2, extra=(
-        '[[recording]]\nday = 7\ncamera = "cam2"\ncycles = 1\ntrajectories = "nowhere.csv"\n'
-        '[[recording]]\nday = 8\ncamera = "cam2"\ncycles = 2\ntrajectories = "garbage.csv"\n'
-        '[[recording]]\nday = 9\ncamera = "cam2"\ncycles = 3\ntrajectories = "empty.csv"\n'))
+    cfg = make_campaign(
+        tmp_path,
+        days=2,
+        extra=(
+            '[[recording]]\nday = 7\ncamera = "cam2"\ncycles = 1\ntrajectories = "nowhere.csv"\n'
+            '[[recording]]\nday = 8\ncamera = "cam2"\ncycles = 2\ntrajectories = "garbage.csv"\n'
+            '[[recording]]\nday = 9\ncamera = "cam2"\ncycles = 3\ntrajectories = "empty.csv"\n'
+        ),
+    )
     (tmp_path / "garbage.csv").write_text("t,plate,z\n0,1,abc\n")
-    pd.DataFrame({"t": np.arange(50) * 0.05, "plate": 1, "z": np.nan}).to_csv(tmp_path / "empty.csv", index=False)
+    pd.DataFrame({"t": np.arange(50) * 0.05, "plate": 1, "z": np.nan}).to_csv(
+        tmp_path / "empty.csv", index=False
+    )
     units = run_campaign(load_campaign(cfg), tmp_path / "out", progress=False).set_index("unit")
     assert units.loc["day01-cam2", "status"] == "ok" and units.loc["day02-cam2", "status"] == "ok"
     assert "nowhere.csv: file not found" in units.loc["day07-cam2", "reason"]
@@ -74,8 +88,10 @@ def test_rerun_skips_finished_units_and_recomputes_stale_ones(tmp_path):
     cfg = make_campaign(tmp_path, days=2)
     camp = load_campaign(cfg)
     run_campaign(camp, tmp_path / "out", progress=False)
-    stamp = {u: json.loads((tmp_path / "out" / "units" / u / "manifest.json").read_text())["computed_at"]
-             for u in ("day01-cam2", "day02-cam2")}
+    stamp = {
+        u: json.loads((tmp_path / "out" / "units" / u / "manifest.json").read_text())["computed_at"]
+        for u in ("day01-cam2", "day02-cam2")
+    }
     # changing one input file makes only that unit stale
     traj, _ = harmonic_experiment(duration_s=40, seed=99)
     write_trajectory(traj[traj["plate"].isin([3, 5, 7, 9])], tmp_path / "traj2.csv")
@@ -96,8 +112,12 @@ def test_sigkill_then_resume_equals_an_uninterrupted_run(tmp_path):
     assert main(["run", str(cfg), "--out", str(ref)]) == 0
     out = tmp_path / "killed"
     env = {**os.environ, "PYTHONUNBUFFERED": "1"}
-    proc = subprocess.Popen([sys.executable, "-m", "jaxdefl.cli", "run", str(cfg), "--out", str(out)],
-                            env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "jaxdefl.cli", "run", str(cfg), "--out", str(out)],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     deadline = time.time() + 240
     while time.time() < deadline:
         done = list((out / "units").glob("*/manifest.json")) if (out / "units").exists() else []
@@ -106,7 +126,10 @@ def test_sigkill_then_resume_equals_an_uninterrupted_run(tmp_path):
         time.sleep(0.05)
     proc.send_signal(signal.SIGKILL)
     proc.wait()
-    finished = {p.parent.name: json.loads(p.read_text())["computed_at"] for p in (out / "units").glob("*/manifest.json")}
+    finished = {
+        p.parent.name: json.loads(p.read_text())["computed_at"]
+        for p in (out / "units").glob("*/manifest.json")
+    }
     assert 2 <= len(finished) < 6, finished
     assert main(["run", str(cfg), "--out", str(out)]) == 0
     units = pd.read_csv(out / "units.csv").set_index("unit")
@@ -126,25 +149,48 @@ def test_local_cluster_equals_in_process(tmp_path):
     run_campaign(camp, tmp_path / "a", scheduler="none", progress=False)
     units = run_campaign(camp, tmp_path / "b", scheduler="local", progress=False)
     assert (units["status"] == "ok").all()
-    for name in ("estimates_whole.csv", "estimates_windows.csv", "comparison_lds.csv", "per_day.csv"):
+    for name in (
+        "estimates_whole.csv",
+        "estimates_windows.csv",
+        "comparison_lds.csv",
+        "per_day.csv",
+    ):
         pd.testing.assert_frame_equal(pd.read_csv(tmp_path / "a" / name), pd.read_csv(tmp_path / "b" / name))
 
 
-@pytest.mark.parametrize("toml, message", [
-    ("[campaign]\nname='x'\n[oops]\n", "key 'oops': unknown key"),
-    ("[processing]\nwindow_s = -5\n[[recording]]\nday=1\ncamera='c'\ntrajectories='t.csv'\n",
-     "key 'processing.window_s': expected a positive number, got -5"),
-    ("[processing]\naxes = ['q']\n[[recording]]\nday=1\ncamera='c'\ntrajectories='t.csv'\n",
-     "key 'processing.axes': expected a list of z, x, y"),
-    ("[[recording]]\nday=1\ncamera='c'\n", "key 'recording[0].trajectories': missing"),
-    ("[[recording]]\nday='one'\ncamera='c'\ntrajectories='t.csv'\n", "key 'recording[0].day': expected an integer"),
-    ("[[recording]]\nday=1\ncamera='c'\ntrajectories='t.csv'\ncolor='red'\n", "key 'recording[0].color': unknown key"),
-    ("[[recording]]\nday=1\ncamera='c'\ntrajectories='t.csv'\n[[recording]]\nday=1\ncamera='c'\ntrajectories='u.csv'\n",
-     "day 1 camera 'c' appears twice"),
-    ("[campaign]\nname='x'\n", "key 'recording': no recordings"),
-    ("[[recording]]\nday=1\ncamera='c'\ncycles=-3\ntrajectories='t.csv'\n", "key 'recording[0].cycles': expected a count >= 0"),
-    ("this is not toml", "not valid TOML"),
-])
+@pytest.mark.parametrize(
+    "toml, message",
+    [
+        ("[campaign]\nname='x'\n[oops]\n", "key 'oops': unknown key"),
+        (
+            "[processing]\nwindow_s = -5\n[[recording]]\nday=1\ncamera='c'\ntrajectories='t.csv'\n",
+            "key 'processing.window_s': expected a positive number, got -5",
+        ),
+        (
+            "[processing]\naxes = ['q']\n[[recording]]\nday=1\ncamera='c'\ntrajectories='t.csv'\n",
+            "key 'processing.axes': expected a list of z, x, y",
+        ),
+        ("[[recording]]\nday=1\ncamera='c'\n", "key 'recording[0].trajectories': missing"),
+        (
+            "[[recording]]\nday='one'\ncamera='c'\ntrajectories='t.csv'\n",
+            "key 'recording[0].day': expected an integer",
+        ),
+        (
+            "[[recording]]\nday=1\ncamera='c'\ntrajectories='t.csv'\ncolor='red'\n",
+            "key 'recording[0].color': unknown key",
+        ),
+        (
+            "[[recording]]\nday=1\ncamera='c'\ntrajectories='t.csv'\n[[recording]]\nday=1\ncamera='c'\ntrajectories='u.csv'\n",
+            "day 1 camera 'c' appears twice",
+        ),
+        ("[campaign]\nname='x'\n", "key 'recording': no recordings"),
+        (
+            "[[recording]]\nday=1\ncamera='c'\ncycles=-3\ntrajectories='t.csv'\n",
+            "key 'recording[0].cycles': expected a count >= 0",
+        ),
+        ("this is not toml", "not valid TOML"),
+    ],
+)
 def test_campaign_config_errors(tmp_path, toml, message):
     p = tmp_path / "c.toml"
     p.write_text(toml)

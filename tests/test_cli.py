@@ -34,8 +34,16 @@ def test_fit_writes_the_estimates_contract(recording):
 
 def test_fit_with_reference_writes_differences(recording):
     out = recording / "est.csv"
-    args = ["fit", str(recording / "traj.csv"), "--out", str(out), "--axes", "z",
-            "--reference", str(recording / "lds.csv")]
+    args = [
+        "fit",
+        str(recording / "traj.csv"),
+        "--out",
+        str(out),
+        "--axes",
+        "z",
+        "--reference",
+        str(recording / "lds.csv"),
+    ]
     assert main(args) == 0
     cmp = pd.read_csv(recording / "est_comparison.csv")
     assert sorted(cmp["plate"]) == [3, 7]
@@ -72,14 +80,25 @@ def test_bad_arguments_exit_2(recording, capsys, args, message):
 def test_reference_without_common_plates(recording, capsys):
     ref = recording / "ref.csv"
     pd.DataFrame({"t": [1.7e9, 1.7e9 + 1], "plate": [99, 99], "z": [0.0, 1.0]}).to_csv(ref, index=False)
-    code = main(["fit", str(recording / "traj.csv"), "--out", str(recording / "e.csv"), "--reference", str(ref)])
+    code = main(
+        [
+            "fit",
+            str(recording / "traj.csv"),
+            "--out",
+            str(recording / "e.csv"),
+            "--reference",
+            str(ref),
+        ]
+    )
     assert code == 2
     assert "no plate of the reference table" in capsys.readouterr().err
 
 
 def test_axes_default_to_the_columns_present_and_missing_ones_are_errors(tmp_path, capsys):
     p = tmp_path / "z_only.csv"
-    pd.DataFrame({"t": np.arange(100) * 0.05, "plate": 1, "z": np.sin(2 * np.pi * 3 * np.arange(100) * 0.05)}).to_csv(p, index=False)
+    pd.DataFrame(
+        {"t": np.arange(100) * 0.05, "plate": 1, "z": np.sin(2 * np.pi * 3 * np.arange(100) * 0.05)}
+    ).to_csv(p, index=False)
     assert main(["fit", str(p), "--out", str(tmp_path / "e.csv")]) == 0
     assert pd.read_csv(tmp_path / "e.csv")["axis"].tolist() == ["z"]
     assert main(["fit", str(p), "--out", str(tmp_path / "e.csv"), "--axes", "z,x,y"]) == 2

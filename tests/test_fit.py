@@ -35,15 +35,29 @@ def _reference_fit(t, y):
     cov = np.sum(r**2) / (y.size - 4) * np.linalg.inv(jac.T @ jac)
     a = np.hypot(q[0], q[1])
     al = q[:2] / a
-    return dict(f0=q[3] / (2 * np.pi), a=a, sigma_a=np.sqrt(al @ cov[:2, :2] @ al),
-                sigma_f0=np.sqrt(cov[3, 3]) / (2 * np.pi), sigma_r=np.sqrt(np.sum(r**2) / (y.size - 4)))
+    return dict(
+        f0=q[3] / (2 * np.pi),
+        a=a,
+        sigma_a=np.sqrt(al @ cov[:2, :2] @ al),
+        sigma_f0=np.sqrt(cov[3, 3]) / (2 * np.pi),
+        sigma_r=np.sqrt(np.sum(r**2) / (y.size - 4)),
+    )
 
 
 def test_agrees_with_astropy_scipy_reference(make_table):
-    frames = [make_table(duration_s=d, amp=a, sigma=s, dropout=do, f0=f, seed=i, t0=1.7e9 + 1e4 * i)
-              .assign(plate=i + 1)
-              for i, (d, a, s, do, f) in enumerate([(60, 2.4, 0.76, 0.03, 3.0672), (30, 0.5, 0.4, 0.1, 1.028),
-                                                    (120, 0.05, 0.017, 0.05, 3.01), (45, 4.0, 2.5, 0.2, 0.95)])]
+    frames = [
+        make_table(duration_s=d, amp=a, sigma=s, dropout=do, f0=f, seed=i, t0=1.7e9 + 1e4 * i).assign(
+            plate=i + 1
+        )
+        for i, (d, a, s, do, f) in enumerate(
+            [
+                (60, 2.4, 0.76, 0.03, 3.0672),
+                (30, 0.5, 0.4, 0.1, 1.028),
+                (120, 0.05, 0.017, 0.05, 3.01),
+                (45, 4.0, 2.5, 0.2, 0.95),
+            ]
+        )
+    ]
     df = validate_trajectory(pd.concat(frames, ignore_index=True))
     w = make_windows(df, axes=("z",))
     est = estimate_windows(w)
@@ -85,7 +99,9 @@ def test_coverage_at_thesis_snr():
     rows = []
     for i in range(n_win):
         keep = rng.random(n) > 0.03
-        y = a_true[i] * np.cos(2 * np.pi * f_true[i] * t[keep] + ph[i]) + 0.76 * rng.standard_normal(keep.sum())
+        y = a_true[i] * np.cos(2 * np.pi * f_true[i] * t[keep] + ph[i]) + 0.76 * rng.standard_normal(
+            keep.sum()
+        )
         rows.append(pd.DataFrame({"t": t[keep] + 1.7e9, "plate": i, "z": y}))
     est = estimate_windows(make_windows(validate_trajectory(pd.concat(rows)), axes=("z",)))
     tab = est.table
@@ -98,8 +114,12 @@ def test_coverage_at_thesis_snr():
 
 
 def test_time_shift_of_1e9_s_changes_nothing(make_table):
-    a = estimate_windows(make_windows(validate_trajectory(make_table(t0=100.0, duration_s=40, seed=5)), axes=("z",)))
-    b = estimate_windows(make_windows(validate_trajectory(make_table(t0=100.0 + 1e9, duration_s=40, seed=5)), axes=("z",)))
+    a = estimate_windows(
+        make_windows(validate_trajectory(make_table(t0=100.0, duration_s=40, seed=5)), axes=("z",))
+    )
+    b = estimate_windows(
+        make_windows(validate_trajectory(make_table(t0=100.0 + 1e9, duration_s=40, seed=5)), axes=("z",))
+    )
     for c in ("f0_hz", "amplitude_mm", "sigma_amplitude_mm", "sigma_f0_hz", "offset_mm"):
         np.testing.assert_allclose(a.table[c], b.table[c], rtol=1e-7)
     # float64 epoch timestamps are rounded to ~1e-7 s: a phase difference of omega * 1e-7 rad.
@@ -126,8 +146,12 @@ def test_vmap_equals_loop_and_jit_equals_eager(make_table):
     p = lomb_peaks(w)
     batch = fit_harmonics(w, p.freq_hz)
     for i in range(len(w)):
-        args = (jnp.asarray(w.t[i]), jnp.asarray(w.y[i]), jnp.asarray(w.mask[i].astype(float)),
-                2 * np.pi * p.freq_hz[i])
+        args = (
+            jnp.asarray(w.t[i]),
+            jnp.asarray(w.y[i]),
+            jnp.asarray(w.mask[i].astype(float)),
+            2 * np.pi * p.freq_hz[i],
+        )
         eager = fit_harmonic(*args)
         jitted = jax.jit(fit_harmonic)(*args)
         assert float(eager["A"]) == pytest.approx(batch.amplitude_mm[i], rel=1e-10)
@@ -159,12 +183,22 @@ def test_statuses_never_abort_the_batch(make_table):
     good = make_table(duration_s=30, seed=1).assign(plate=1)
     noise = pd.DataFrame({"t": np.arange(600) * 0.05 + 1.7e9, "plate": 2, "z": rng.standard_normal(600)})
     few = pd.DataFrame({"t": 1.7e9 + np.arange(5) * 0.05, "plate": 3, "z": rng.standard_normal(5)})
-    slow = pd.DataFrame({"t": 1.7e9 + np.arange(600) * 0.05, "plate": 4,
-                         "z": np.cos(2 * np.pi * 0.02 * np.arange(600) * 0.05) * 5})
+    slow = pd.DataFrame(
+        {
+            "t": 1.7e9 + np.arange(600) * 0.05,
+            "plate": 4,
+            "z": np.cos(2 * np.pi * 0.02 * np.arange(600) * 0.05) * 5,
+        }
+    )
     df = validate_trajectory(pd.concat([good, noise, few, slow], ignore_index=True))
     est = estimate_windows(make_windows(df, axes=("z",)), fmin_hz=0.01)
     st = dict(zip(est.table["plate"], est.table["status"], strict=True))
-    assert st == {1: "converged", 2: "no_significant_peak", 3: "too_few_samples", 4: "too_few_cycles"}
+    assert st == {
+        1: "converged",
+        2: "no_significant_peak",
+        3: "too_few_samples",
+        4: "too_few_cycles",
+    }
     failed = est.table[est.table["status"] != "converged"]
     assert failed["amplitude_mm"].isna().all()
     assert np.isfinite(est.table.loc[est.table["plate"] == 1, "amplitude_mm"]).all()

@@ -83,7 +83,9 @@ def test_fake_eccentricity_separates_discs_from_strips():
     assert sorted(ecc.round(2).tolist()) == pytest.approx([0.25, 1.0], abs=0.03)
 
 
-@pytest.mark.parametrize("params", [(40.0, 30.0, 12.0, 7.0, 0.4), (10.0, -5.0, 30.0, 29.0, -1.2), (0, 0, 5, 2, 0.0)])
+@pytest.mark.parametrize(
+    "params", [(40.0, 30.0, 12.0, 7.0, 0.4), (10.0, -5.0, 30.0, 29.0, -1.2), (0, 0, 5, 2, 0.0)]
+)
 def test_ellipse_fit_recovers_truth_and_matches_skimage(params):
     xc, yc, a, b, th = params
     s = np.linspace(0, 2 * np.pi, 80, endpoint=False)

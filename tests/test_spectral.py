@@ -86,7 +86,9 @@ def test_fap_is_calibrated_on_null_data():
     rng = np.random.default_rng(7)
     n_win, n = 800, 256
     t = np.tile(np.arange(n) * 0.05, n_win)
-    frames = pd.DataFrame({"t": t, "plate": np.repeat(np.arange(n_win), n), "z": rng.standard_normal(n * n_win)})
+    frames = pd.DataFrame(
+        {"t": t, "plate": np.repeat(np.arange(n_win), n), "z": rng.standard_normal(n * n_win)}
+    )
     w = make_windows(validate_trajectory(frames), axes=("z",))
     fap = lomb_peaks(w).fap
     for a in (0.1, 0.5):

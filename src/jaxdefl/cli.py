@@ -41,11 +41,17 @@ def fit(
     out: Annotated[Path, typer.Option("--out", help="Estimates table to write (CSV).")],
     window: Annotated[float | None, typer.Option(help="Window length in s (default: whole segment).")] = None,
     step: Annotated[float | None, typer.Option(help="Window step in s (default: the window length).")] = None,
-    axes: Annotated[str | None, typer.Option(help="Axes to fit, comma separated (default: z, x, y as present).")] = None,
+    axes: Annotated[
+        str | None, typer.Option(help="Axes to fit, comma separated (default: z, x, y as present).")
+    ] = None,
     fmin: Annotated[float | None, typer.Option(help="Lowest frequency searched, Hz.")] = None,
-    fmax: Annotated[float | None, typer.Option(help="Highest frequency searched, Hz (default: Nyquist).")] = None,
+    fmax: Annotated[
+        float | None, typer.Option(help="Highest frequency searched, Hz (default: Nyquist).")
+    ] = None,
     oversampling: Annotated[float, typer.Option(help="Periodogram oversampling factor.")] = 5.0,
-    fap_max: Annotated[float, typer.Option(help="Largest peak false-alarm probability that is fitted.")] = 0.01,
+    fap_max: Annotated[
+        float, typer.Option(help="Largest peak false-alarm probability that is fitted.")
+    ] = 0.01,
     reference: Annotated[Path | None, typer.Option(help="Reference (LDS) table t, plate, z.")] = None,
 ) -> None:
     """Estimate loading frequency and deflection amplitude per segment, window, plate and axis."""
@@ -80,9 +86,15 @@ def simulate(
 
 @app.command()
 def extract(
-    recording: Annotated[Path, typer.Argument(help="Recording: a .zarr store, a TUM-style depth-PNG folder or an .npz.")],
+    recording: Annotated[
+        Path,
+        typer.Argument(help="Recording: a .zarr store, a TUM-style depth-PNG folder or an .npz."),
+    ],
     out: Annotated[Path, typer.Option("--out", help="Trajectory table to write (CSV or Parquet).")],
-    realtime: Annotated[bool, typer.Option("--realtime/--full", help="Track plates detected once (fast) or detect in every frame.")] = False,
+    realtime: Annotated[
+        bool,
+        typer.Option("--realtime/--full", help="Track plates detected once (fast) or detect in every frame."),
+    ] = False,
     chunk_frames: Annotated[int, typer.Option(help="Frames per batch (bounds memory).")] = 256,
 ) -> None:
     """Extract the plates from every frame: 3D centroid trajectories (t, plate, x, y, z)."""
@@ -94,8 +106,13 @@ def extract(
 @app.command()
 def run(
     config: Annotated[Path, typer.Argument(help="Campaign config (TOML).")],
-    out: Annotated[Path, typer.Option("--out", help="Output directory (reused: finished units are kept).")] = Path("campaign_out"),
-    scheduler: Annotated[str, typer.Option(help="none (in-process), local (a dask LocalCluster) or a scheduler address.")] = "none",
+    out: Annotated[
+        Path, typer.Option("--out", help="Output directory (reused: finished units are kept).")
+    ] = Path("campaign_out"),
+    scheduler: Annotated[
+        str,
+        typer.Option(help="none (in-process), local (a dask LocalCluster) or a scheduler address."),
+    ] = "none",
 ) -> None:
     """Reprocess a campaign (days x cameras) to tables, a Zarr dataset, figures and a report."""
     from . import pipeline

@@ -23,9 +23,21 @@ __all__ = ["compare_with_reference", "demo", "estimate_table", "fit_file", "fit_
 console = Console(stderr=True)
 
 COMPARISON_COLUMNS = [
-    "segment", "window", "t_start", "t_end", "plate", "f0_hz", "f0_ref_hz", "delta_f0_hz",
-    "sigma_delta_f0_hz", "amplitude_mm", "amplitude_ref_mm", "delta_amplitude_mm",
-    "sigma_delta_amplitude_mm", "status", "status_ref",
+    "segment",
+    "window",
+    "t_start",
+    "t_end",
+    "plate",
+    "f0_hz",
+    "f0_ref_hz",
+    "delta_f0_hz",
+    "sigma_delta_f0_hz",
+    "amplitude_mm",
+    "amplitude_ref_mm",
+    "delta_amplitude_mm",
+    "sigma_delta_amplitude_mm",
+    "status",
+    "status_ref",
 ]
 
 
@@ -35,8 +47,13 @@ def _progress(total: int, label: str, enabled: bool):
     if not enabled or total <= 4096:
         yield lambda k: None
         return
-    cols = (TextColumn("{task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total}"),
-            TimeElapsedColumn(), TimeRemainingColumn())
+    cols = (
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TextColumn("{task.completed}/{task.total}"),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+    )
     with Progress(*cols, console=console, transient=True) as bar:
         task = bar.add_task(label, total=total)
         yield lambda k: bar.advance(task, k)
@@ -59,8 +76,15 @@ def estimate_table(
         raise ConfigError(f"--fap-max: expected a probability in (0, 1], got {fap_max}")
     w = make_windows(df, axes=axes, window_s=window_s, step_s=step_s)
     with _progress(len(w), "fitting windows", progress) as advance:
-        return estimate_windows(w, fmin_hz=fmin_hz, fmax_hz=fmax_hz, oversampling=oversampling,
-                                fap_max=fap_max, keep=keep, on_block=advance)
+        return estimate_windows(
+            w,
+            fmin_hz=fmin_hz,
+            fmax_hz=fmax_hz,
+            oversampling=oversampling,
+            fap_max=fap_max,
+            keep=keep,
+            on_block=advance,
+        )
 
 
 def fit_reference(ref: pd.DataFrame, camera: Estimates, **kw) -> Estimates:
@@ -92,7 +116,11 @@ def compare_with_reference(cam: pd.DataFrame, ref: pd.DataFrame) -> pd.DataFrame
 
 def _sidecar(path: Path, **settings) -> None:
     """The effective settings beside an output, so every result says how it was made."""
-    meta = {"jaxdefl_version": __version__, "written": time.strftime("%Y-%m-%dT%H:%M:%S%z"), **settings}
+    meta = {
+        "jaxdefl_version": __version__,
+        "written": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        **settings,
+    }
     path.with_suffix(".json").write_text(json.dumps(meta, indent=2, default=str) + "\n")
 
 
@@ -124,8 +152,16 @@ def fit_file(
     out = Path(out)
     tab = est.table
     write_estimates(tab, out)
-    _sidecar(out, command="fit", trajectory=str(traj), window_s=window_s, step_s=step_s,
-             axes=list(axes), reference=str(reference) if reference else None, **kw)
+    _sidecar(
+        out,
+        command="fit",
+        trajectory=str(traj),
+        window_s=window_s,
+        step_s=step_s,
+        axes=list(axes),
+        reference=str(reference) if reference else None,
+        **kw,
+    )
     comparison = None
     if reference is not None:
         ref = read_reference(reference)
@@ -155,8 +191,10 @@ def run_file(config: Path, out: Path, scheduler: str = "none") -> pd.DataFrame:
     campaign = load_campaign(config)
     units = run_campaign(campaign, out, scheduler=scheduler)
     n_ok = int((units["status"] == "ok").sum())
-    console.print(f"[bold]jaxdefl run[/]: {campaign.name}: {n_ok}/{len(units)} recordings estimated "
-                  f"({int(units['skipped'].sum())} reused) in {time.perf_counter() - t0:.1f} s -> {Path(out) / 'report.md'}")
+    console.print(
+        f"[bold]jaxdefl run[/]: {campaign.name}: {n_ok}/{len(units)} recordings estimated "
+        f"({int(units['skipped'].sum())} reused) in {time.perf_counter() - t0:.1f} s -> {Path(out) / 'report.md'}"
+    )
     for r in units[units["status"] != "ok"].itertuples():
         console.print(f"  [red]failed[/] {r.unit}: {r.reason}")
     return units
@@ -180,13 +218,15 @@ def demo(out: Path, duration_s: float = 600.0, seed: int = 1) -> None:
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    console.print(f"[bold]jaxdefl demo[/]: simulating {duration_s:.0f} s of Experiment II (3 Hz, SR4000 at 20 Hz)")
+    console.print(
+        f"[bold]jaxdefl demo[/]: simulating {duration_s:.0f} s of Experiment II (3 Hz, SR4000 at 20 Hz)"
+    )
     traj, lds = _demo_trajectories(duration_s, seed)
     write_trajectory(traj, out / "trajectories.csv")
     write_trajectory(lds, out / "lds.csv")
     t_sim = time.perf_counter() - t0
     t1 = time.perf_counter()
-    whole = estimate_table(traj, keep=tuple(range(3 * traj['plate'].nunique())))
+    whole = estimate_table(traj, keep=tuple(range(3 * traj["plate"].nunique())))
     t_whole = time.perf_counter() - t1
     t1 = time.perf_counter()
     windowed = estimate_table(traj, window_s=60.0)
@@ -197,6 +237,12 @@ def demo(out: Path, duration_s: float = 600.0, seed: int = 1) -> None:
     write_estimates(windowed.table, out / "estimates_60s.csv")
     write_estimates(ref.table, out / "estimates_lds.csv")
     write_estimates(comparison, out / "comparison_lds.csv")
-    report = write_demo_report(out, traj, whole, windowed, comparison,
-                               timings=dict(simulate_s=t_sim, fit_whole_s=t_whole, fit_windows_s=t_windowed))
+    report = write_demo_report(
+        out,
+        traj,
+        whole,
+        windowed,
+        comparison,
+        timings=dict(simulate_s=t_sim, fit_whole_s=t_whole, fit_windows_s=t_windowed),
+    )
     console.print(f"[bold]jaxdefl demo[/]: report in {report} ({time.perf_counter() - t0:.1f} s)")

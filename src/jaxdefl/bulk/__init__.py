@@ -4,4 +4,12 @@ from .campaign import Campaign, Processing, Recording, load_campaign
 from .runner import run_campaign
 from .store import is_finished, read_manifest
 
-__all__ = ["Campaign", "Processing", "Recording", "is_finished", "load_campaign", "read_manifest", "run_campaign"]
+__all__ = [
+    "Campaign",
+    "Processing",
+    "Recording",
+    "is_finished",
+    "load_campaign",
+    "read_manifest",
+    "run_campaign",
+]

@@ -15,8 +15,18 @@ from .units import read_unit_tables
 
 __all__ = ["fit_profile", "gather", "per_day_table", "to_dataset"]
 
-_VARS = ["n", "f0_hz", "sigma_f0_hz", "amplitude_mm", "sigma_amplitude_mm", "phase_rad", "offset_mm",
-         "sigma_residual_mm", "peak_fap", "status"]
+_VARS = [
+    "n",
+    "f0_hz",
+    "sigma_f0_hz",
+    "amplitude_mm",
+    "sigma_amplitude_mm",
+    "phase_rad",
+    "offset_mm",
+    "sigma_residual_mm",
+    "peak_fap",
+    "status",
+]
 
 
 def _write_csv(df: pd.DataFrame, path: Path) -> None:
@@ -48,15 +58,31 @@ def _write_zarr(ds, path: Path) -> None:
         shutil.rmtree(old)
 
 
-def per_day_table(whole: pd.DataFrame, comparison: pd.DataFrame, lds: pd.DataFrame, plate: int) -> pd.DataFrame:
+def per_day_table(
+    whole: pd.DataFrame, comparison: pd.DataFrame, lds: pd.DataFrame, plate: int
+) -> pd.DataFrame:
     """Thesis Tables 6.12/6.16/6.17 for one plate: f0, A, σ's and the LDS differences per day."""
     cam = whole[(whole["plate"] == plate) & (whole["axis"] == "z")]
-    cols = ["day", "camera", "cycles", "n", "f0_hz", "sigma_f0_hz", "amplitude_mm", "sigma_amplitude_mm",
-            "sigma_residual_mm", "status"]
+    cols = [
+        "day",
+        "camera",
+        "cycles",
+        "n",
+        "f0_hz",
+        "sigma_f0_hz",
+        "amplitude_mm",
+        "sigma_amplitude_mm",
+        "sigma_residual_mm",
+        "status",
+    ]
     tab = cam[cols].sort_values(["camera", "day"]).reset_index(drop=True)
     if len(lds):
-        ref = lds[(lds["plate"] == plate)][["day", "camera", "f0_hz", "sigma_f0_hz", "amplitude_mm", "sigma_amplitude_mm"]]
-        ref = ref.rename(columns={c: f"{c}_lds" for c in ("f0_hz", "sigma_f0_hz", "amplitude_mm", "sigma_amplitude_mm")})
+        ref = lds[(lds["plate"] == plate)][
+            ["day", "camera", "f0_hz", "sigma_f0_hz", "amplitude_mm", "sigma_amplitude_mm"]
+        ]
+        ref = ref.rename(
+            columns={c: f"{c}_lds" for c in ("f0_hz", "sigma_f0_hz", "amplitude_mm", "sigma_amplitude_mm")}
+        )
         tab = tab.merge(ref, on=["day", "camera"], how="left")
         tab["delta_f0_hz"] = tab["f0_hz"] - tab["f0_hz_lds"]
         tab["delta_amplitude_mm"] = tab["amplitude_mm"] - tab["amplitude_mm_lds"]
@@ -83,13 +109,22 @@ def fit_profile(whole: pd.DataFrame, plate_x_mm, span_mm: float, load_a_mm: floa
         wgt = 1 / np.maximum(sa, 1e-9) ** 2
         s = np.sum(wgt * shape * a) / np.sum(wgt * shape**2)
         resid = a - s * shape
-        rows.append(dict(day=day, camera=cam, midspan_amplitude_mm=s,
-                         sigma_midspan_mm=float(np.sqrt(1 / np.sum(wgt * shape**2))),
-                         rms_misfit_mm=float(np.sqrt(np.mean(resid**2))), plates=int(ok.sum())))
+        rows.append(
+            dict(
+                day=day,
+                camera=cam,
+                midspan_amplitude_mm=s,
+                sigma_midspan_mm=float(np.sqrt(1 / np.sum(wgt * shape**2))),
+                rms_misfit_mm=float(np.sqrt(np.mean(resid**2))),
+                plates=int(ok.sum()),
+            )
+        )
     return pd.DataFrame(rows)
 
 
-def gather(campaign: Campaign, out: Path, manifests: list[dict], units: pd.DataFrame, elapsed_s: float) -> None:
+def gather(
+    campaign: Campaign, out: Path, manifests: list[dict], units: pd.DataFrame, elapsed_s: float
+) -> None:
     """Campaign outputs from the finished units (failed units are listed with their reasons)."""
     from ..report.campaign import write_campaign_report
 
@@ -100,14 +135,20 @@ def gather(campaign: Campaign, out: Path, manifests: list[dict], units: pd.DataF
     lds = read_unit_tables(out, ok, "lds.csv")
     comparison = read_unit_tables(out, ok, "comparison.csv")
     _write_csv(units, out / "units.csv")
-    tables = {"estimates_whole.csv": whole, "estimates_windows.csv": windows,
-              "estimates_lds.csv": lds, "comparison_lds.csv": comparison}
+    tables = {
+        "estimates_whole.csv": whole,
+        "estimates_windows.csv": windows,
+        "estimates_lds.csv": lds,
+        "comparison_lds.csv": comparison,
+    }
     for name, df in tables.items():
         if len(df):
             _write_csv(df, out / name)
     proc = campaign.processing
     day_tab = per_day_table(whole, comparison, lds, proc.reference_plate) if len(whole) else pd.DataFrame()
-    profile = fit_profile(whole, proc.plate_x_mm, proc.span_mm, proc.load_a_mm) if len(whole) else pd.DataFrame()
+    profile = (
+        fit_profile(whole, proc.plate_x_mm, proc.span_mm, proc.load_a_mm) if len(whole) else pd.DataFrame()
+    )
     if len(day_tab):
         _write_csv(day_tab, out / "per_day.csv")
     if len(profile):

@@ -56,8 +56,15 @@ class Processing:
     load_a_mm: float = 1200.0
 
     def estimation_kwargs(self) -> dict:
-        return dict(window_s=self.window_s, step_s=self.step_s, axes=self.axes, fmin_hz=self.fmin_hz,
-                    fmax_hz=self.fmax_hz, oversampling=self.oversampling, fap_max=self.fap_max)
+        return dict(
+            window_s=self.window_s,
+            step_s=self.step_s,
+            axes=self.axes,
+            fmin_hz=self.fmin_hz,
+            fmax_hz=self.fmax_hz,
+            oversampling=self.oversampling,
+            fap_max=self.fap_max,
+        )
 
     def digest_source(self) -> str:
         return json.dumps(asdict(self), sort_keys=True)
@@ -88,9 +95,17 @@ class Campaign:
 
 _TOP = {"campaign", "processing", "recording", "simulate"}
 _PROC_TYPES = {
-    "window_s": (int, float), "step_s": (int, float), "axes": list, "fmin_hz": (int, float),
-    "fmax_hz": (int, float), "oversampling": (int, float), "fap_max": (int, float),
-    "reference_plate": int, "plate_x_mm": list, "span_mm": (int, float), "load_a_mm": (int, float),
+    "window_s": (int, float),
+    "step_s": (int, float),
+    "axes": list,
+    "fmin_hz": (int, float),
+    "fmax_hz": (int, float),
+    "oversampling": (int, float),
+    "fap_max": (int, float),
+    "reference_plate": int,
+    "plate_x_mm": list,
+    "span_mm": (int, float),
+    "load_a_mm": (int, float),
 }
 _REC_KEYS = {"day": int, "camera": str, "cycles": int, "trajectories": str, "lds": str}
 
@@ -136,8 +151,12 @@ def load_campaign(path: Path | str) -> Campaign:
         proc_raw["axes"] = tuple(proc_raw["axes"])
     if "plate_x_mm" in proc_raw:
         proc_raw["plate_x_mm"] = tuple(float(v) for v in proc_raw["plate_x_mm"])
-    proc = Processing(**{k: (float(v) if isinstance(v, int) and _PROC_TYPES[k] == (int, float) else v)
-                         for k, v in proc_raw.items()})
+    proc = Processing(
+        **{
+            k: (float(v) if isinstance(v, int) and _PROC_TYPES[k] == (int, float) else v)
+            for k, v in proc_raw.items()
+        }
+    )
     recs = []
     entries = raw.get("recording", [])
     if not isinstance(entries, list):
@@ -154,11 +173,15 @@ def load_campaign(path: Path | str) -> Campaign:
                 raise _err(path, f"{where}.{key}", "missing")
         if rec.get("cycles", 0) < 0:
             raise _err(path, f"{where}.cycles", f"expected a count >= 0, got {rec['cycles']}")
-        recs.append(Recording(
-            day=rec["day"], camera=rec["camera"], cycles=rec.get("cycles", 0),
-            trajectories=(path.parent / rec["trajectories"]),
-            lds=(path.parent / rec["lds"]) if "lds" in rec else None,
-        ))
+        recs.append(
+            Recording(
+                day=rec["day"],
+                camera=rec["camera"],
+                cycles=rec.get("cycles", 0),
+                trajectories=(path.parent / rec["trajectories"]),
+                lds=(path.parent / rec["lds"]) if "lds" in rec else None,
+            )
+        )
     seen = set()
     for r in recs:
         if r.unit_id in seen:
@@ -166,7 +189,11 @@ def load_campaign(path: Path | str) -> Campaign:
         seen.add(r.unit_id)
     sim = raw.get("simulate")
     if sim is not None and recs:
-        raise _err(path, "simulate", "a campaign either lists [[recording]] entries or simulates them, not both")
+        raise _err(
+            path,
+            "simulate",
+            "a campaign either lists [[recording]] entries or simulates them, not both",
+        )
     if sim is None and not recs:
         raise _err(path, "recording", "no recordings: add [[recording]] entries or a [simulate] table")
     if sim is not None:

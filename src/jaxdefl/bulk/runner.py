@@ -7,7 +7,14 @@ from pathlib import Path
 
 import pandas as pd
 from rich.console import Console
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
 
 from .. import __version__
 from .._errors import ConfigError
@@ -21,8 +28,15 @@ console = Console(stderr=True)
 
 
 def _bar():
-    return Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
-                    TimeElapsedColumn(), TimeRemainingColumn(), console=console, transient=True)
+    return Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=console,
+        transient=True,
+    )
 
 
 def _client(scheduler: str):
@@ -34,9 +48,16 @@ def _client(scheduler: str):
     if scheduler == "local" or scheduler.startswith("local:"):
         n = scheduler.partition(":")[2] or "2"
         if not n.isdigit() or int(n) < 1:
-            raise ConfigError(f"--scheduler: expected local or local:N with N >= 1 workers, got {scheduler!r}")
-        cluster = LocalCluster(n_workers=int(n), threads_per_worker=1, processes=True,
-                               dashboard_address=None, silence_logs=40)
+            raise ConfigError(
+                f"--scheduler: expected local or local:N with N >= 1 workers, got {scheduler!r}"
+            )
+        cluster = LocalCluster(
+            n_workers=int(n),
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=None,
+            silence_logs=40,
+        )
         return Client(cluster), cluster
     try:
         return Client(scheduler, timeout="10s"), None
@@ -44,7 +65,9 @@ def _client(scheduler: str):
         raise ConfigError(f"--scheduler: cannot reach a dask scheduler at {scheduler!r} ({err})") from None
 
 
-def run_campaign(campaign: Campaign, out: Path, scheduler: str = "none", progress: bool = True) -> pd.DataFrame:
+def run_campaign(
+    campaign: Campaign, out: Path, scheduler: str = "none", progress: bool = True
+) -> pd.DataFrame:
     """Run every unit (skipping finished, fresh ones) and gather tables, figures and a report.
 
     Returns the unit table: unit, day, camera, status, reason, seconds, skipped.
@@ -62,7 +85,7 @@ def run_campaign(campaign: Campaign, out: Path, scheduler: str = "none", progres
     inputs = [unit_inputs(r) for r in recs]
     manifests = []
     t0 = time.perf_counter()
-    with (_bar() if progress else _NoBar()) as bar:
+    with _bar() if progress else _NoBar() as bar:
         task = bar.add_task("estimating recordings", total=len(recs))
         if scheduler == "none":
             for rec, inp in zip(recs, inputs, strict=True):
@@ -73,9 +96,19 @@ def run_campaign(campaign: Campaign, out: Path, scheduler: str = "none", progres
 
             client, cluster = _client(scheduler)
             try:
-                futs = [client.submit(estimate_unit, rec, campaign.processing, out, config_hash, inp,
-                                      key=f"estimate-{rec.unit_id}-{config_hash[:8]}", pure=False)
-                        for rec, inp in zip(recs, inputs, strict=True)]
+                futs = [
+                    client.submit(
+                        estimate_unit,
+                        rec,
+                        campaign.processing,
+                        out,
+                        config_hash,
+                        inp,
+                        key=f"estimate-{rec.unit_id}-{config_hash[:8]}",
+                        pure=False,
+                    )
+                    for rec, inp in zip(recs, inputs, strict=True)
+                ]
                 for fut in as_completed(futs):
                     manifests.append(fut.result())
                     bar.advance(task)
@@ -84,8 +117,13 @@ def run_campaign(campaign: Campaign, out: Path, scheduler: str = "none", progres
                 if cluster is not None:
                     cluster.close()
     manifests.sort(key=lambda m: m["unit"])
-    units = pd.DataFrame([{k: m.get(k) for k in ("unit", "day", "camera", "status", "reason", "seconds")}
-                          | {"skipped": bool(m.get("skipped", False))} for m in manifests])
+    units = pd.DataFrame(
+        [
+            {k: m.get(k) for k in ("unit", "day", "camera", "status", "reason", "seconds")}
+            | {"skipped": bool(m.get("skipped", False))}
+            for m in manifests
+        ]
+    )
     gather(campaign, out, manifests, units, elapsed_s=time.perf_counter() - t0)
     return units
 

@@ -18,8 +18,15 @@ from pathlib import Path
 
 from .. import __version__
 
-__all__ = ["atomic_write_bytes", "atomic_write_text", "digest_path", "digest_text", "is_finished",
-           "read_manifest", "write_manifest"]
+__all__ = [
+    "atomic_write_bytes",
+    "atomic_write_text",
+    "digest_path",
+    "digest_text",
+    "is_finished",
+    "read_manifest",
+    "write_manifest",
+]
 
 MANIFEST = "manifest.json"
 
@@ -64,15 +71,35 @@ def atomic_write_text(path: Path, text: str) -> None:
     atomic_write_bytes(path, text.encode())
 
 
-def write_manifest(unit_dir: Path, unit_id: str, inputs: dict, config_hash: str, outputs: list[str],
-                   status: str, reason: str = "", seconds: float = 0.0, extra: dict | None = None) -> dict:
+def write_manifest(
+    unit_dir: Path,
+    unit_id: str,
+    inputs: dict,
+    config_hash: str,
+    outputs: list[str],
+    status: str,
+    reason: str = "",
+    seconds: float = 0.0,
+    extra: dict | None = None,
+) -> dict:
     """Record a finished unit; call after its outputs are in place. Returns the manifest."""
     unit_dir = Path(unit_dir)
     man = {
-        "unit": unit_id, "inputs": inputs, "config_hash": config_hash, "version": __version__,
-        "outputs": {name: {"sha256": digest_path(unit_dir / name),
-                           "bytes": (unit_dir / name).stat().st_size} for name in outputs},
-        "status": status, "reason": reason, "seconds": round(seconds, 3), **(extra or {}),
+        "unit": unit_id,
+        "inputs": inputs,
+        "config_hash": config_hash,
+        "version": __version__,
+        "outputs": {
+            name: {
+                "sha256": digest_path(unit_dir / name),
+                "bytes": (unit_dir / name).stat().st_size,
+            }
+            for name in outputs
+        },
+        "status": status,
+        "reason": reason,
+        "seconds": round(seconds, 3),
+        **(extra or {}),
     }
     atomic_write_text(unit_dir / MANIFEST, json.dumps(man, indent=1, sort_keys=True))
     return man

@@ -9,7 +9,6 @@ import time
 import traceback
 from pathlib import Path
 
-
 import pandas as pd
 
 from .._errors import JaxdeflError
@@ -33,8 +32,9 @@ def _csv(df: pd.DataFrame) -> str:
     return df.to_csv(index=False, float_format="%.10g")
 
 
-def estimate_unit(rec: Recording, proc: Processing, out_dir: Path, config_hash: str,
-                  inputs: dict | None = None) -> dict:
+def estimate_unit(
+    rec: Recording, proc: Processing, out_dir: Path, config_hash: str, inputs: dict | None = None
+) -> dict:
     """Estimates of one recording: whole-record fits, windows, LDS fits and differences.
 
     Writes ``whole.csv``, ``windows.csv`` (when windowed), ``lds.csv`` and ``comparison.csv``
@@ -57,16 +57,23 @@ def estimate_unit(rec: Recording, proc: Processing, out_dir: Path, config_hash: 
             raise JaxdeflError(f"{rec.trajectories}: file not found")
         traj = read_trajectory(rec.trajectories)
         axes = tuple(a for a in proc.axes if a in traj.columns)
-        kw = dict(fmin_hz=proc.fmin_hz, fmax_hz=proc.fmax_hz, oversampling=proc.oversampling,
-                  fap_max=proc.fap_max)
+        kw = dict(
+            fmin_hz=proc.fmin_hz,
+            fmax_hz=proc.fmax_hz,
+            oversampling=proc.oversampling,
+            fap_max=proc.fap_max,
+        )
         whole = estimate_table(traj, axes=axes, progress=False, **kw)
         if not (whole.table["status"] == "converged").any():
-            raise JaxdeflError(f"{rec.trajectories}: no plate and axis could be fitted "
-                               f"({', '.join(sorted(set(whole.table['status'])))})")
+            raise JaxdeflError(
+                f"{rec.trajectories}: no plate and axis could be fitted "
+                f"({', '.join(sorted(set(whole.table['status'])))})"
+            )
         outputs = {"whole.csv": whole.table.assign(**tag)}
         if proc.window_s is not None:
-            win = estimate_table(traj, axes=axes, window_s=proc.window_s, step_s=proc.step_s,
-                                 progress=False, **kw)
+            win = estimate_table(
+                traj, axes=axes, window_s=proc.window_s, step_s=proc.step_s, progress=False, **kw
+            )
             outputs["windows.csv"] = win.table.assign(**tag)
         if rec.lds is not None:
             if inputs.get("lds") == "missing":
@@ -82,8 +89,17 @@ def estimate_unit(rec: Recording, proc: Processing, out_dir: Path, config_hash: 
     except Exception as err:  # one bad unit never stops the campaign
         last = traceback.format_exception_only(type(err), err)[-1].strip()
         status, reason, names = "failed", f"{rec.unit_id}: {last}", []
-    return write_manifest(unit_dir, rec.unit_id, inputs, config_hash, names, status, reason,
-                          time.perf_counter() - t0, extra={**tag, "computed_at": time.time()})
+    return write_manifest(
+        unit_dir,
+        rec.unit_id,
+        inputs,
+        config_hash,
+        names,
+        status,
+        reason,
+        time.perf_counter() - t0,
+        extra={**tag, "computed_at": time.time()},
+    )
 
 
 def read_unit_tables(out_dir: Path, manifests: list[dict], name: str) -> pd.DataFrame:
@@ -93,5 +109,3 @@ def read_unit_tables(out_dir: Path, manifests: list[dict], name: str) -> pd.Data
         if name in man.get("outputs", {}):
             frames.append(pd.read_csv(Path(out_dir) / "units" / man["unit"] / name))
     return pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
-
-

@@ -17,11 +17,30 @@ from .harmonic import N_PARAMS, HarmonicFit, fit_harmonics
 __all__ = ["ESTIMATE_COLUMNS", "STATUSES", "Estimates", "estimate_windows"]
 
 ESTIMATE_COLUMNS = [
-    "segment", "window", "t_start", "t_end", "plate", "axis", "n", "f0_hz", "sigma_f0_hz",
-    "amplitude_mm", "sigma_amplitude_mm", "phase_rad", "offset_mm", "sigma_residual_mm",
-    "peak_fap", "status",
+    "segment",
+    "window",
+    "t_start",
+    "t_end",
+    "plate",
+    "axis",
+    "n",
+    "f0_hz",
+    "sigma_f0_hz",
+    "amplitude_mm",
+    "sigma_amplitude_mm",
+    "phase_rad",
+    "offset_mm",
+    "sigma_residual_mm",
+    "peak_fap",
+    "status",
 ]
-STATUSES = ("converged", "too_few_samples", "too_few_cycles", "no_significant_peak", "did_not_converge")
+STATUSES = (
+    "converged",
+    "too_few_samples",
+    "too_few_cycles",
+    "no_significant_peak",
+    "did_not_converge",
+)
 
 
 @dataclass(frozen=True)
@@ -72,12 +91,22 @@ def estimate_windows(
     def run(rows: np.ndarray):
         sub = w.select(rows)
         kk = tuple(int(np.flatnonzero(rows == r)[0]) for r in keep if r in set(rows.tolist()))
-        p = lomb_peaks(sub, fmin_hz=fmin_hz, fmax_hz=fmax_hz, oversampling=oversampling, keep=kk,
-                       search_dtype="float32")
+        p = lomb_peaks(
+            sub,
+            fmin_hz=fmin_hz,
+            fmax_hz=fmax_hz,
+            oversampling=oversampling,
+            keep=kk,
+            search_dtype="float32",
+        )
         few_cycles = p.freq_hz * _span(sub) < min_cycles
         insignificant = ~(p.fap <= fap_max)
         go = ~few_cycles & ~insignificant
-        st = np.where(few_cycles, "too_few_cycles", np.where(insignificant, "no_significant_peak", "converged"))
+        st = np.where(
+            few_cycles,
+            "too_few_cycles",
+            np.where(insignificant, "no_significant_peak", "converged"),
+        )
         sub_w = None if weights is None else weights[rows]
         f = fit_harmonics(sub, p.freq_hz, rows=np.flatnonzero(go), weights=sub_w)
         return rows, p, np.where(go & ~f.converged, "did_not_converge", st), f
@@ -98,8 +127,17 @@ def estimate_windows(
             if on_block is not None:
                 on_block(rows.size)
     fit = _merge_fits(b, fit_parts)
-    periodogram = Periodogram(per["freq_hz"], per["power"], per["fap"], per["n_indep"],
-                              per["fmin_hz"], per["fmax_hz"], per["df_hz"], method, spectra)
+    periodogram = Periodogram(
+        per["freq_hz"],
+        per["power"],
+        per["fap"],
+        per["n_indep"],
+        per["fmin_hz"],
+        per["fmax_hz"],
+        per["df_hz"],
+        method,
+        spectra,
+    )
     tab = w.table.copy()
     tab["status"] = status
     tab["f0_hz"] = fit.f0_hz
@@ -127,7 +165,13 @@ def _merge_fits(b: int, parts: list[tuple[np.ndarray, HarmonicFit]]) -> Harmonic
         if parts:
             proto = getattr(parts[0][1], name)
         else:
-            proto = np.zeros((0, 4, 4)) if name == "cov" else np.zeros((0, 4)) if name == "params" else np.zeros(0)
+            proto = (
+                np.zeros((0, 4, 4))
+                if name == "cov"
+                else np.zeros((0, 4))
+                if name == "params"
+                else np.zeros(0)
+            )
         shape = (b,) + proto.shape[1:]
         arr = np.zeros(shape, proto.dtype) if proto.dtype.kind in "biu" else np.full(shape, np.nan)
         for rows, f in parts:

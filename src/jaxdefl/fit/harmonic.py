@@ -21,8 +21,8 @@ import optimistix as optx
 
 from .. import _jax  # noqa: F401
 from .._shapes import bucket, pow2_at_least
-from ..series import Windows
 from .._sincos import sincos
+from ..series import Windows
 
 __all__ = ["HarmonicFit", "fit_harmonic", "fit_harmonics", "N_PARAMS"]
 
@@ -114,9 +114,19 @@ def fit_harmonic(t, y, w, omega0, rtol=RTOL, atol=ATOL, max_steps=MAX_STEPS):
     var_a = alpha @ cov[:2, :2] @ alpha  # (5.44)
     sigma_res = jnp.sqrt(jnp.sum(jnp.where(valid, r, 0.0) ** 2) / dof)  # (5.46)
     out = dict(
-        C=p[0], D=p[1], E=p[2] + ybar, omega=p[3], A=amp, phase=jnp.arctan2(p[1], p[0]),
-        cov=cov, sigma_A=jnp.sqrt(var_a), sigma_omega=jnp.sqrt(cov[3, 3]), s0sq=s0sq,
-        sigma_res=sigma_res, n=n, steps=sol.stats["num_steps"],
+        C=p[0],
+        D=p[1],
+        E=p[2] + ybar,
+        omega=p[3],
+        A=amp,
+        phase=jnp.arctan2(p[1], p[0]),
+        cov=cov,
+        sigma_A=jnp.sqrt(var_a),
+        sigma_omega=jnp.sqrt(cov[3, 3]),
+        s0sq=s0sq,
+        sigma_res=sigma_res,
+        n=n,
+        steps=sol.stats["num_steps"],
     )
     finite = jnp.all(jnp.isfinite(p)) & jnp.isfinite(var_a) & (var_a >= 0) & (cov[3, 3] >= 0)
     out["ok"] = (sol.result == optx.RESULTS.successful) & finite
@@ -187,8 +197,21 @@ def fit_harmonics(
     b, s_all = w.t.shape
     rows = np.flatnonzero(w.mask.sum(axis=1) > N_PARAMS) if rows is None else np.asarray(rows)
     wt = w.mask.astype(np.float64) if weights is None else np.where(w.mask, weights, 0.0)
-    res = {k: np.full(b, np.nan) for k in ("C", "D", "E", "omega", "A", "phase", "sigma_A",
-                                            "sigma_omega", "s0sq", "sigma_res")}
+    res = {
+        k: np.full(b, np.nan)
+        for k in (
+            "C",
+            "D",
+            "E",
+            "omega",
+            "A",
+            "phase",
+            "sigma_A",
+            "sigma_omega",
+            "s0sq",
+            "sigma_res",
+        )
+    }
     cov = np.full((b, N_PARAMS, N_PARAMS), np.nan)
     n = np.zeros(b, np.int64)
     steps = np.zeros(b, np.int64)
@@ -203,9 +226,13 @@ def fit_harmonics(
             sel = rows[c0 : c0 + chunk]
             pad = np.concatenate([sel, np.repeat(sel[:1], chunk - sel.size)])
             out = _fit_batch(
-                jnp.asarray(_width(w.t[pad], s_pad)), jnp.asarray(_width(w.y[pad], s_pad)),
-                jnp.asarray(_width(wt[pad], s_pad)), jnp.asarray(2 * np.pi * np.asarray(freq0_hz)[pad]),
-                rtol=rtol, atol=atol, max_steps=max_steps,
+                jnp.asarray(_width(w.t[pad], s_pad)),
+                jnp.asarray(_width(w.y[pad], s_pad)),
+                jnp.asarray(_width(wt[pad], s_pad)),
+                jnp.asarray(2 * np.pi * np.asarray(freq0_hz)[pad]),
+                rtol=rtol,
+                atol=atol,
+                max_steps=max_steps,
             )
             out = {k: np.asarray(v)[: sel.size] for k, v in out.items()}
             for k in res:
@@ -220,9 +247,17 @@ def fit_harmonics(
     cov[bad] = np.nan
     two_pi = 2 * np.pi
     return HarmonicFit(
-        f0_hz=res["omega"] / two_pi, sigma_f0_hz=res["sigma_omega"] / two_pi,
-        amplitude_mm=res["A"], sigma_amplitude_mm=res["sigma_A"], phase_rad=res["phase"],
-        offset_mm=res["E"], sigma_residual_mm=res["sigma_res"], variance_factor=res["s0sq"],
-        params=np.stack([res["C"], res["D"], res["E"], res["omega"]], axis=-1), cov=cov,
-        n=n, steps=steps, converged=ok,
+        f0_hz=res["omega"] / two_pi,
+        sigma_f0_hz=res["sigma_omega"] / two_pi,
+        amplitude_mm=res["A"],
+        sigma_amplitude_mm=res["sigma_A"],
+        phase_rad=res["phase"],
+        offset_mm=res["E"],
+        sigma_residual_mm=res["sigma_res"],
+        variance_factor=res["s0sq"],
+        params=np.stack([res["C"], res["D"], res["E"], res["omega"]], axis=-1),
+        cov=cov,
+        n=n,
+        steps=steps,
+        converged=ok,
     )

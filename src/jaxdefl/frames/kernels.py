@@ -11,8 +11,13 @@ import kornia
 import torch
 
 __all__ = [
-    "check_frames", "erode", "label_components", "otsu_threshold", "points_from_depth",
-    "points_from_range", "region_stats",
+    "check_frames",
+    "erode",
+    "label_components",
+    "otsu_threshold",
+    "points_from_depth",
+    "points_from_range",
+    "region_stats",
 ]
 
 
@@ -80,7 +85,9 @@ def label_components(mask: torch.Tensor) -> tuple[torch.Tensor, int]:
     rank = torch.arange(uniq.numel()) - first + 1
     rank = torch.where(uniq > 0, rank, torch.zeros_like(rank))
     labels = rank[inverse].reshape(raw.shape)
-    counts = torch.bincount(frame_of[uniq > 0], minlength=b) if uniq.numel() else torch.zeros(b, dtype=torch.long)
+    counts = (
+        torch.bincount(frame_of[uniq > 0], minlength=b) if uniq.numel() else torch.zeros(b, dtype=torch.long)
+    )
     return labels, int(counts.max().item()) if counts.numel() else 0
 
 
@@ -102,7 +109,9 @@ def region_stats(labels: torch.Tensor, n_labels: int, values: torch.Tensor | Non
     b, _, h, w = labels.shape
     k = max(n_labels, 1)
     lab = labels.reshape(b, -1)
-    vv, uu = torch.meshgrid(torch.arange(h, dtype=torch.float64), torch.arange(w, dtype=torch.float64), indexing="ij")
+    vv, uu = torch.meshgrid(
+        torch.arange(h, dtype=torch.float64), torch.arange(w, dtype=torch.float64), indexing="ij"
+    )
     u = uu.reshape(1, -1).expand(b, -1)
     v = vv.reshape(1, -1).expand(b, -1)
 
@@ -119,13 +128,23 @@ def region_stats(labels: torch.Tensor, n_labels: int, values: torch.Tensor | Non
     disc = torch.sqrt((0.5 * (muu - mvv)) ** 2 + muv**2)
     l1 = half_tr + disc
     l2 = (half_tr - disc).clamp_min(0)
-    out = dict(area=area, u=ub, v=vb, muu=muu, mvv=mvv, muv=muv, major=4 * torch.sqrt(l1),
-               minor=4 * torch.sqrt(l2), eccentricity=torch.sqrt(l2 / l1.clamp_min(1e-300)))
+    out = dict(
+        area=area,
+        u=ub,
+        v=vb,
+        muu=muu,
+        mvv=mvv,
+        muv=muv,
+        major=4 * torch.sqrt(l1),
+        minor=4 * torch.sqrt(l2),
+        eccentricity=torch.sqrt(l2 / l1.clamp_min(1e-300)),
+    )
     if values is not None:
         c = values.shape[1]
         vals = values.reshape(b, c, -1).to(torch.float64)
         sums = torch.zeros(b, c, k + 1, dtype=torch.float64).scatter_add_(
-            2, lab[:, None, :].expand(-1, c, -1), vals)[:, :, 1:]
+            2, lab[:, None, :].expand(-1, c, -1), vals
+        )[:, :, 1:]
         out["mean"] = (sums / a[:, None, :]).permute(0, 2, 1)
     return out
 
@@ -142,7 +161,9 @@ def points_from_range(range_mm: torch.Tensor, fx: float, fy: float, cx: float, c
     """3D points (B, 3, H, W) in mm from ToF radial range along each pixel's ray (eq. 3.9-3.10)."""
     check_frames(range_mm, "range_mm")
     _, _, h, w = range_mm.shape
-    vv, uu = torch.meshgrid(torch.arange(h, dtype=range_mm.dtype), torch.arange(w, dtype=range_mm.dtype), indexing="ij")
+    vv, uu = torch.meshgrid(
+        torch.arange(h, dtype=range_mm.dtype), torch.arange(w, dtype=range_mm.dtype), indexing="ij"
+    )
     x = (uu - cx) / fx
     y = (vv - cy) / fy
     norm = torch.sqrt(x * x + y * y + 1)
@@ -154,5 +175,7 @@ def points_from_depth(depth_mm: torch.Tensor, fx: float, fy: float, cx: float, c
     """3D points (B, 3, H, W) in mm from structured-light depth z (eq. 3.12, 3.16)."""
     check_frames(depth_mm, "depth_mm")
     _, _, h, w = depth_mm.shape
-    vv, uu = torch.meshgrid(torch.arange(h, dtype=depth_mm.dtype), torch.arange(w, dtype=depth_mm.dtype), indexing="ij")
+    vv, uu = torch.meshgrid(
+        torch.arange(h, dtype=depth_mm.dtype), torch.arange(w, dtype=depth_mm.dtype), indexing="ij"
+    )
     return torch.cat([depth_mm * (uu - cx) / fx, depth_mm * (vv - cy) / fy, depth_mm], dim=1)

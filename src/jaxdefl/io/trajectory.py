@@ -40,9 +40,7 @@ def _parse_header(name: str, path: Path) -> tuple[str, float]:
     table = _TIME_S if base == "t" else _LENGTH_MM
     if unit not in table:
         expected = ", ".join(table)
-        raise InputError(
-            f"{path}: column {name!r} has unknown unit {unit!r}; expected one of {expected}"
-        )
+        raise InputError(f"{path}: column {name!r} has unknown unit {unit!r}; expected one of {expected}")
     return base, table[unit]
 
 
@@ -71,9 +69,7 @@ def _to_numeric(df: pd.DataFrame, col: str, path: Path) -> np.ndarray:
         bad = num.isna() & ~blank
         if bad.any():
             i = int(np.flatnonzero(bad.to_numpy())[0])
-            raise InputError(
-                f"{path}: row {i + 2} column {col!r}: expected a number, got {raw.iloc[i]!r}"
-            )
+            raise InputError(f"{path}: row {i + 2} column {col!r}: expected a number, got {raw.iloc[i]!r}")
         return num.to_numpy(dtype=np.float64)
     return pd.to_numeric(raw, errors="coerce").to_numpy(dtype=np.float64)
 

@@ -21,11 +21,23 @@ def plot_fatigue(day_tab: pd.DataFrame, path: Path, plate: int) -> None:
     """A against the number of load cycles, camera and LDS (thesis Fig. 6.55)."""
     fig, ax = plt.subplots(figsize=(6.5, 3.6), constrained_layout=True)
     for cam, g in day_tab.groupby("camera"):
-        ax.errorbar(g["cycles"], g["amplitude_mm"], yerr=g["sigma_amplitude_mm"], fmt="o-", ms=4,
-                    label=f"{cam}")
+        ax.errorbar(
+            g["cycles"],
+            g["amplitude_mm"],
+            yerr=g["sigma_amplitude_mm"],
+            fmt="o-",
+            ms=4,
+            label=f"{cam}",
+        )
         if "amplitude_mm_lds" in g and g["amplitude_mm_lds"].notna().any():
-            ax.errorbar(g["cycles"], g["amplitude_mm_lds"], yerr=g["sigma_amplitude_mm_lds"], fmt="s--",
-                        ms=4, label=f"LDS (with {cam})")
+            ax.errorbar(
+                g["cycles"],
+                g["amplitude_mm_lds"],
+                yerr=g["sigma_amplitude_mm_lds"],
+                fmt="s--",
+                ms=4,
+                label=f"LDS (with {cam})",
+            )
     ax.set_xlabel("number of load cycles")
     ax.set_ylabel(f"amplitude, plate {plate} (mm)")
     ax.set_title("fatigue curve", fontsize=9)
@@ -34,7 +46,9 @@ def plot_fatigue(day_tab: pd.DataFrame, path: Path, plate: int) -> None:
     plt.close(fig)
 
 
-def plot_profiles(whole: pd.DataFrame, profile: pd.DataFrame, plate_x_mm, span_mm, load_a_mm, path: Path) -> None:
+def plot_profiles(
+    whole: pd.DataFrame, profile: pd.DataFrame, plate_x_mm, span_mm, load_a_mm, path: Path
+) -> None:
     """Amplitude along the beam per day with the fitted elastic curve."""
     fig, ax = plt.subplots(figsize=(6.5, 3.6), constrained_layout=True)
     xs = np.linspace(0, span_mm, 200)
@@ -46,8 +60,14 @@ def plot_profiles(whole: pd.DataFrame, profile: pd.DataFrame, plate_x_mm, span_m
         x = np.asarray(plate_x_mm)[g["plate"].to_numpy() - 1]
         col = cmap(days.index(row.day) / max(len(days) - 1, 1))
         ax.errorbar(x, g["amplitude_mm"], yerr=g["sigma_amplitude_mm"], fmt="o", ms=3, color=col)
-        ax.plot(xs, row.midspan_amplitude_mm * beam_shape(xs / 1000, span_mm / 1000, load_a_mm / 1000),
-                "-", lw=0.8, color=col, label=f"day {row.day} {row.camera}" if i < 12 else None)
+        ax.plot(
+            xs,
+            row.midspan_amplitude_mm * beam_shape(xs / 1000, span_mm / 1000, load_a_mm / 1000),
+            "-",
+            lw=0.8,
+            color=col,
+            label=f"day {row.day} {row.camera}" if i < 12 else None,
+        )
     ax.set_xlabel("position along the beam (mm)")
     ax.set_ylabel("deflection amplitude (mm)")
     ax.set_title("deflection profiles and elastic two-point-load fits", fontsize=9)
@@ -58,27 +78,67 @@ def plot_profiles(whole: pd.DataFrame, profile: pd.DataFrame, plate_x_mm, span_m
 
 def write_campaign_report(out: Path, campaign, units, whole, day_tab, profile, elapsed_s: float) -> Path:
     proc = campaign.processing
-    parts = [f"# Campaign {campaign.name}\n",
-             f"{len(units)} recordings; {int((units['status'] == 'ok').sum())} estimated, "
-             f"{int((units['status'] != 'ok').sum())} failed, {int(units['skipped'].sum())} reused from "
-             f"an earlier run; {elapsed_s:.1f} s.\n",
-             "## Units\n", md_table(units, {"seconds": ".2f"}), ""]
+    parts = [
+        f"# Campaign {campaign.name}\n",
+        f"{len(units)} recordings; {int((units['status'] == 'ok').sum())} estimated, "
+        f"{int((units['status'] != 'ok').sum())} failed, {int(units['skipped'].sum())} reused from "
+        f"an earlier run; {elapsed_s:.1f} s.\n",
+        "## Units\n",
+        md_table(units, {"seconds": ".2f"}),
+        "",
+    ]
     if len(day_tab):
         plot_fatigue(day_tab, out / "fatigue.png", proc.reference_plate)
-        cols = [c for c in ["day", "camera", "cycles", "f0_hz", "amplitude_mm", "f0_hz_lds", "amplitude_mm_lds",
-                            "delta_f0_hz", "delta_amplitude_mm", "sigma_f0_hz", "sigma_amplitude_mm",
-                            "sigma_residual_mm", "sigma_f0_hz_lds", "sigma_amplitude_mm_lds"] if c in day_tab]
-        fmt = {"f0_hz": ".4f", "f0_hz_lds": ".4f", "amplitude_mm": ".3f", "amplitude_mm_lds": ".3f",
-               "delta_f0_hz": "+.4f", "delta_amplitude_mm": "+.3f", "sigma_f0_hz": ".2e",
-               "sigma_amplitude_mm": ".4f", "sigma_residual_mm": ".2f", "sigma_f0_hz_lds": ".2e",
-               "sigma_amplitude_mm_lds": ".2e"}
-        parts += [f"## Plate {proc.reference_plate} per day (thesis Tables 6.12, 6.16, 6.17)\n",
-                  md_table(day_tab[cols], fmt), "", "![fatigue curve](fatigue.png)\n"]
+        cols = [
+            c
+            for c in [
+                "day",
+                "camera",
+                "cycles",
+                "f0_hz",
+                "amplitude_mm",
+                "f0_hz_lds",
+                "amplitude_mm_lds",
+                "delta_f0_hz",
+                "delta_amplitude_mm",
+                "sigma_f0_hz",
+                "sigma_amplitude_mm",
+                "sigma_residual_mm",
+                "sigma_f0_hz_lds",
+                "sigma_amplitude_mm_lds",
+            ]
+            if c in day_tab
+        ]
+        fmt = {
+            "f0_hz": ".4f",
+            "f0_hz_lds": ".4f",
+            "amplitude_mm": ".3f",
+            "amplitude_mm_lds": ".3f",
+            "delta_f0_hz": "+.4f",
+            "delta_amplitude_mm": "+.3f",
+            "sigma_f0_hz": ".2e",
+            "sigma_amplitude_mm": ".4f",
+            "sigma_residual_mm": ".2f",
+            "sigma_f0_hz_lds": ".2e",
+            "sigma_amplitude_mm_lds": ".2e",
+        }
+        parts += [
+            f"## Plate {proc.reference_plate} per day (thesis Tables 6.12, 6.16, 6.17)\n",
+            md_table(day_tab[cols], fmt),
+            "",
+            "![fatigue curve](fatigue.png)\n",
+        ]
     if len(profile):
         plot_profiles(whole, profile, proc.plate_x_mm, proc.span_mm, proc.load_a_mm, out / "profile.png")
-        parts += ["## Deflection profile along the beam\n",
-                  md_table(profile, {"midspan_amplitude_mm": ".3f", "sigma_midspan_mm": ".4f",
-                                     "rms_misfit_mm": ".3f"}), "", "![profiles](profile.png)\n"]
+        parts += [
+            "## Deflection profile along the beam\n",
+            md_table(
+                profile,
+                {"midspan_amplitude_mm": ".3f", "sigma_midspan_mm": ".4f", "rms_misfit_mm": ".3f"},
+            ),
+            "",
+            "![profiles](profile.png)\n",
+        ]
     failed = units[units["status"] != "ok"]
     if len(failed):
         parts += ["## Failed units\n"] + [f"- `{r.unit}`: {r.reason}" for r in failed.itertuples()]

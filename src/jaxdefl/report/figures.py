@@ -30,8 +30,17 @@ def plot_periodogram(freq_hz, power, n_indep, path: Path, title: str = "", alpha
     plt.close(fig)
 
 
-def plot_fit(t_s, y_mm, f0_hz, amplitude_mm, phase_rad, offset_mm, path: Path, title: str = "",
-             seconds: float = 5.0):
+def plot_fit(
+    t_s,
+    y_mm,
+    f0_hz,
+    amplitude_mm,
+    phase_rad,
+    offset_mm,
+    path: Path,
+    title: str = "",
+    seconds: float = 5.0,
+):
     """Raw samples and the fitted harmonic over the first ``seconds`` of a window (t from t_mid)."""
     t_s = np.asarray(t_s)
     sel = t_s <= t_s.min() + seconds

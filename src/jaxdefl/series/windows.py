@@ -16,7 +16,14 @@ import pandas as pd
 
 from .._errors import ConfigError
 
-__all__ = ["Windows", "make_windows", "windows_like", "frame_clock", "STATUS_OK", "STATUS_FEW_SAMPLES"]
+__all__ = [
+    "Windows",
+    "make_windows",
+    "windows_like",
+    "frame_clock",
+    "STATUS_OK",
+    "STATUS_FEW_SAMPLES",
+]
 
 STATUS_OK = "converged"
 STATUS_FEW_SAMPLES = "too_few_samples"
@@ -57,8 +64,13 @@ class Windows:
         if rows.dtype == bool:
             rows = np.flatnonzero(rows)
         return Windows(
-            self.t[rows], self.y[rows], self.mask[rows], self.k[rows], self.dt[rows],
-            self.on_clock[rows], self.table.iloc[rows].reset_index(drop=True),
+            self.t[rows],
+            self.y[rows],
+            self.mask[rows],
+            self.k[rows],
+            self.dt[rows],
+            self.on_clock[rows],
+            self.table.iloc[rows].reset_index(drop=True),
         )
 
 
@@ -182,8 +194,15 @@ def make_windows(
                     else:
                         lo, hi = np.searchsorted(t_all, [a, b], side="left")
                     sel = ok[lo:hi]
-                    meta = dict(segment=seg, window=w, t_start=a, t_end=b, t_mid=0.5 * (a + b),
-                                plate=int(plate), axis=axis)
+                    meta = dict(
+                        segment=seg,
+                        window=w,
+                        t_start=a,
+                        t_end=b,
+                        t_mid=0.5 * (a + b),
+                        plate=int(plate),
+                        axis=axis,
+                    )
                     clock = (dt_all, k_all[lo:hi][sel], bool(resid_ok[lo:hi][sel].all()))
                     series.append((meta, t_all[lo:hi][sel], v[lo:hi][sel], clock))
     return _pack(series, min_samples)

@@ -5,6 +5,15 @@ from .fap import THESIS_ALPHAS, false_alarm_probability, n_independent, signific
 from .lomb import METHODS, Periodogram, lomb_direct, lomb_from_sums, lomb_grid, lomb_peaks
 
 __all__ = [
-    "METHODS", "THESIS_ALPHAS", "Periodogram", "false_alarm_probability", "lomb_direct",
-    "lomb_from_sums", "lomb_grid", "lomb_peaks", "lomb_slow", "n_independent", "significance_level",
+    "METHODS",
+    "THESIS_ALPHAS",
+    "Periodogram",
+    "false_alarm_probability",
+    "lomb_direct",
+    "lomb_from_sums",
+    "lomb_grid",
+    "lomb_peaks",
+    "lomb_slow",
+    "n_independent",
+    "significance_level",
 ]

@@ -24,8 +24,8 @@ import numpy as np
 import scipy.fft
 
 from .. import _jax  # noqa: F401
-from .._shapes import bucket, pow2_at_least
 from .._errors import ConfigError
+from .._shapes import bucket, pow2_at_least
 from .._sincos import sincos
 from ..series import Windows
 from .fap import false_alarm_probability, n_independent
@@ -139,8 +139,14 @@ def _grid_batch(h_dense, m_dense, terms, which, var, df_dt, *, n_fft, j_lo, j_hi
     k = jnp.arange(h_dense.shape[1], dtype=h_dense.dtype)
     s, c = sincos(2 * jnp.pi * df_dt * (j_lo + i)[:, None] * k[None, :])
     n = jnp.sum(m_dense, axis=1)
-    p0 = lomb_from_sums(jnp.sum(h_dense * c, -1), jnp.sum(h_dense * s, -1),
-                        jnp.sum(m_dense * (c * c - s * s), -1), jnp.sum(m_dense * 2 * s * c, -1), n, var)
+    p0 = lomb_from_sums(
+        jnp.sum(h_dense * c, -1),
+        jnp.sum(h_dense * s, -1),
+        jnp.sum(m_dense * (c * c - s * s), -1),
+        jnp.sum(m_dense * 2 * s * c, -1),
+        n,
+        var,
+    )
     if dtype == jnp.float64:
         p0 = power[rows, i]  # already exact
     return i, p0, pm, pp, (power if keep else None)
@@ -223,8 +229,16 @@ def _peaks_grid(w: Windows, rows, out, fmin, fmax, oversampling, keep, search_dt
         masks = np.concatenate([masks, np.zeros((u_pad - masks.shape[0], length))])
         terms = _mask_terms(jnp.asarray(masks), n_fft=n_fft, j_lo=j_lo, j_hi=j_hi)
         i, p0, pm, pp, power = _grid_batch(
-            jnp.asarray(h), jnp.asarray(m, dtype=jnp.float64), terms, jnp.asarray(inverse.ravel()),
-            jnp.asarray(var), df * dt, n_fft=n_fft, j_lo=j_lo, j_hi=j_hi, keep=want,
+            jnp.asarray(h),
+            jnp.asarray(m, dtype=jnp.float64),
+            terms,
+            jnp.asarray(inverse.ravel()),
+            jnp.asarray(var),
+            df * dt,
+            n_fft=n_fft,
+            j_lo=j_lo,
+            j_hi=j_hi,
+            keep=want,
             search_dtype=search_dtype,
         )
         i, p0, pm, pp = (np.asarray(a)[: sel.size] for a in (i, p0, pm, pp))
@@ -260,8 +274,14 @@ def _peaks_nufft(w: Windows, rows, out, fmin, fmax, oversampling, keep, search_d
         if n_freq < 3:
             raise ConfigError(f"--fmin/--fmax: the band {f_lo:g}..{f_hi:g} Hz holds fewer than 3 frequencies")
         res = nifty_ls.lombscargle(
-            t - t[0], y, fmin=f_lo, fmax=f_lo + (n_freq - 1) * df, Nf=n_freq,
-            center_data=True, fit_mean=False, normalization="standard",
+            t - t[0],
+            y,
+            fmin=f_lo,
+            fmax=f_lo + (n_freq - 1) * df,
+            Nf=n_freq,
+            center_data=True,
+            fit_mean=False,
+            normalization="standard",
         )
         power = np.asarray(res.power) * (n - 1) / 2  # astropy "standard" -> thesis P_N
         i = int(np.argmax(power))
@@ -319,8 +339,15 @@ def lomb_peaks(
         raise ConfigError(f"--fmin: expected >= 0 Hz, got {fmin_hz}")
     b = len(w)
     nan = lambda: np.full(b, np.nan)  # noqa: E731
-    out = dict(freq_hz=nan(), power=nan(), fmin_hz=nan(), fmax_hz=nan(), df_hz=nan(),
-               method=np.full(b, "", dtype=object), spectra={})
+    out = dict(
+        freq_hz=nan(),
+        power=nan(),
+        fmin_hz=nan(),
+        fmax_hz=nan(),
+        df_hz=nan(),
+        method=np.full(b, "", dtype=object),
+        spectra={},
+    )
     n_valid = w.mask.sum(axis=1)
     if rows is None:
         rows = np.flatnonzero(n_valid >= 3)
@@ -338,8 +365,17 @@ def lomb_peaks(
         _peaks_nufft(w, rows[~use_grid], out, fmin_hz, fmax_hz, oversampling, keep, search_dtype)
     m_ind = n_independent(_spans(w), out["fmin_hz"], out["fmax_hz"])
     fap = false_alarm_probability(out["power"], m_ind)
-    return Periodogram(out["freq_hz"], out["power"], fap, m_ind, out["fmin_hz"], out["fmax_hz"],
-                       out["df_hz"], out["method"], out["spectra"])
+    return Periodogram(
+        out["freq_hz"],
+        out["power"],
+        fap,
+        m_ind,
+        out["fmin_hz"],
+        out["fmax_hz"],
+        out["df_hz"],
+        out["method"],
+        out["spectra"],
+    )
 
 
 def _spans(w: Windows) -> np.ndarray:
