@@ -1,0 +1,101 @@
+"""ToF sensor: NAR (Table 3.1), eq. 3.5-3.8 on static scenes, Table 6.1 noise, motion artefacts."""
+
+import importlib.util
+import math
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from jaxdefl.simulate import TABLE_6_1_MM, config_from_dict, non_ambiguity_range_m, pixel_model, render_frames
+from jaxdefl.simulate.artefacts import harmonic_fit, motion_artefact_study
+from jaxdefl.simulate.centroids import plate_pixel_masks
+from jaxdefl.simulate.tof import tof_model
+
+ROOT = Path(__file__).parents[1]
+
+
+def test_non_ambiguity_range_table_3_1():
+    assert [round(non_ambiguity_range_m(f), 3) for f in (29, 30, 31)] == [5.169, 4.997, 4.835]
+    assert non_ambiguity_range_m(30) == 299792458 / 60e6
+
+
+def _static(**camera):
+    raw = {"camera": {"dropout_prob": 0.0, **camera}, "recording": {"duration_s": 1.0},
+           "loading": {"amplitude_mm": 0.0, "longitudinal_mm": 0.0, "lateral_mm": 0.0}}
+    return config_from_dict(raw)
+
+
+def test_noise_free_range_is_the_geometry():
+    cfg = _static(noise_scale=0.0, scattering=0.0, plates=[7])
+    t, frames, amp, facts = render_frames(cfg)
+    pm = pixel_model(cfg, supersample=1)
+    idx = plate_pixel_masks(cfg, pm)[7]
+    got = frames.reshape(len(t), -1)[:, idx]
+    np.testing.assert_allclose(got, np.broadcast_to(pm.plate_range_mm[idx], got.shape), atol=2e-3)
+    assert facts["fx"] > 0 and facts["nar_mm"] == pytest.approx(5168.835, abs=1e-3)
+    assert np.all(amp > 0)
+
+
+def test_range_wraps_at_the_non_ambiguity_range():
+    # 60 MHz: NAR 2.498 m, shorter than the floor's range -> wrapped to [0, NAR)
+    cfg = _static(noise_scale=0.0, modulation_mhz=60.0, fov_deg=[69.0, 56.0])
+    t, frames, _, _ = render_frames(cfg)
+    nar = non_ambiguity_range_m(60.0) * 1000
+    assert frames.min() >= 0 and frames.max() < nar
+    assert (frames < 1000).mean() > 0.05  # the floor at ~2.7-3.3 m comes back short
+
+
+@pytest.mark.parametrize("fm", [29.0, 31.0])
+def test_noise_matches_table_6_1(fm):
+    for fs, expected in TABLE_6_1_MM[fm].items():
+        cfg = _static(frame_rate_hz=fs, modulation_mhz=fm, fov_deg=[69.0, 56.0])
+        t, frames, _, _ = render_frames(cfg, duration_s=max(2.0, 40 / fs))
+        top = tof_model(cfg, pixel_model(cfg)).top_pixels
+        assert top.size > 200
+        sd = np.median(frames.reshape(len(t), -1)[:, top].std(axis=0, ddof=1))
+        assert abs(sd / expected - 1) < 0.15, (fm, fs, sd, expected)
+
+
+def test_noise_grows_with_frame_rate_and_falls_with_modulation():
+    sds = {}
+    for fs, fm in ((10.0, 29.0), (40.0, 29.0), (40.0, 31.0)):
+        cfg = _static(frame_rate_hz=fs, modulation_mhz=fm)
+        t, frames, _, _ = render_frames(cfg, duration_s=2.0)
+        top = tof_model(cfg, pixel_model(cfg)).top_pixels
+        sds[fs, fm] = np.median(frames.reshape(len(t), -1)[:, top].std(axis=0))
+    assert sds[10.0, 29.0] < sds[40.0, 31.0] < sds[40.0, 29.0]
+
+
+def test_motion_artefacts_match_fig_6_9():
+    table = motion_artefact_study(motion_hz=(1.0, 3.0), frame_rates_hz=(10.0, 20.0))
+    err = {(r.motion_hz, r.frame_rate_hz): r.amplitude_error_mm for r in table.itertuples()}
+    assert err[1.0, 10.0] == pytest.approx(-0.061, abs=0.012)
+    assert err[3.0, 10.0] == pytest.approx(-0.53, abs=0.012)
+    assert err[3.0, 20.0] == pytest.approx(-0.14, abs=0.012)
+    lag = table[(table.motion_hz == 1.0) & (table.frame_rate_hz == 10.0)].phase_lag_deg.iloc[0]
+    assert lag == pytest.approx(-13.2, abs=2.0)
+
+
+def test_no_artefact_when_all_samples_are_taken_at_once():
+    from jaxdefl.simulate.artefacts import motion_artefact_ranges
+
+    t, true, _ = motion_artefact_ranges(3.0, 10.0, 4.0)
+    a, _, _ = harmonic_fit(t, true, 3.0)
+    assert a == pytest.approx(4.0, abs=0.01)  # 4 mm / cos(ray angle) ~ 4.002
+
+
+def test_motion_artefacts_experiment_script(tmp_path):
+    spec = importlib.util.spec_from_file_location("motion_artefacts", ROOT / "experiments" / "motion_artefacts.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    out = tmp_path / "ma.csv"
+    assert mod.main(["--out", str(out), "--duration", "3"]) == 0
+    df = pd.read_csv(out)
+    assert list(df.columns[:4]) == ["motion_hz", "frame_rate_hz", "amplitude_error_mm", "phase_lag_deg"]
+    assert len(df) == 8 and out.with_suffix(".png").stat().st_size > 10_000
+    # the error falls with the frame rate, faster motion hurts more
+    for _, g in df.groupby("motion_hz"):
+        assert np.all(np.diff(np.abs(g.amplitude_error_mm)) < 0)
+    assert math.isclose(df.amplitude_error_mm.min(), -0.533, abs_tol=0.012)
