@@ -33,7 +33,7 @@ def frame_clock(cfg: SimConfig, duration_s: float, seed: int) -> tuple[np.ndarra
     jitter = rng.normal(0.0, cam.timestamp_jitter_ms * 1e-3, n) if cam.timestamp_jitter_ms > 0 else 0.0
     t = cfg.t0_s + np.arange(n) / cam.frame_rate_hz + jitter
     idx = np.flatnonzero(keep)
-    return idx, np.asarray(t)[idx] if np.ndim(t) else t
+    return idx, t[idx]
 
 
 def truth_table(cfg: SimConfig, t_s: np.ndarray) -> pd.DataFrame:
@@ -43,13 +43,15 @@ def truth_table(cfg: SimConfig, t_s: np.ndarray) -> pd.DataFrame:
     c = plate_centres_world(cfg) - np.array([cfg.camera.x_mm, cfg.camera.y_mm, -cfg.camera.standoff_mm])
     shape = beam_shape(c[:, 0] + cfg.camera.x_mm, cfg.beam.span_mm, cfg.beam.load_a_mm)
     n, m = len(t_s), len(c)
+    # time-major rows (every plate at one instant, then the next), so that files written in
+    # chunks of frames are identical whatever the chunk size
     return pd.DataFrame({
         "segment": cfg.recording.segment,
-        "t": np.tile(t_s, m),
-        "plate": np.repeat(np.arange(1, m + 1), n),
-        "x": (c[:, 0][:, None] + dx[None, :]).ravel(),
-        "y": (c[:, 1][:, None] + dy[None, :]).ravel(),
-        "z": (c[:, 2][:, None] + shape[:, None] * defl[None, :]).ravel(),
+        "t": np.repeat(t_s, m),
+        "plate": np.tile(np.arange(1, m + 1), n),
+        "x": (c[:, 0][None, :] + dx[:, None]).ravel(),
+        "y": (c[:, 1][None, :] + dy[:, None]).ravel(),
+        "z": (c[:, 2][None, :] + shape[None, :] * defl[:, None]).ravel(),
     })
 
 
