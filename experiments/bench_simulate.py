@@ -25,7 +25,9 @@ def _du(path: Path) -> int:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--duration", type=float, default=600.0, help="simulated seconds (3600 = 1 hour)")
-    ap.add_argument("--config", type=Path, default=Path(__file__).parents[1] / "configs" / "exp2_tof_3hz.toml")
+    ap.add_argument(
+        "--config", type=Path, default=Path(__file__).parents[1] / "configs" / "exp2_tof_3hz.toml"
+    )
     ap.add_argument("--out", type=Path, default=None, help="output directory (default: a temporary one)")
     ap.add_argument("--keep", action="store_true", help="keep the output")
     ap.add_argument("--seed", type=int, default=0)

@@ -30,8 +30,9 @@ def main(argv=None) -> int:
     ap.add_argument("--duration", type=float, default=5.0, help="simulated seconds per case")
     args = ap.parse_args(argv)
 
-    table = motion_artefact_study(amplitude_mm=args.amplitude_mm, modulation_mhz=args.modulation_mhz,
-                                  duration_s=args.duration)
+    table = motion_artefact_study(
+        amplitude_mm=args.amplitude_mm, modulation_mhz=args.modulation_mhz, duration_s=args.duration
+    )
     args.out.parent.mkdir(parents=True, exist_ok=True)
     table.to_csv(args.out, index=False, float_format="%.6f")
     print(table[["motion_hz", "frame_rate_hz", "amplitude_error_mm", "phase_lag_deg"]].to_string(index=False))
@@ -43,10 +44,13 @@ def main(argv=None) -> int:
     for f0, mk in ((1.0, "o-"), (3.0, "s-")):
         sub = table[table.motion_hz == f0]
         axes[0].plot(sub.frame_rate_hz, sub.amplitude_error_mm, mk, label=f"motion {f0:g} Hz")
-    for (f0, fs), ref in THESIS.items():
+    for (_, fs), ref in THESIS.items():
         axes[0].plot(fs, ref, "kx", ms=9)
-    axes[0].set(xlabel="frame rate (Hz)", ylabel="amplitude error (mm)",
-                title=f"Fig. 6.9: {args.amplitude_mm:g} mm motion (x: thesis)")
+    axes[0].set(
+        xlabel="frame rate (Hz)",
+        ylabel="amplitude error (mm)",
+        title=f"Fig. 6.9: {args.amplitude_mm:g} mm motion (x: thesis)",
+    )
     axes[0].axhline(0, color="0.7", lw=0.8)
     axes[0].legend()
     for ax, (f0, fs) in zip(axes[1:], ((1.0, 10.0), (3.0, 10.0)), strict=True):

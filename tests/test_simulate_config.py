@@ -17,7 +17,9 @@ def _write(tmp_path, text):
     return p
 
 
-@pytest.mark.parametrize("name", ["exp1", "exp2_tof_1hz", "exp2_tof_3hz", "exp2_kinect_1hz", "exp2_kinect_3hz"])
+@pytest.mark.parametrize(
+    "name", ["exp1", "exp2_tof_1hz", "exp2_tof_3hz", "exp2_kinect_1hz", "exp2_kinect_3hz"]
+)
 def test_shipped_configs_load(name):
     cfg = load_config(CONFIGS / f"{name}.toml")
     assert cfg.camera.frame_rate_hz > 0
@@ -56,24 +58,33 @@ def test_unknown_session_name():
 
 def test_frame_rate_above_sr4000_maximum(tmp_path):
     p = _write(tmp_path, "[camera]\nsensor = 'sr4000'\nframe_rate_hz = 60\n")
-    with pytest.raises(ConfigError, match=r"sim.toml: key 'camera.frame_rate_hz': expected <= 54 Hz for the SR4000.*got 60$"):
+    with pytest.raises(
+        ConfigError, match=r"sim.toml: key 'camera.frame_rate_hz': expected <= 54 Hz for the SR4000.*got 60$"
+    ):
         load_config(p)
 
 
 def test_frame_rate_above_kinect_maximum():
-    with pytest.raises(ConfigError, match=r"key 'camera.frame_rate_hz': expected <= 30 Hz for the Kinect.*got 31"):
+    with pytest.raises(
+        ConfigError, match=r"key 'camera.frame_rate_hz': expected <= 30 Hz for the Kinect.*got 31"
+    ):
         config_from_dict({"camera": {"sensor": "kinect", "frame_rate_hz": 31}}, "k.toml")
 
 
 def test_plate_outside_field_of_view(tmp_path):
     p = _write(tmp_path, "[camera]\nplates = [6, 7, 12]\n")
-    with pytest.raises(ConfigError, match=r"key 'camera.plates': expected plates inside the 176x144 field of view, got plate 12"):
+    with pytest.raises(
+        ConfigError,
+        match=r"key 'camera.plates': expected plates inside the 176x144 field of view, got plate 12",
+    ):
         load_config(p)
 
 
 def test_negative_duration_in_config(tmp_path):
     p = _write(tmp_path, "[recording]\nduration_s = -5\n")
-    with pytest.raises(ConfigError, match=r"key 'recording.duration_s': expected a duration >= 0 s, got -5.0"):
+    with pytest.raises(
+        ConfigError, match=r"key 'recording.duration_s': expected a duration >= 0 s, got -5.0"
+    ):
         load_config(p)
 
 
@@ -88,7 +99,9 @@ def test_wrong_type():
 
 
 def test_unknown_sensor():
-    with pytest.raises(ConfigError, match=r"key 'camera.sensor': expected one of sr4000, kinect, got 'lidar'"):
+    with pytest.raises(
+        ConfigError, match=r"key 'camera.sensor': expected one of sr4000, kinect, got 'lidar'"
+    ):
         config_from_dict({"camera": {"sensor": "lidar"}})
 
 

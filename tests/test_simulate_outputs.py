@@ -3,7 +3,6 @@
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 import pytest
 import zarr
 from scipy.optimize import least_squares
@@ -11,10 +10,15 @@ from scipy.optimize import least_squares
 from jaxdefl.cli import main
 from jaxdefl.io import read_reference, read_trajectory
 from jaxdefl.simulate import (
-    beam_shape, config_from_dict, load_config, midspan_amplitude_mm, render_frames, simulate_to_dir,
+    beam_shape,
+    config_from_dict,
+    load_config,
+    midspan_amplitude_mm,
+    render_frames,
+    simulate_to_dir,
     simulate_trajectories,
 )
-from jaxdefl.simulate.structured_light import kinect_model, quantisation_step_px
+from jaxdefl.simulate.structured_light import quantisation_step_px
 
 CONFIGS = Path(__file__).parents[1] / "configs"
 
@@ -61,8 +65,12 @@ def test_truth_and_lds_carry_configured_amplitude_and_frequency():
 
 
 def test_fatigue_follows_the_log_law():
-    raw = {"recording": {"cycles_at_start": 32400.0}, "loading": {"frequency_hz": 3.0, "amplitude_mm": 2.32},
-           "lds": {"plates": [7]}, "fatigue": {"law": "log", "cycles": [32400, 880286], "amplitude_mm": [2.32, 2.63]}}
+    raw = {
+        "recording": {"cycles_at_start": 32400.0},
+        "loading": {"frequency_hz": 3.0, "amplitude_mm": 2.32},
+        "lds": {"plates": [7]},
+        "fatigue": {"law": "log", "cycles": [32400, 880286], "amplitude_mm": [2.32, 2.63]},
+    }
     cfg = config_from_dict(raw)
     assert midspan_amplitude_mm(cfg, 880286) == pytest.approx(2.63)
     assert midspan_amplitude_mm(cfg, 32400) == pytest.approx(2.32)
@@ -80,7 +88,9 @@ def test_fatigue_follows_the_log_law():
 
 
 def _small_config(tmp_path, chunk=200, extra=""):
-    text = (CONFIGS / "exp2_tof_3hz.toml").read_text().replace("chunk_frames = 200", f"chunk_frames = {chunk}")
+    text = (
+        (CONFIGS / "exp2_tof_3hz.toml").read_text().replace("chunk_frames = 200", f"chunk_frames = {chunk}")
+    )
     p = tmp_path / f"sim_{chunk}.toml"
     p.write_text(text + extra)
     return p
@@ -124,8 +134,11 @@ def test_cli_simulate_writes_the_recording(tmp_path):
     assert set(truth.plate) == set(range(1, 14)) and set(lds.plate) == {3, 5, 7, 9, 11}
     np.testing.assert_allclose(np.sort(truth.t.unique()), t, atol=1e-6)
     ref_truth, ref_lds = simulate_trajectories(CONFIGS / "exp2_tof_3hz.toml", duration_s=5, seed=3)
-    np.testing.assert_allclose(truth.sort_values(["plate", "t"]).z.to_numpy(),
-                               ref_truth.sort_values(["plate", "t"]).z.to_numpy(), atol=2e-6)
+    np.testing.assert_allclose(
+        truth.sort_values(["plate", "t"]).z.to_numpy(),
+        ref_truth.sort_values(["plate", "t"]).z.to_numpy(),
+        atol=2e-6,
+    )
     assert len(lds) == len(ref_lds) == 5 * 1500
     eff = (out / "config.json").read_text()
     assert '"duration_s": 5.0' in eff and '"seed": 3' in eff
@@ -141,9 +154,17 @@ def test_truth_and_lds_share_the_sign_of_the_deflection():
 
 
 def test_kinect_depth_is_quantised_with_steps_growing_as_z_squared():
-    raw = {"camera": {"sensor": "kinect", "plates": [7], "frame_noise_mm": 0.0, "session_shift_mm": 0.0,
-                      "jumps_per_minute": 0.0, "dropout_prob": 0.0},
-           "loading": {"frequency_hz": 1.0}}
+    raw = {
+        "camera": {
+            "sensor": "kinect",
+            "plates": [7],
+            "frame_noise_mm": 0.0,
+            "session_shift_mm": 0.0,
+            "jumps_per_minute": 0.0,
+            "dropout_prob": 0.0,
+        },
+        "loading": {"frequency_hz": 1.0},
+    }
     cfg = config_from_dict(raw)
     t, depth, amp, facts = render_frames(cfg, duration_s=0.2)
     assert depth.shape == (6, 480, 640) and facts["sensor"] == "kinect"
@@ -156,8 +177,10 @@ def test_kinect_depth_is_quantised_with_steps_growing_as_z_squared():
 
 
 def test_kinect_session_shift_and_jumps():
-    raw = {"camera": {"sensor": "kinect", "noise_scale": 0.0, "dropout_prob": 0.0, "jumps_per_minute": 30.0},
-           "loading": {"amplitude_mm": 0.0, "longitudinal_mm": 0.0, "lateral_mm": 0.0}}
+    raw = {
+        "camera": {"sensor": "kinect", "noise_scale": 0.0, "dropout_prob": 0.0, "jumps_per_minute": 30.0},
+        "loading": {"amplitude_mm": 0.0, "longitudinal_mm": 0.0, "lateral_mm": 0.0},
+    }
     cfg = config_from_dict(raw)
     from jaxdefl.simulate.structured_light import session_offsets_mm
 

@@ -22,8 +22,11 @@ def test_non_ambiguity_range_table_3_1():
 
 
 def _static(**camera):
-    raw = {"camera": {"dropout_prob": 0.0, **camera}, "recording": {"duration_s": 1.0},
-           "loading": {"amplitude_mm": 0.0, "longitudinal_mm": 0.0, "lateral_mm": 0.0}}
+    raw = {
+        "camera": {"dropout_prob": 0.0, **camera},
+        "recording": {"duration_s": 1.0},
+        "loading": {"amplitude_mm": 0.0, "longitudinal_mm": 0.0, "lateral_mm": 0.0},
+    }
     return config_from_dict(raw)
 
 
@@ -87,7 +90,9 @@ def test_no_artefact_when_all_samples_are_taken_at_once():
 
 
 def test_motion_artefacts_experiment_script(tmp_path):
-    spec = importlib.util.spec_from_file_location("motion_artefacts", ROOT / "experiments" / "motion_artefacts.py")
+    spec = importlib.util.spec_from_file_location(
+        "motion_artefacts", ROOT / "experiments" / "motion_artefacts.py"
+    )
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     out = tmp_path / "ma.csv"

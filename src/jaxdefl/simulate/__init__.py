@@ -20,8 +20,24 @@ from .tof import TABLE_6_1_MM, integration_time_ms, non_ambiguity_range_m, range
 from .writer import render_frames, simulate_to_dir, simulate_trajectories, tap_times
 
 __all__ = [
-    "SimConfig", "load_config", "config_from_dict", "simulate_to_dir", "simulate_trajectories",
-    "render_frames", "measured_centroids", "frame_clock", "truth_table", "lds_block", "beam_shape",
-    "intrinsics", "kinematics", "midspan_amplitude_mm", "pixel_model", "non_ambiguity_range_m",
-    "range_noise_mm", "integration_time_ms", "tap_times", "TABLE_6_1_MM",
+    "SimConfig",
+    "load_config",
+    "config_from_dict",
+    "simulate_to_dir",
+    "simulate_trajectories",
+    "render_frames",
+    "measured_centroids",
+    "frame_clock",
+    "truth_table",
+    "lds_block",
+    "beam_shape",
+    "intrinsics",
+    "kinematics",
+    "midspan_amplitude_mm",
+    "pixel_model",
+    "non_ambiguity_range_m",
+    "range_noise_mm",
+    "integration_time_ms",
+    "tap_times",
+    "TABLE_6_1_MM",
 ]

@@ -35,8 +35,15 @@ def harmonic_fit(t_s: np.ndarray, y: np.ndarray, freq_hz: float) -> tuple[float,
     return float(math.hypot(a, b)), float(math.atan2(b, a)), float(c)
 
 
-def _study_config(motion_hz: float, frame_rate_hz: float, amplitude_mm: float, modulation_mhz: float,
-                  instantaneous: bool, plate: int = 7, crop: tuple[int, int] = (48, 24)) -> dict:
+def _study_config(
+    motion_hz: float,
+    frame_rate_hz: float,
+    amplitude_mm: float,
+    modulation_mhz: float,
+    instantaneous: bool,
+    plate: int = 7,
+    crop: tuple[int, int] = (48, 24),
+) -> dict:
     full = config_from_dict({"camera": {"sensor": "sr4000"}})
     k = intrinsics(full)
     fov = [2 * math.degrees(math.atan(crop[0] / 2 / k.fx)), 2 * math.degrees(math.atan(crop[1] / 2 / k.fy))]
@@ -45,31 +52,59 @@ def _study_config(motion_hz: float, frame_rate_hz: float, amplitude_mm: float, m
     return {
         "recording": {"seed": 0, "cycles_at_start": 1.0, "chunk_frames": 500},
         "fatigue": {"law": "none"},
-        "loading": {"frequency_hz": motion_hz, "amplitude_mm": amplitude_mm, "longitudinal_mm": 0.0,
-                    "lateral_mm": 0.0, "phase_rad": 0.0},
-        "camera": {"sensor": "sr4000", "frame_rate_hz": frame_rate_hz, "modulation_mhz": modulation_mhz,
-                   "width": crop[0], "height": crop[1], "fov_deg": fov, "x_mm": x_plate, "y_mm": y_plate,
-                   "noise_scale": 0.0, "scattering": 0.0, "dropout_prob": 0.0, "plates": [plate],
-                   "tap_offsets": [0.0, 0.0, 0.0, 0.0] if instantaneous else [0.0, 0.25, 0.5, 0.75]},
+        "loading": {
+            "frequency_hz": motion_hz,
+            "amplitude_mm": amplitude_mm,
+            "longitudinal_mm": 0.0,
+            "lateral_mm": 0.0,
+            "phase_rad": 0.0,
+        },
+        "camera": {
+            "sensor": "sr4000",
+            "frame_rate_hz": frame_rate_hz,
+            "modulation_mhz": modulation_mhz,
+            "width": crop[0],
+            "height": crop[1],
+            "fov_deg": fov,
+            "x_mm": x_plate,
+            "y_mm": y_plate,
+            "noise_scale": 0.0,
+            "scattering": 0.0,
+            "dropout_prob": 0.0,
+            "plates": [plate],
+            "tap_offsets": [0.0, 0.0, 0.0, 0.0] if instantaneous else [0.0, 0.25, 0.5, 0.75],
+        },
         "lds": {"enabled": False},
     }
 
 
-def motion_artefact_ranges(motion_hz: float, frame_rate_hz: float, amplitude_mm: float = 4.0,
-                           modulation_mhz: float = 29.0, duration_s: float = 5.0, plate: int = 7):
+def motion_artefact_ranges(
+    motion_hz: float,
+    frame_rate_hz: float,
+    amplitude_mm: float = 4.0,
+    modulation_mhz: float = 29.0,
+    duration_s: float = 5.0,
+    plate: int = 7,
+):
     """(t, true range, biased range): mean range of the plate's interior pixels per frame (mm)."""
     out = []
     for inst in (True, False):
-        cfg = config_from_dict(_study_config(motion_hz, frame_rate_hz, amplitude_mm, modulation_mhz, inst, plate))
+        cfg = config_from_dict(
+            _study_config(motion_hz, frame_rate_hz, amplitude_mm, modulation_mhz, inst, plate)
+        )
         t, frames, _, _ = render_frames(cfg, duration_s=duration_s)
         idx = plate_pixel_masks(cfg, pixel_model(cfg, supersample=1))[plate]
         out.append(frames.reshape(len(t), -1)[:, idx].mean(axis=1))
     return t, out[0], out[1]
 
 
-def motion_artefact_study(motion_hz=(1.0, 3.0), frame_rates_hz=(10.0, 20.0, 30.0, 40.0),
-                          amplitude_mm: float = 4.0, modulation_mhz: float = 29.0,
-                          duration_s: float = 5.0) -> pd.DataFrame:
+def motion_artefact_study(
+    motion_hz=(1.0, 3.0),
+    frame_rates_hz=(10.0, 20.0, 30.0, 40.0),
+    amplitude_mm: float = 4.0,
+    modulation_mhz: float = 29.0,
+    duration_s: float = 5.0,
+) -> pd.DataFrame:
     """Amplitude error (mm, biased - true) and phase difference (deg, true - biased) per case.
 
     Columns: motion_hz, frame_rate_hz, amplitude_error_mm, phase_lag_deg, true_amplitude_mm,
@@ -85,6 +120,14 @@ def motion_artefact_study(motion_hz=(1.0, 3.0), frame_rates_hz=(10.0, 20.0, 30.0
             # 1 Hz / 10 Hz): the biased range, stamped at the frame start but sampled over the
             # frame, runs ahead of the true range.
             lag = math.degrees(math.remainder(p_b - p_t, 2 * math.pi))
-            rows.append(dict(motion_hz=f0, frame_rate_hz=fs, amplitude_error_mm=a_b - a_t,
-                             phase_lag_deg=lag, true_amplitude_mm=a_t, biased_amplitude_mm=a_b))
+            rows.append(
+                dict(
+                    motion_hz=f0,
+                    frame_rate_hz=fs,
+                    amplitude_error_mm=a_b - a_t,
+                    phase_lag_deg=lag,
+                    true_amplitude_mm=a_t,
+                    biased_amplitude_mm=a_b,
+                )
+            )
     return pd.DataFrame(rows)

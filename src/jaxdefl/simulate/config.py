@@ -23,9 +23,20 @@ from typing import Any
 from .._errors import ConfigError
 
 __all__ = [
-    "SimConfig", "RecordingConfig", "BeamConfig", "PlatesConfig", "SceneConfig", "LoadingConfig",
-    "FatigueConfig", "CameraConfig", "LDSConfig", "load_config", "config_from_dict",
-    "list_sessions", "SENSOR_MAX_FRAME_RATE_HZ", "SPEED_OF_LIGHT_M_S",
+    "SimConfig",
+    "RecordingConfig",
+    "BeamConfig",
+    "PlatesConfig",
+    "SceneConfig",
+    "LoadingConfig",
+    "FatigueConfig",
+    "CameraConfig",
+    "LDSConfig",
+    "load_config",
+    "config_from_dict",
+    "list_sessions",
+    "SENSOR_MAX_FRAME_RATE_HZ",
+    "SPEED_OF_LIGHT_M_S",
 ]
 
 SPEED_OF_LIGHT_M_S = 299_792_458.0
@@ -167,8 +178,14 @@ class SimConfig:
 
 _SECTIONS = {f.name: f.type for f in dataclasses.fields(SimConfig) if f.name != "source"}
 _CLASSES = {
-    "recording": RecordingConfig, "beam": BeamConfig, "plates": PlatesConfig, "scene": SceneConfig,
-    "loading": LoadingConfig, "fatigue": FatigueConfig, "camera": CameraConfig, "lds": LDSConfig,
+    "recording": RecordingConfig,
+    "beam": BeamConfig,
+    "plates": PlatesConfig,
+    "scene": SceneConfig,
+    "loading": LoadingConfig,
+    "fatigue": FatigueConfig,
+    "camera": CameraConfig,
+    "lds": LDSConfig,
 }
 
 
@@ -336,7 +353,9 @@ def validate(cfg: SimConfig) -> None:
     if cam.sensor == "sr4000" and not 5.0 <= cam.modulation_mhz <= 60.0:
         raise _err(src, "camera.modulation_mhz", "a modulation frequency in 5-60 MHz", cam.modulation_mhz)
     if len(cam.tap_offsets) != 4 or not all(0.0 <= o < 1.0 for o in cam.tap_offsets):
-        raise _err(src, "camera.tap_offsets", "4 fractions of the frame period in [0, 1)", list(cam.tap_offsets))
+        raise _err(
+            src, "camera.tap_offsets", "4 fractions of the frame period in [0, 1)", list(cam.tap_offsets)
+        )
     if not 0.0 <= cam.dropout_prob < 1.0:
         raise _err(src, "camera.dropout_prob", "a probability in [0, 1)", cam.dropout_prob)
     if cam.noise_scale < 0:
@@ -357,8 +376,12 @@ def validate(cfg: SimConfig) -> None:
         if bad:
             raise _err(src, key, f"plate numbers in 1..{n}", bad[0])
     if cfg.lds.defective_plate and cfg.lds.defective_plate not in cfg.lds.plates:
-        raise _err(src, "lds.defective_plate", f"0 or one of lds.plates {list(cfg.lds.plates)}",
-                   cfg.lds.defective_plate)
+        raise _err(
+            src,
+            "lds.defective_plate",
+            f"0 or one of lds.plates {list(cfg.lds.plates)}",
+            cfg.lds.defective_plate,
+        )
     # impossible geometry: a plate the camera must see lies (partly) outside the field of view
     from .scene import plate_image_bounds
 

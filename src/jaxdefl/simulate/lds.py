@@ -45,14 +45,16 @@ def truth_table(cfg: SimConfig, t_s: np.ndarray) -> pd.DataFrame:
     n, m = len(t_s), len(c)
     # time-major rows (every plate at one instant, then the next), so that files written in
     # chunks of frames are identical whatever the chunk size
-    return pd.DataFrame({
-        "segment": cfg.recording.segment,
-        "t": np.repeat(t_s, m),
-        "plate": np.tile(np.arange(1, m + 1), n),
-        "x": (c[:, 0][None, :] + dx[:, None]).ravel(),
-        "y": (c[:, 1][None, :] + dy[:, None]).ravel(),
-        "z": (c[:, 2][None, :] + shape[None, :] * defl[:, None]).ravel(),
-    })
+    return pd.DataFrame(
+        {
+            "segment": cfg.recording.segment,
+            "t": np.repeat(t_s, m),
+            "plate": np.tile(np.arange(1, m + 1), n),
+            "x": (c[:, 0][None, :] + dx[:, None]).ravel(),
+            "y": (c[:, 1][None, :] + dy[:, None]).ravel(),
+            "z": (c[:, 2][None, :] + shape[None, :] * defl[:, None]).ravel(),
+        }
+    )
 
 
 def lds_block(cfg: SimConfig, seed: int, block: int, duration_s: float) -> pd.DataFrame:

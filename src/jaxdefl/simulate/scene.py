@@ -23,9 +23,18 @@ import numpy as np
 from .config import SimConfig
 
 __all__ = [
-    "beam_shape", "Intrinsics", "intrinsics", "plate_centres_world", "plate_image_bounds",
-    "midspan_amplitude_mm", "kinematics", "PixelModel", "pixel_model", "KIND_STATIC",
-    "KIND_BEAM_TOP", "KIND_SPREADER",
+    "beam_shape",
+    "Intrinsics",
+    "intrinsics",
+    "plate_centres_world",
+    "plate_image_bounds",
+    "midspan_amplitude_mm",
+    "kinematics",
+    "PixelModel",
+    "pixel_model",
+    "KIND_STATIC",
+    "KIND_BEAM_TOP",
+    "KIND_SPREADER",
 ]
 
 KIND_STATIC, KIND_BEAM_TOP, KIND_SPREADER = 0, 1, 2
@@ -148,16 +157,27 @@ def _boxes(cfg: SimConfig) -> list[tuple[np.ndarray, np.ndarray, float, str]]:
     b, sc, cam = cfg.beam, cfg.scene, cfg.camera
     hw = b.width_mm / 2
     boxes = [
-        (np.array([-b.overhang_mm, -hw, 0.0]), np.array([b.span_mm + b.overhang_mm, hw, b.height_mm]),
-         b.reflectivity, "beam"),
+        (
+            np.array([-b.overhang_mm, -hw, 0.0]),
+            np.array([b.span_mm + b.overhang_mm, hw, b.height_mm]),
+            b.reflectivity,
+            "beam",
+        ),
     ]
     for xs in (0.0, b.span_mm):  # supports under the beam ends
-        boxes.append((np.array([xs - 75, -150, b.height_mm]), np.array([xs + 75, 150, sc.floor_below_top_mm]),
-                      0.3, "static"))
+        boxes.append(
+            (
+                np.array([xs - 75, -150, b.height_mm]),
+                np.array([xs + 75, 150, sc.floor_below_top_mm]),
+                0.3,
+                "static",
+            )
+        )
     if sc.occluders:
         a = b.load_a_mm
-        boxes.append((np.array([a - 100, -75, -150.0]), np.array([b.span_mm - a + 100, 75, 0.0]), 0.35,
-                      "spreader"))
+        boxes.append(
+            (np.array([a - 100, -75, -150.0]), np.array([b.span_mm - a + 100, 75, 0.0]), 0.35, "spreader")
+        )
         mid = b.span_mm / 2
         top = -cam.standoff_mm - 800.0
         boxes.append((np.array([mid - 120, -120, top]), np.array([mid + 120, 120, -150.0]), 0.3, "static"))
@@ -247,11 +267,22 @@ def pixel_model(cfg: SimConfig, supersample: int | None = None) -> PixelModel:
     y1 = origin[1] + depth_p * (v + 0.5 - intr.cy) / intr.fy
     xc = (x0 + x1) / 2
     idx = np.argmin(np.abs(xc[:, None] - centres[None, :, 0]), axis=1)
-    edges = np.stack([centres[:, 0] - pl.length_mm / 2, centres[:, 0] + pl.length_mm / 2,
-                      centres[:, 1] - pl.width_mm / 2, centres[:, 1] + pl.width_mm / 2], axis=1)
+    edges = np.stack(
+        [
+            centres[:, 0] - pl.length_mm / 2,
+            centres[:, 0] + pl.length_mm / 2,
+            centres[:, 1] - pl.width_mm / 2,
+            centres[:, 1] + pl.width_mm / 2,
+        ],
+        axis=1,
+    )
     margin = 5.0  # mm: pixels farther than this from any plate never see one
-    near = ((x1 > edges[idx, 0] - margin) & (x0 < edges[idx, 1] + margin)
-            & (y1 > edges[idx, 2] - margin) & (y0 < edges[idx, 3] + margin))
+    near = (
+        (x1 > edges[idx, 0] - margin)
+        & (x0 < edges[idx, 1] + margin)
+        & (y1 > edges[idx, 2] - margin)
+        & (y0 < edges[idx, 3] + margin)
+    )
     idx = np.where(near, idx, -1)
     dx = (u - intr.cx) / intr.fx
     dy = (v - intr.cy) / intr.fy
@@ -262,10 +293,19 @@ def pixel_model(cfg: SimConfig, supersample: int | None = None) -> PixelModel:
     shape_p = beam_shape(centres[:, 0], b.span_mm, b.load_a_mm)
     return PixelModel(
         intr=intr,
-        sub_range_mm=cat["range"], sub_depth_mm=cat["depth"], sub_kind=cat["kind"],
-        sub_gain=cat["gain"], sub_gain_depth=cat["gdepth"], sub_bright=cat["bright"],
-        plate_idx=idx.astype(np.int32), plate_foot=np.stack([x0, x1, y0, y1], axis=1),
-        plate_range_mm=rng_p, plate_depth_mm=np.full_like(rng_p, depth_p), plate_gain=norm,
-        plate_bright=pl.reflectivity * cosz**3 / (rng_p / 1000.0) ** 2, plate_occ=occ,
-        plate_edges=edges, plate_shape=np.asarray(shape_p, float),
+        sub_range_mm=cat["range"],
+        sub_depth_mm=cat["depth"],
+        sub_kind=cat["kind"],
+        sub_gain=cat["gain"],
+        sub_gain_depth=cat["gdepth"],
+        sub_bright=cat["bright"],
+        plate_idx=idx.astype(np.int32),
+        plate_foot=np.stack([x0, x1, y0, y1], axis=1),
+        plate_range_mm=rng_p,
+        plate_depth_mm=np.full_like(rng_p, depth_p),
+        plate_gain=norm,
+        plate_bright=pl.reflectivity * cosz**3 / (rng_p / 1000.0) ** 2,
+        plate_occ=occ,
+        plate_edges=edges,
+        plate_shape=np.asarray(shape_p, float),
     )

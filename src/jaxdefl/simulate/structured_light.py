@@ -58,10 +58,17 @@ def kinect_model(cfg: SimConfig, pm: PixelModel) -> KinectModel:
     pidx = pm.plate_idx
     shape = np.where(pidx >= 0, pm.plate_shape[np.maximum(pidx, 0)], 0.0)
     return KinectModel(
-        bf=cfg.camera.baseline_mm * pm.intr.fx, q_px=quantisation_step_px(cfg, pm.intr.fx),
-        bg_w=np.stack(w, 1), bg_depth=np.stack(dep, 1), bg_gain=np.stack(gain, 1),
-        plate_depth=pm.plate_depth_mm, plate_gain=shape, plate_idx=pidx, plate_foot=pm.plate_foot,
-        plate_occ=pm.plate_occ, plate_edges=pm.plate_edges,
+        bf=cfg.camera.baseline_mm * pm.intr.fx,
+        q_px=quantisation_step_px(cfg, pm.intr.fx),
+        bg_w=np.stack(w, 1),
+        bg_depth=np.stack(dep, 1),
+        bg_gain=np.stack(gain, 1),
+        plate_depth=pm.plate_depth_mm,
+        plate_gain=shape,
+        plate_idx=pidx,
+        plate_foot=pm.plate_foot,
+        plate_occ=pm.plate_occ,
+        plate_edges=pm.plate_edges,
         ir=(1000.0 * pm.sub_bright.mean(axis=1)).astype(np.float32),
     )
 
@@ -78,8 +85,16 @@ def session_offsets_mm(cfg: SimConfig, t_s: np.ndarray, seed: int, duration_s: f
     return shift + cum[np.searchsorted(t_j, np.asarray(t_s), side="right")]
 
 
-def render_kinect(km: KinectModel, cfg: SimConfig, frame_index: np.ndarray, defl: np.ndarray,
-                  dx: np.ndarray, dy: np.ndarray, offsets_mm: np.ndarray, seed: int):
+def render_kinect(
+    km: KinectModel,
+    cfg: SimConfig,
+    frame_index: np.ndarray,
+    defl: np.ndarray,
+    dx: np.ndarray,
+    dy: np.ndarray,
+    offsets_mm: np.ndarray,
+    seed: int,
+):
     """Depth (frame, p) in mm (NaN where no disparity) and the IR image for each frame."""
     cam = cfg.camera
     n, p = len(frame_index), km.bg_w.shape[0]

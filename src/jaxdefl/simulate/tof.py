@@ -25,8 +25,13 @@ from .config import SPEED_OF_LIGHT_M_S, SimConfig
 from .scene import KIND_BEAM_TOP, KIND_SPREADER, KIND_STATIC, PixelModel
 
 __all__ = [
-    "non_ambiguity_range_m", "integration_time_ms", "range_noise_mm", "ToFModel", "tof_model",
-    "render_tof", "phase_from_samples",
+    "non_ambiguity_range_m",
+    "integration_time_ms",
+    "range_noise_mm",
+    "ToFModel",
+    "tof_model",
+    "render_tof",
+    "phase_from_samples",
 ]
 
 # Section 4.3.2: integration times used for the frame rates of Experiment I.
@@ -120,19 +125,30 @@ def tof_model(cfg: SimConfig, pm: PixelModel) -> ToFModel:
     bg_gain = np.stack(gains, axis=1).astype(np.float32)
     pidx = pm.plate_idx
     shape = np.where(pidx >= 0, pm.plate_shape[np.maximum(pidx, 0)], 0.0)
-    plate_base = (scale * pm.plate_bright * np.exp(1j * np.mod(k * pm.plate_range_mm, 2 * np.pi)))
+    plate_base = scale * pm.plate_bright * np.exp(1j * np.mod(k * pm.plate_range_mm, 2 * np.pi))
     top = np.flatnonzero((pm.sub_kind == KIND_BEAM_TOP).all(axis=1) & (pidx < 0))
     # Noise: sigma_range(top surface) from Table 6.1 at the median top-surface amplitude.
-    k_ref = float(np.median(np.abs(bg_base[top, 1]))) if top.size else float(np.median(np.abs(bg_base).sum(1)))
+    k_ref = (
+        float(np.median(np.abs(bg_base[top, 1]))) if top.size else float(np.median(np.abs(bg_base).sum(1)))
+    )
     sigma_range = range_noise_mm(t_int, cam.modulation_mhz) * cam.noise_scale
     sigma_c = sigma_range * k * k_ref / math.sqrt(2.0)
     amp = np.abs(bg_base).sum(axis=1)
     return ToFModel(
-        k_rad_per_mm=k, bg_base=bg_base, bg_gain=bg_gain, plate_base=plate_base.astype(np.complex64),
-        plate_gain=(pm.plate_gain * shape).astype(np.float32), plate_idx=pidx,
-        plate_foot=pm.plate_foot.astype(np.float64), plate_occ=pm.plate_occ.astype(np.float32),
-        plate_edges=pm.plate_edges, sigma_c=float(sigma_c), offset_b=(0.25 * amp + 200.0).astype(np.float32),
-        scattering=cam.scattering, top_pixels=top, nar_mm=non_ambiguity_range_m(cam.modulation_mhz) * 1000,
+        k_rad_per_mm=k,
+        bg_base=bg_base,
+        bg_gain=bg_gain,
+        plate_base=plate_base.astype(np.complex64),
+        plate_gain=(pm.plate_gain * shape).astype(np.float32),
+        plate_idx=pidx,
+        plate_foot=pm.plate_foot.astype(np.float64),
+        plate_occ=pm.plate_occ.astype(np.float32),
+        plate_edges=pm.plate_edges,
+        sigma_c=float(sigma_c),
+        offset_b=(0.25 * amp + 200.0).astype(np.float32),
+        scattering=cam.scattering,
+        top_pixels=top,
+        nar_mm=non_ambiguity_range_m(cam.modulation_mhz) * 1000,
         integration_ms=t_int,
     )
 
@@ -168,8 +184,12 @@ def _kernel():
             ok = idx >= 0
             ii = jnp.maximum(idx, 0)
             fp = m["foot"]
-            ox = jnp.clip(jnp.minimum(fp[:, 1], e[ii, 1] + dx[i]) - jnp.maximum(fp[:, 0], e[ii, 0] + dx[i]), 0)
-            oy = jnp.clip(jnp.minimum(fp[:, 3], e[ii, 3] + dy[i]) - jnp.maximum(fp[:, 2], e[ii, 2] + dy[i]), 0)
+            ox = jnp.clip(
+                jnp.minimum(fp[:, 1], e[ii, 1] + dx[i]) - jnp.maximum(fp[:, 0], e[ii, 0] + dx[i]), 0
+            )
+            oy = jnp.clip(
+                jnp.minimum(fp[:, 3], e[ii, 3] + dy[i]) - jnp.maximum(fp[:, 2], e[ii, 2] + dy[i]), 0
+            )
             f = jnp.where(ok, ox / (fp[:, 1] - fp[:, 0]) * oy / (fp[:, 3] - fp[:, 2]), 0.0)
             f = (f * (1 - m["occ"])).astype(jnp.float32)
             plate = m["pbase"] * jnp.exp(1j * (m["k"] * m["pgain"] * d))
@@ -195,16 +215,31 @@ def _device_model(tm: ToFModel) -> dict:
     import jax.numpy as jnp
 
     return dict(
-        k=jnp.float32(tm.k_rad_per_mm), bg_base=jnp.asarray(tm.bg_base), bg_gain=jnp.asarray(tm.bg_gain),
-        pbase=jnp.asarray(tm.plate_base), pgain=jnp.asarray(tm.plate_gain), pidx=jnp.asarray(tm.plate_idx),
-        foot=jnp.asarray(tm.plate_foot, jnp.float32), occ=jnp.asarray(tm.plate_occ),
-        edges=jnp.asarray(tm.plate_edges, jnp.float32), sigma_c=jnp.float32(tm.sigma_c),
-        B=jnp.asarray(tm.offset_b), scatter=jnp.complex64(tm.scattering),
+        k=jnp.float32(tm.k_rad_per_mm),
+        bg_base=jnp.asarray(tm.bg_base),
+        bg_gain=jnp.asarray(tm.bg_gain),
+        pbase=jnp.asarray(tm.plate_base),
+        pgain=jnp.asarray(tm.plate_gain),
+        pidx=jnp.asarray(tm.plate_idx),
+        foot=jnp.asarray(tm.plate_foot, jnp.float32),
+        occ=jnp.asarray(tm.plate_occ),
+        edges=jnp.asarray(tm.plate_edges, jnp.float32),
+        sigma_c=jnp.float32(tm.sigma_c),
+        B=jnp.asarray(tm.offset_b),
+        scatter=jnp.complex64(tm.scattering),
     )
 
 
-def render_tof(tm: ToFModel, frame_index: np.ndarray, defl: np.ndarray, dx: np.ndarray, dy: np.ndarray,
-               seed: int, block: int = 16, device_model: dict | None = None):
+def render_tof(
+    tm: ToFModel,
+    frame_index: np.ndarray,
+    defl: np.ndarray,
+    dx: np.ndarray,
+    dy: np.ndarray,
+    seed: int,
+    block: int = 16,
+    device_model: dict | None = None,
+):
     """Render frames: (frame,) indices and (frame, 4) tap kinematics -> range, amplitude (frame, p).
 
     Each frame's noise comes from ``fold_in(seed, frame_index)``, so output does not depend on how

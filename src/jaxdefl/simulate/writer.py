@@ -45,8 +45,9 @@ def tap_times(cfg: SimConfig, t_frame: np.ndarray) -> np.ndarray:
     return np.asarray(t_frame, np.float64)[:, None] + off[None, :]
 
 
-def simulate_trajectories(config: SimConfig | str | Path, duration_s: float | None = None,
-                          seed: int | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
+def simulate_trajectories(
+    config: SimConfig | str | Path, duration_s: float | None = None, seed: int | None = None
+) -> tuple[pd.DataFrame, pd.DataFrame]:
     """True plate trajectories at the delivered frame times and the LDS table, no frames.
 
     Returns exactly what `simulate_to_dir` writes to truth.csv and lds.csv for the same arguments.
@@ -57,8 +58,10 @@ def simulate_trajectories(config: SimConfig | str | Path, duration_s: float | No
     _, t = frame_clock(cfg, duration, seed)
     truth = truth_table(cfg, t)
     nblocks = int(np.ceil(duration / LDS_BLOCK_S))
-    lds = pd.concat([lds_block(cfg, seed, b, duration) for b in range(nblocks)] or [lds_block(cfg, seed, 0, 0)],
-                    ignore_index=True)
+    lds = pd.concat(
+        [lds_block(cfg, seed, b, duration) for b in range(nblocks)] or [lds_block(cfg, seed, 0, 0)],
+        ignore_index=True,
+    )
     return truth, lds
 
 
@@ -67,7 +70,9 @@ class _Renderer:
 
     def __init__(self, cfg: SimConfig, seed: int, duration_s: float):
         self.cfg, self.seed, self.duration = cfg, seed, duration_s
-        self.pm = pixel_model(cfg, supersample=None if cfg.camera.sensor == "sr4000" else min(cfg.camera.supersample, 2))
+        self.pm = pixel_model(
+            cfg, supersample=None if cfg.camera.sensor == "sr4000" else min(cfg.camera.supersample, 2)
+        )
         self.intr = self.pm.intr
         if cfg.camera.sensor == "sr4000":
             from .tof import _device_model, tof_model
@@ -83,14 +88,27 @@ class _Renderer:
 
     def facts(self) -> dict:
         cam = self.cfg.camera
-        d = dict(self.intr.as_dict(), sensor=cam.sensor, camera=cam.name, frame_rate_hz=cam.frame_rate_hz,
-                 segment=self.cfg.recording.segment, day=self.cfg.recording.day,
-                 cycles_at_start=self.cfg.recording.cycles_at_start, units="mm", seed=self.seed,
-                 frame_kind=self.kind, frame_axes=["frame", "h", "w"],
-                 coordinates="camera frame: x along columns (beam), y along rows, z depth (down)")
+        d = dict(
+            self.intr.as_dict(),
+            sensor=cam.sensor,
+            camera=cam.name,
+            frame_rate_hz=cam.frame_rate_hz,
+            segment=self.cfg.recording.segment,
+            day=self.cfg.recording.day,
+            cycles_at_start=self.cfg.recording.cycles_at_start,
+            units="mm",
+            seed=self.seed,
+            frame_kind=self.kind,
+            frame_axes=["frame", "h", "w"],
+            coordinates="camera frame: x along columns (beam), y along rows, z depth (down)",
+        )
         if cam.sensor == "sr4000":
-            d.update(modulation_mhz=cam.modulation_mhz, nar_mm=self.tm.nar_mm,
-                     integration_time_ms=self.tm.integration_ms, tap_offsets=list(cam.tap_offsets))
+            d.update(
+                modulation_mhz=cam.modulation_mhz,
+                nar_mm=self.tm.nar_mm,
+                integration_time_ms=self.tm.integration_ms,
+                tap_offsets=list(cam.tap_offsets),
+            )
         else:
             d.update(modulation_mhz=None, baseline_mm=cam.baseline_mm, disparity_step_px=self.km.q_px)
         return d
@@ -107,7 +125,9 @@ class _Renderer:
             from .structured_light import render_kinect, session_offsets_mm
 
             off = session_offsets_mm(self.cfg, t_frame, self.seed, self.duration)
-            r, a = render_kinect(self.km, self.cfg, frame_index, defl[:, 0], dx[:, 0], dy[:, 0], off, self.seed)
+            r, a = render_kinect(
+                self.km, self.cfg, frame_index, defl[:, 0], dx[:, 0], dy[:, 0], off, self.seed
+            )
         n = len(frame_index)
         return r.reshape(n, h, w), np.asarray(a, np.float32).reshape(n, h, w)
 
@@ -129,8 +149,13 @@ def _append_csv(df: pd.DataFrame, path: Path, first: bool) -> None:
     df[cols].to_csv(path, mode="w" if first else "a", header=first, index=False, float_format="%.6f")
 
 
-def simulate_to_dir(config_path: Path | str, out_dir: Path | str, duration_s: float | None = None,
-                    seed: int | None = None, progress: bool = True) -> Path:
+def simulate_to_dir(
+    config_path: Path | str,
+    out_dir: Path | str,
+    duration_s: float | None = None,
+    seed: int | None = None,
+    progress: bool = True,
+) -> Path:
     """Simulate the recording described by ``config_path`` into ``out_dir`` (see module doc).
 
     Frames are rendered and appended ``recording.chunk_frames`` at a time, so memory stays bounded
@@ -161,12 +186,25 @@ def simulate_to_dir(config_path: Path | str, out_dir: Path | str, duration_s: fl
         shutil.rmtree(store)
     root = zarr.open_group(str(store), mode="w")
     root.attrs.update(rend.facts())
-    frames = root.create_array(rend.kind, shape=(0, h, w), chunks=(chunk, h, w), dtype="float32",
-                               dimension_names=("frame", "h", "w"), fill_value=np.nan)
-    amp = root.create_array("amplitude", shape=(0, h, w), chunks=(chunk, h, w), dtype="float32",
-                            dimension_names=("frame", "h", "w"), fill_value=np.nan)
-    stamps = root.create_array("timestamps", shape=(0,), chunks=(max(chunk, 4096),), dtype="float64",
-                               dimension_names=("frame",))
+    frames = root.create_array(
+        rend.kind,
+        shape=(0, h, w),
+        chunks=(chunk, h, w),
+        dtype="float32",
+        dimension_names=("frame", "h", "w"),
+        fill_value=np.nan,
+    )
+    amp = root.create_array(
+        "amplitude",
+        shape=(0, h, w),
+        chunks=(chunk, h, w),
+        dtype="float32",
+        dimension_names=("frame", "h", "w"),
+        fill_value=np.nan,
+    )
+    stamps = root.create_array(
+        "timestamps", shape=(0,), chunks=(max(chunk, 4096),), dtype="float64", dimension_names=("frame",)
+    )
     frames.attrs.update(units="mm")
     stamps.attrs.update(units="s since 1970-01-01 (UTC)")
 
@@ -175,11 +213,17 @@ def simulate_to_dir(config_path: Path | str, out_dir: Path | str, duration_s: fl
     nblocks = int(np.ceil(duration / LDS_BLOCK_S))
     _append_csv(lds_block(cfg, seed, 0, 0.0), lds_path, True)
     lds_done = 0
-    with Progress(TextColumn("simulate {task.description}"), BarColumn(), TextColumn("{task.completed}/{task.total} frames"),
-                  TimeRemainingColumn(), disable=not progress, transient=True) as bar:
+    with Progress(
+        TextColumn("simulate {task.description}"),
+        BarColumn(),
+        TextColumn("{task.completed}/{task.total} frames"),
+        TimeRemainingColumn(),
+        disable=not progress,
+        transient=True,
+    ) as bar:
         task = bar.add_task(f"{cfg.camera.sensor} {cfg.recording.segment}", total=len(idx))
         for s in range(0, len(idx), chunk):
-            fi, ti = idx[s:s + chunk], t[s:s + chunk]
+            fi, ti = idx[s : s + chunk], t[s : s + chunk]
             r, a = rend.render(fi, ti)
             frames.append(r, axis=0)
             amp.append(a, axis=0)
