@@ -3,6 +3,7 @@
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 import zarr
 from scipy.optimize import least_squares
@@ -189,3 +190,27 @@ def test_kinect_session_shift_and_jumps():
     firsts = np.array([s[0] for s in shifts])
     assert 8.0 < np.std(firsts) * np.sqrt(2) < 26.0  # sessions differ by about 17 mm
     assert any(len(np.unique(s)) > 1 for s in shifts)  # level jumps inside a record
+
+
+@pytest.mark.slow
+def test_engine_fit_recovers_configured_motion(tmp_path):
+    """Simulate -> `jaxdefl fit` on lds.csv and truth.csv gives back amplitude and frequency."""
+    from jaxdefl.io import write_trajectory
+
+    cfg = config_from_dict(
+        {"loading": {"frequency_hz": 3.0680, "amplitude_mm": 2.32}, "fatigue": {"law": "none"}}
+    )
+    truth, lds = simulate_trajectories(cfg, duration_s=60.0, seed=4)
+    write_trajectory(truth[truth.plate == 7], tmp_path / "truth.csv")
+    write_trajectory(lds, tmp_path / "lds.csv")
+    for name in ("lds", "truth"):
+        est_path = tmp_path / f"est_{name}.csv"
+        assert main(["fit", str(tmp_path / f"{name}.csv"), "--out", str(est_path), "--axes", "z"]) == 0
+        est = pd.read_csv(est_path)
+        row = est[(est.plate == 7) & (est.axis == "z")].iloc[0]
+        if name == "lds":
+            assert abs(row.amplitude_mm - 2.32) < 4 * row.sigma_amplitude_mm + 1e-6
+            assert abs(row.f0_hz - 3.0680) < 4 * row.sigma_f0_hz + 1e-9
+        else:
+            assert row.amplitude_mm == pytest.approx(2.32, abs=1e-5)
+            assert row.f0_hz == pytest.approx(3.0680, abs=1e-7)
