@@ -4,6 +4,8 @@ The only stage that imports torch.
 """
 
 from .ellipse import Ellipse, fit_ellipse
+from .extract import Extractor, extract_frames, extract_recording, extract_to_table
+from .floor import bilinear, floor_targets
 from .kernels import (
     check_frames,
     erode,
@@ -13,8 +15,12 @@ from .kernels import (
     points_from_range,
     region_stats,
 )
+from .pipeline import PlateGeometry, Scene, SceneError, calibrate_scene, detect_chunk, ray_factors
+from .track import Tracker
 
 __all__ = [
-    "Ellipse", "check_frames", "erode", "fit_ellipse", "label_components", "otsu_threshold",
-    "points_from_depth", "points_from_range", "region_stats",
+    "Ellipse", "Extractor", "PlateGeometry", "Scene", "SceneError", "Tracker", "bilinear",
+    "calibrate_scene", "check_frames", "detect_chunk", "erode", "extract_frames", "extract_recording",
+    "extract_to_table", "fit_ellipse", "floor_targets", "label_components", "otsu_threshold",
+    "points_from_depth", "points_from_range", "ray_factors", "region_stats",
 ]

@@ -1,0 +1,425 @@
+"""Plate extraction from frame stacks: ToF (thesis 5.1) and structured light (thesis 5.2).
+
+Stages, on a chunk of frames (B, H, W) at a time:
+
+1. **Scene calibration** (once per recording, again when plates drift or vanish), on the
+   median of the first frames: floor targets (Canny, fake eccentricity, Fitzgibbon ellipse,
+   bilinear depth: `floor.py`) give the floor level; the beam top is the dominant depth level
+   nearer than the floor, segmented as large low-eccentricity regions; its depth is the second
+   threshold. The plates are the depth layer next to the top surface (the thesis' scene has them
+   between top and floor; the simulator's 20 mm above the top: both layers are tried and the one
+   holding a row of similar, collinear regions wins). Each plate found is numbered by its
+   position along the beam and keeps its area, eccentricity and image position as a template.
+2. **Per frame**, batched: depth relative to that frame's beam-top level (a per-frame median,
+   so common depth shifts of structured-light cameras cancel); the plate layer's depth band
+   (depth-based classification); ToF: Otsu on the amplitude image masked by the band (eq.
+   5.22-5.24); structured light: depth only, smoothed 5x5 for segmentation. 8-connected
+   components, area, centroid and fake eccentricity (eq. 5.5-5.9), the line through the plates,
+   a 3x3 erosion that drops mixed edge pixels, and the mean of the eroded pixels' 3D points
+   (eq. 3.10 for range, 3.16 for depth). Structured light: pixels farther than 3 sigma from their
+   plate's mean depth are dropped (a one-step stand-in for region growing in 3D).
+3. Each region is numbered by its position along the beam (`PlateGeometry`), then checked
+   against that plate's template; a region that fails, or two regions claiming one plate, give
+   NaN for that plate and frame: a plate is missing rather than mislabelled.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import scipy.ndimage as ndi
+import torch
+import torch.nn.functional as F
+
+from .floor import floor_targets
+
+__all__ = ["PlateGeometry", "Scene", "calibrate_scene", "detect_chunk", "ray_factors", "SceneError"]
+
+_EIGHT = np.ones((3, 3), bool)
+_EIGHT_2D_IN_3D = np.zeros((3, 3, 3), bool)
+_EIGHT_2D_IN_3D[1] = True  # label every frame of a stack separately in one call
+
+
+class SceneError(ValueError):
+    """The calibration frame shows no plate layer (message says what was looked for)."""
+
+
+@dataclass(frozen=True)
+class PlateGeometry:
+    """Plate centres along the beam and the camera's position on the same axis (mm).
+
+    A detected centroid's camera-frame X plus ``camera_x_mm`` is its position along the beam; the
+    nearest plate within ``tolerance`` x the plate spacing gives its number (1-based).
+    """
+
+    plate_x_mm: np.ndarray
+    camera_x_mm: float
+    tolerance: float = 0.3
+
+    def number(self, x_cam_mm: np.ndarray) -> np.ndarray:
+        """Plate numbers (0 = none) of camera-frame X positions."""
+        px = np.asarray(self.plate_x_mm, np.float64)
+        xw = np.asarray(x_cam_mm, np.float64) + self.camera_x_mm
+        spacing = np.min(np.diff(px)) if px.size > 1 else np.inf
+        j = np.clip(np.searchsorted(px, xw), 1, max(px.size - 1, 1))
+        lo = np.clip(j - 1, 0, px.size - 1)
+        hi = np.clip(j, 0, px.size - 1)
+        k = np.where(np.abs(xw - px[lo]) <= np.abs(xw - px[hi]), lo, hi)
+        ok = np.abs(xw - px[k]) <= self.tolerance * spacing
+        return np.where(ok & np.isfinite(xw), k + 1, 0)
+
+
+def ray_factors(h: int, w: int, fx: float, fy: float, cx: float, cy: float, kind: str):
+    """Per-pixel factors (h, w) float32: z = value * inv_norm, x = z * xr, y = z * yr.
+
+    ``range``: radial range along the pixel ray, z = r / sqrt(xr² + yr² + 1) (eq. 3.9-3.10);
+    ``depth``: structured-light depth z itself (eq. 3.12, 3.16).
+    """
+    v, u = np.meshgrid(np.arange(h, dtype=np.float64), np.arange(w, dtype=np.float64), indexing="ij")
+    xr = (u - cx) / fx
+    yr = (v - cy) / fy
+    inv = 1 / np.sqrt(xr * xr + yr * yr + 1) if kind == "range" else np.ones_like(xr)
+    return inv.astype(np.float32), xr.astype(np.float32), yr.astype(np.float32)
+
+
+@dataclass
+class Scene:
+    """Calibration of one camera view: thresholds, plate templates and tracked pixel sets."""
+
+    kind: str
+    height: int
+    width: int
+    inv_norm: np.ndarray
+    xr: np.ndarray
+    yr: np.ndarray
+    top_idx: np.ndarray  # (K,) flat pixel indices on the beam top surface
+    top_z_mm: float
+    floor_z_mm: float  # NaN when no floor target was found
+    n_floor_targets: int
+    sigma_mm: float  # per-pixel noise of the segmentation image on the top surface
+    band: tuple[float, float]  # plate layer, depth relative to the top (mm)
+    smooth: int
+    use_amplitude: bool
+    rows: tuple[int, int]  # band of rows searched per frame
+    plates: np.ndarray  # (n,) plate numbers
+    area: np.ndarray  # (n,) px, before erosion
+    ecc: np.ndarray  # (n,)
+    u: np.ndarray  # (n,) px
+    v: np.ndarray
+    line: tuple[float, float]  # v = line[0] + line[1] * u
+    line_tol_px: float
+    geometry: PlateGeometry | None
+    track: list = field(default_factory=list)  # per plate: flat pixel indices (eroded region)
+
+    def number(self, x_cam_mm: np.ndarray, u_px: np.ndarray) -> np.ndarray:
+        """Plate numbers (0 = none) of regions from their camera X (mm) or image column."""
+        if self.geometry is not None:
+            return self.geometry.number(x_cam_mm)
+        # no geometry: the nearest calibration plate in image columns
+        order = np.argsort(self.u)
+        us = self.u[order]
+        gap = np.min(np.diff(us)) if us.size > 1 else float(self.width)
+        k = np.argmin(np.abs(np.asarray(u_px)[:, None] - us[None, :]), axis=1) if us.size else np.zeros(0, int)
+        ok = np.abs(np.asarray(u_px) - us[k]) <= 0.3 * gap
+        return np.where(ok, self.plates[order][k], 0)
+
+
+def _zimage(frames: np.ndarray, inv_norm: np.ndarray | None) -> np.ndarray:
+    """Depth z (frame, h, w) float32: range times the ray factor, or the depth itself."""
+    f = np.asarray(frames, np.float32)
+    return f if inv_norm is None else f * inv_norm
+
+
+def _smooth(z: torch.Tensor, k: int) -> torch.Tensor:
+    if k <= 1:
+        return z
+    return F.avg_pool2d(z, k, stride=1, padding=k // 2, count_include_pad=False)
+
+
+def _erode3(fg: torch.Tensor) -> torch.Tensor:
+    """3x3 binary erosion, zero border (equals `kernels.erode` with size 3; max-pool is faster)."""
+    bg = F.pad((~fg).to(torch.float32), (1, 1, 1, 1), value=1.0)
+    return F.max_pool2d(bg, 3, stride=1) < 0.5
+
+
+def _otsu_masked(amp: torch.Tensor, bins: int = 256) -> torch.Tensor:
+    """Otsu threshold of every frame (B, 1, h, w) of a masked amplitude image (float32 histogram)."""
+    b = amp.shape[0]
+    v = amp.reshape(b, -1)
+    hi = v.amax(1)
+    lo = v.amin(1)
+    width = ((hi - lo) / bins).clamp_min(1e-12)
+    idx = ((v - lo[:, None]) / width[:, None]).to(torch.int64).clamp_(0, bins - 1)
+    idx = idx + (torch.arange(b) * bins)[:, None]
+    hist = torch.bincount(idx.reshape(-1), minlength=b * bins).reshape(b, bins).to(torch.float64)
+    centers = lo[:, None].double() + width[:, None].double() * (torch.arange(bins, dtype=torch.float64) + 0.5)
+    w1 = hist.cumsum(1)
+    w2 = w1[:, -1:] - w1 + hist
+    s1 = (hist * centers).cumsum(1)
+    s2 = s1[:, -1:] - s1 + hist * centers
+    m1 = s1 / w1.clamp_min(1e-300)
+    m2 = s2 / w2.clamp_min(1e-300)
+    between = w1[:, :-1] * w2[:, 1:] * (m1[:, :-1] - m2[:, 1:]) ** 2
+    k = between.argmax(1)
+    thr = centers.gather(1, k[:, None])[:, 0].to(torch.float32)
+    return torch.where(hi > lo, thr, lo)
+
+
+def _segment(z: np.ndarray, amp: np.ndarray | None, top: np.ndarray, band, smooth: int, use_amp: bool, r0: int,
+             r1: int):
+    """Foreground (B, h, w) bool of rows r0:r1: depth band relative to ``top`` (B,), then Otsu."""
+    zt = torch.from_numpy(np.ascontiguousarray(z[:, r0:r1]))[:, None]
+    zs = _smooth(zt, smooth)
+    rel = zs - torch.from_numpy(top.astype(np.float32))[:, None, None, None]
+    fg = (rel > band[0]) & (rel < band[1])
+    if use_amp and amp is not None:
+        a = torch.from_numpy(np.ascontiguousarray(amp[:, r0:r1]))[:, None]
+        am = torch.where(fg, a, torch.zeros((), dtype=a.dtype))
+        thr = _otsu_masked(am)
+        fg = fg & (am > thr[:, None, None, None])
+    return fg
+
+
+def _regions(fg: torch.Tensor, z: np.ndarray, r0: int, inv_norm, xr, yr, clip_sigma: float | None,
+             keep_pixels: bool = False) -> dict:
+    """Label, measure, erode and average: per-region arrays (global labels over the stack)."""
+    b, _, h, w = fg.shape
+    fgn = fg[:, 0].numpy()
+    labels, n = ndi.label(fgn, structure=_EIGHT_2D_IN_3D)
+    H, W = inv_norm.shape
+    out: dict = {"n": n}
+    if n == 0:
+        return out
+    flat = labels.reshape(-1)
+    idx = np.flatnonzero(flat)
+    lab = flat[idx]
+    fr, rem = np.divmod(idx, h * w)
+    v, u = np.divmod(rem, w)
+    v = v + r0
+    m = n + 1
+    area = np.bincount(lab, minlength=m).astype(np.float64)
+    a = np.maximum(area, 1)
+    su, sv = np.bincount(lab, u, m), np.bincount(lab, v, m)
+    ub, vb = su / a, sv / a
+    muu = np.bincount(lab, u * u, m) / a - ub**2
+    mvv = np.bincount(lab, v * v, m) / a - vb**2
+    muv = np.bincount(lab, u * v, m) / a - ub * vb
+    half, disc = 0.5 * (muu + mvv), np.sqrt((0.5 * (muu - mvv)) ** 2 + muv**2)
+    l1, l2 = half + disc, np.maximum(half - disc, 0)
+    border = np.bincount(lab, (u == 0) | (u == W - 1) | (v == 0) | (v == H - 1), m)
+    frame = np.zeros(m, np.int64)
+    frame[lab] = fr
+    out.update(area=area, u=ub, v=vb, ecc=np.sqrt(l2 / np.maximum(l1, 1e-300)), minor=4 * np.sqrt(l2),
+               border=border > 0, frame=frame)
+    # erosion drops the mixed pixels at plate edges (thesis 5.1.4)
+    er = _erode3(fg)[:, 0].numpy().reshape(-1)
+    eidx = np.flatnonzero(er)
+    elab = flat[eidx]
+    efr, erem = np.divmod(eidx, h * w)
+    pix = erem + r0 * w  # flat pixel index in the full frame
+    zz = z.reshape(b, -1)[efr, pix]
+    ok = np.isfinite(zz)
+    elab, pix, zz = elab[ok], pix[ok], zz[ok]
+    if clip_sigma is not None and elab.size:
+        # pixels farther than clip_sigma x the region's scatter from its mean depth are not the plate's
+        cnt = np.maximum(np.bincount(elab, minlength=m), 1)
+        mean = np.bincount(elab, zz, m) / cnt
+        res = zz - mean[elab]
+        sd = np.sqrt(np.bincount(elab, res * res, m) / cnt)
+        keep = np.abs(res) <= clip_sigma * sd[elab] + 1e-6
+        elab, pix, zz = elab[keep], pix[keep], zz[keep]
+    ne = np.bincount(elab, minlength=m).astype(np.float64)
+    nn = np.maximum(ne, 1)
+    out.update(n_eroded=ne, x=np.bincount(elab, zz * xr.reshape(-1)[pix], m) / nn,
+               y=np.bincount(elab, zz * yr.reshape(-1)[pix], m) / nn, z=np.bincount(elab, zz, m) / nn)
+    if keep_pixels:
+        out["pixels"] = (elab, pix)
+    return out
+
+
+def _top_level(z: np.ndarray, top_idx: np.ndarray) -> np.ndarray:
+    """Per-frame beam-top depth: median over the top-surface pixels (B,)."""
+    t = torch.from_numpy(np.ascontiguousarray(z.reshape(z.shape[0], -1)[:, top_idx]))
+    return torch.nanmedian(t, dim=1).values.numpy().astype(np.float64)
+
+
+def _line_fit(u: np.ndarray, v: np.ndarray, tol: float) -> tuple[np.ndarray, tuple[float, float]]:
+    """Robust line v = a + b u through region centroids; mask of the regions on it."""
+    keep = np.ones(u.size, bool)
+    coef = (float(np.median(v)) if v.size else 0.0, 0.0)
+    while keep.sum() >= 2:
+        b, a = np.polyfit(u[keep], v[keep], 1)
+        coef = (float(a), float(b))
+        r = np.abs(v - (a + b * u))
+        worst = np.argmax(np.where(keep, r, -1))
+        if r[worst] <= tol:
+            break
+        keep[worst] = False
+    return keep, coef
+
+
+def _plate_candidates(reg: dict, min_area: float) -> np.ndarray:
+    """Regions that look like a row of plates: similar size, off the border, collinear."""
+    if reg["n"] == 0:
+        return np.zeros(0, np.int64)
+    lab = np.arange(1, reg["n"] + 1)
+    ok = (reg["area"][lab] >= min_area) & ~reg["border"][lab] & (reg["n_eroded"][lab] >= 3)
+    lab = lab[ok]
+    if lab.size == 0:
+        return lab
+    med = np.median(reg["area"][lab])
+    lab = lab[(reg["area"][lab] > 0.3 * med) & (reg["area"][lab] < 3 * med)]
+    if lab.size < 2:
+        return lab
+    tol = max(2.0, float(np.median(reg["minor"][lab])))
+    keep, _ = _line_fit(reg["u"][lab], reg["v"][lab], tol)
+    return lab[keep]
+
+
+def calibrate_scene(frames: np.ndarray, amplitude: np.ndarray | None, intrinsics: dict, kind: str,
+                    geometry: PlateGeometry | None = None, n_median: int = 15) -> Scene:
+    """Find the floor, the beam top and the plates in the first frames of a recording.
+
+    Args:
+        frames: (frame, h, w) range (``kind="range"``) or depth (``"depth"``) in mm.
+        amplitude: (frame, h, w) or None. intrinsics: fx, fy, cx, cy.
+        geometry: plate positions for numbering; None numbers plates 1.. by image column.
+    Raises:
+        SceneError: no plate layer found.
+    """
+    _, h, w = frames.shape
+    inv, xr, yr = ray_factors(h, w, intrinsics["fx"], intrinsics["fy"], intrinsics["cx"], intrinsics["cy"], kind)
+    nm = min(n_median, frames.shape[0])
+    z_all = _zimage(frames[:nm], inv if kind == "range" else None)
+    with np.errstate(all="ignore"):
+        zmed = np.nanmedian(z_all, axis=0).astype(np.float32)
+    amed = None if amplitude is None else np.median(np.asarray(amplitude[:nm], np.float32), axis=0)
+    # 1. floor targets (first depth threshold)
+    floor = floor_targets(amed, zmed) if amed is not None and np.ptp(amed) > 0 else np.zeros((0, 3))
+    floor_z = float(np.median(floor[:, 2])) if len(floor) else float("nan")
+    # 2. beam top: the dominant depth level nearer than the floor, large and elongated regions
+    zv = zmed[np.isfinite(zmed)]
+    if np.isfinite(floor_z):
+        zv = zv[zv < floor_z - 50]
+    if zv.size == 0:
+        raise SceneError("no valid depth nearer than the floor")
+    hist, edges = np.histogram(zv, bins=np.arange(zv.min(), zv.max() + 10, 5.0))
+    centres = 0.5 * (edges[:-1] + edges[1:])
+    # depth levels: histogram peaks; the beam top is the farthest level that holds a large
+    # connected surface (nearer ones are the spreader beam and actuator, farther the floor)
+    hist = np.convolve(hist, np.ones(3), mode="same")  # a level split between two bins
+    pk = np.flatnonzero((hist >= 0.1 * hist.max()) & (hist >= np.roll(hist, 1)) & (hist > np.roll(hist, -1)))
+    levels = []
+    for c in centres[pk]:
+        lab, n = ndi.label(np.abs(zmed - c) < 10, structure=_EIGHT)
+        biggest = np.bincount(lab.ravel())[1:].max() if n else 0
+        levels.append((c, biggest))
+    biggest_all = max(b for _, b in levels)
+    large = [c for c, b in levels if b >= 0.2 * biggest_all]
+    if not np.isfinite(floor_z) and len(large) > 1:
+        large = large[:-1]  # no floor targets: the farthest large level is the floor
+    mode = max(large)
+    near = np.abs(zmed - mode) < 10
+    lab, n = ndi.label(near, structure=_EIGHT)
+    sizes = np.bincount(lab.ravel(), minlength=n + 1)
+    sizes[0] = 0
+    big = np.flatnonzero(sizes >= 0.25 * sizes.max())
+    top_mask = ndi.binary_erosion(np.isin(lab, big), structure=_EIGHT, iterations=2)
+    if top_mask.sum() < 20:
+        top_mask = np.isin(lab, big)
+    top_idx = np.flatnonzero(top_mask.ravel())
+    top_z = float(np.median(zmed.ravel()[top_idx]))
+    if top_idx.size > 2048:
+        top_idx = top_idx[np.linspace(0, top_idx.size - 1, 2048).astype(np.int64)]
+    smooth = 5 if kind == "depth" else 0
+    use_amp = kind == "range" and amplitude is not None
+    # per-pixel noise of the segmentation image on the top surface (one frame, not the median)
+    z0 = torch.from_numpy(z_all[:1])[:, None]
+    zs0 = _smooth(z0, smooth)[0, 0].numpy().ravel()[top_idx]
+    sigma = float(1.4826 * np.nanmedian(np.abs(zs0 - np.nanmedian(zs0))))
+    gap = max(5.0, 4.0 * sigma)
+    far = (floor_z - top_z - 50.0) if np.isfinite(floor_z) else 400.0
+    bands = [(-100.0, -gap), (gap, max(gap + 5.0, min(far, 400.0)))]
+    # 3. the plate layer: the band holding the longest row of similar, collinear regions
+    best = None
+    top1 = np.array([top_z])
+    amp1 = None if amed is None else amed[None].astype(np.float32)
+    for band in bands:
+        fg = _segment(zmed[None], amp1, top1, band, smooth, use_amp, 0, h)
+        reg = _regions(fg, zmed[None], 0, inv, xr, yr, 3.0 if kind == "depth" else None, keep_pixels=True)
+        cand = _plate_candidates(reg, min_area=10)
+        if geometry is not None and cand.size:
+            num = geometry.number(reg["x"][cand])
+            cand = cand[num > 0]
+        if cand.size >= 2 and (best is None or cand.size > best[2].size):
+            best = (band, reg, cand)
+    if best is None:
+        raise SceneError(
+            f"no row of plates next to the beam top (top at {top_z:.0f} mm, bands {bands} mm relative to it)"
+        )
+    band, reg, cand = best
+    u, v = reg["u"][cand], reg["v"][cand]
+    tol = max(2.0, float(np.median(reg["minor"][cand])))
+    _, line = _line_fit(u, v, tol)
+    if geometry is not None:
+        plates = geometry.number(reg["x"][cand])
+    else:
+        plates = np.argsort(np.argsort(u)) + 1
+    # a plate claimed twice is left out rather than guessed
+    uniq, cnt = np.unique(plates, return_counts=True)
+    single = np.isin(plates, uniq[cnt == 1])
+    cand, plates = cand[single], plates[single]
+    order = np.argsort(plates)
+    cand, plates = cand[order], plates[order]
+    elab, pix = reg["pixels"]
+    track = [np.sort(pix[elab == c]) for c in cand]
+    # rows searched per frame: the plates' rows plus a margin of twice their height
+    height = reg["minor"][cand]
+    margin = int(np.ceil(2 * height.max())) + 4
+    r0 = max(0, int(np.floor(v.min() - margin)))
+    r1 = min(h, int(np.ceil(v.max() + margin)) + 1)
+    return Scene(
+        kind=kind, height=h, width=w, inv_norm=inv, xr=xr, yr=yr, top_idx=top_idx, top_z_mm=top_z,
+        floor_z_mm=floor_z, n_floor_targets=len(floor), sigma_mm=sigma, band=band, smooth=smooth,
+        use_amplitude=use_amp, rows=(r0, r1), plates=plates.astype(np.int64), area=reg["area"][cand],
+        ecc=reg["ecc"][cand], u=reg["u"][cand], v=reg["v"][cand], line=line, line_tol_px=tol,
+        geometry=geometry, track=track,
+    )
+
+
+def detect_chunk(scene: Scene, frames: np.ndarray, amplitude: np.ndarray | None = None) -> np.ndarray:
+    """Full detection in every frame of a chunk: (frame, plate, 3) centroids x, y, z in mm.
+
+    Plates follow ``scene.plates``; NaN where a plate was not extracted.
+    """
+    b = frames.shape[0]
+    n_pl = scene.plates.size
+    out = np.full((b, n_pl, 3), np.nan)
+    if b == 0 or n_pl == 0:
+        return out
+    z = _zimage(frames, scene.inv_norm if scene.kind == "range" else None)
+    top = _top_level(z, scene.top_idx)
+    r0, r1 = scene.rows
+    fg = _segment(z, amplitude, top, scene.band, scene.smooth, scene.use_amplitude, r0, r1)
+    reg = _regions(fg, z, r0, scene.inv_norm, scene.xr, scene.yr, 3.0 if scene.kind == "depth" else None)
+    if reg["n"] == 0:
+        return out
+    lab = np.arange(1, reg["n"] + 1)
+    num = np.where(reg["n_eroded"][lab] >= 3, scene.number(reg["x"][lab], reg["u"][lab]), 0)
+    slot = np.searchsorted(scene.plates, num)
+    slot = np.clip(slot, 0, n_pl - 1)
+    known = (num > 0) & (scene.plates[slot] == num)
+    # the region must look like its plate did at calibration (size, shape, on the line)
+    ar = reg["area"][lab] / scene.area[slot]
+    ok = (known & ~reg["border"][lab] & (ar > 0.6) & (ar < 1.6)
+          & (np.abs(reg["ecc"][lab] - scene.ecc[slot]) < 0.2) & (reg["n_eroded"][lab] >= 3)
+          & (np.abs(reg["v"][lab] - (scene.line[0] + scene.line[1] * reg["u"][lab])) <= 2 * scene.line_tol_px))
+    fr = reg["frame"][lab]
+    key = fr * n_pl + slot
+    # two plate-like regions claiming one plate in one frame: neither is trusted
+    claims = np.bincount(key[ok], minlength=b * n_pl)
+    ok &= claims[key] == 1
+    sel = lab[ok]
+    out[fr[ok], slot[ok]] = np.stack([reg["x"][sel], reg["y"][sel], reg["z"][sel]], axis=1)
+    return out
