@@ -2,7 +2,12 @@ import numpy as np
 import pytest
 
 from jaxdefl.uncertainty import (
-    Z95, case_coverage, debiased_amplitude, rice_interval, sample_posteriors, simulate_case,
+    Z95,
+    case_coverage,
+    debiased_amplitude,
+    rice_interval,
+    sample_posteriors,
+    simulate_case,
 )
 
 

@@ -9,8 +9,12 @@ from jaxdefl.fit import estimate_windows
 from jaxdefl.io import validate_trajectory
 from jaxdefl.series import make_windows
 from jaxdefl.uncertainty import (
-    POSTERIOR_COLUMNS, chain_diagnostics, plot_posterior_vs_linearised, posterior_table,
-    sample_posteriors, stretch_sample,
+    POSTERIOR_COLUMNS,
+    chain_diagnostics,
+    plot_posterior_vs_linearised,
+    posterior_table,
+    sample_posteriors,
+    stretch_sample,
 )
 
 OMEGA = 2 * np.pi * 3.0672
@@ -51,7 +55,8 @@ def _check_gaussian(samples, mean, cov):
 
 def test_jax_stretch_matches_analytic_gaussian_posterior(linear_case):
     t, y, mean, cov, x0 = linear_case
-    chain, acc = stretch_sample(_linear_gaussian_lp, jnp.asarray(x0[None]), (jnp.asarray(t[None]), jnp.asarray(y[None])),
+    data = (jnp.asarray(t[None]), jnp.asarray(y[None]))
+    chain, acc = stretch_sample(_linear_gaussian_lp, jnp.asarray(x0[None]), data,
                                 jax.random.PRNGKey(0), 4000)
     kept = np.asarray(chain)[1000:, 0]
     diag = chain_diagnostics(kept, float(np.mean(acc)))

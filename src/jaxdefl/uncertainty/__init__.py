@@ -1,13 +1,24 @@
 """Uncertainty stage: posterior checks of the linearised σ's, coverage studies, honesty flags."""
 
 from ._coverage import (
-    Z68, Z95, case_coverage, debiased_amplitude, rice_interval, simulate_case, window_scores,
+    Z68,
+    Z95,
+    case_coverage,
+    debiased_amplitude,
+    rice_interval,
+    simulate_case,
+    window_scores,
 )
 from ._figures import plot_coverage, plot_posterior_vs_linearised
 from ._flags import CYCLES_MIN, DROPOUT_MAX, SNR_MIN, honesty_features, honesty_flags
 from ._posterior import (
-    A_MAX_FACTOR, PARAMS, PosteriorSummary, chain_diagnostics, harmonic_log_posterior,
-    sample_posteriors, stretch_sample,
+    A_MAX_FACTOR,
+    PARAMS,
+    PosteriorSummary,
+    chain_diagnostics,
+    harmonic_log_posterior,
+    sample_posteriors,
+    stretch_sample,
 )
 from ._table import POSTERIOR_COLUMNS, choose_windows, posterior_table
 

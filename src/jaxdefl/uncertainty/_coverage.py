@@ -53,7 +53,8 @@ def simulate_case(
     ph = rng.uniform(0, 2 * np.pi, n_windows)
     keep = rng.random((n_windows, n)) >= dropout
     keep[:, 0] = keep[:, -1] = True  # every window spans its full length
-    y = amplitude_mm * np.cos(2 * np.pi * f0[:, None] * t + ph[:, None]) + sigma_mm * rng.standard_normal((n_windows, n))
+    y = amplitude_mm * np.cos(2 * np.pi * f0[:, None] * t + ph[:, None])
+    y = y + sigma_mm * rng.standard_normal((n_windows, n))
     plate = np.repeat(np.arange(n_windows), n).reshape(n_windows, n)
     df = pd.DataFrame({"t": np.broadcast_to(t + 1.7e9, (n_windows, n))[keep], "plate": plate[keep],
                        "z": 5.0 + y[keep]})

@@ -27,11 +27,12 @@ def plot_posterior_vs_linearised(table: pd.DataFrame, path) -> Path:
              ("sigma_f0_lin_hz", "sigma_f0_post_hz", "σ_f0 (Hz)")]
     for ax, (xl, yl, name) in zip(axes, pairs, strict=True):
         x, y = table[xl].to_numpy(float), table[yl].to_numpy(float)
-        for axis, g in table.groupby("axis"):
+        for axis in table["axis"].unique():
             m = (table["axis"] == axis).to_numpy()
             ax.loglog(x[m & ok], y[m & ok], "o", ms=4, label=f"{axis}")
             if (m & ~ok).any():
-                ax.loglog(x[m & ~ok], y[m & ~ok], "o", ms=4, mfc="none", label=f"{axis} (chain not converged)")
+                ax.loglog(x[m & ~ok], y[m & ~ok], "o", ms=4, mfc="none",
+                          label=f"{axis} (chain not converged)")
         finite = np.isfinite(x) & np.isfinite(y) & (x > 0) & (y > 0)
         if finite.any():
             lo, hi = min(x[finite].min(), y[finite].min()), max(x[finite].max(), y[finite].max())

@@ -216,15 +216,18 @@ def sample_posteriors(
     """
     rows = np.asarray(rows, dtype=np.int64)
     if n_walkers < 12 or n_walkers % 2:
-        raise ConfigError(f"n_walkers: expected an even number >= 12 (2 x 5 parameters + 2), got {n_walkers}")
+        raise ConfigError(
+            f"n_walkers: expected an even number >= 12 (2 x 5 parameters + 2), got {n_walkers}")
     discard = n_steps // 4 if discard is None else discard
     if n_steps - discard < 100:
-        raise ConfigError(f"n_steps: expected at least {discard + 100} (burn-in {discard} + 100), got {n_steps}")
+        raise ConfigError(
+            f"n_steps: expected at least {discard + 100} (burn-in {discard} + 100), got {n_steps}")
     if sampler not in _SAMPLERS:
         raise ConfigError(f"sampler: expected one of {', '.join(_SAMPLERS)}, got {sampler!r}")
     bad = rows[~est.fit.converged[rows]]
     if bad.size:
-        raise ConfigError(f"rows: window {int(bad[0])} has no converged fit (status {est.table['status'].iloc[bad[0]]})")
+        status = est.table["status"].iloc[bad[0]]
+        raise ConfigError(f"rows: window {int(bad[0])} has no converged fit (status {status})")
     data, theta0, cov = _window_data(est, rows)
     rng = np.random.default_rng(seed)
     x0 = _initial_ball(rng, theta0, cov, n_walkers)
