@@ -22,7 +22,7 @@ def test_flags_name_the_reason():
         (30.0, 2.5, 0.75, 0.03),   # thesis vertical SNR: ok
         (30.0, 0.25, 0.75, 0.03),  # A/σ_A about 4: low_snr
         (1.5, 2.5, 0.10, 0.0),     # 4.6 cycles: few_cycles
-        (30.0, 2.5, 0.75, 0.8),    # 80 % of frames lost: heavy_dropouts
+        (30.0, 2.5, 0.75, 0.75),   # 75 % of frames lost: heavy_dropouts
         (30.0, 0.0, 0.75, 0.03),   # nothing there: not fitted or low_snr
     ])
     flags = honesty_flags(est)
