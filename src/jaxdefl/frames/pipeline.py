@@ -39,6 +39,7 @@ __all__ = ["PlateGeometry", "Scene", "calibrate_scene", "detect_chunk", "ray_fac
 _EIGHT = np.ones((3, 3), bool)
 _EIGHT_2D_IN_3D = np.zeros((3, 3, 3), bool)
 _EIGHT_2D_IN_3D[1] = True  # label every frame of a stack separately in one call
+_GRAD_MAX_MM_PER_PX = 6.0  # structured light: steepest depth change across a plate (smoothed)
 
 
 class SceneError(ValueError):
@@ -173,6 +174,12 @@ def _segment(z: np.ndarray, amp: np.ndarray | None, top: np.ndarray, band, smoot
     zs = _smooth(zt, smooth)
     rel = zs - torch.from_numpy(top.astype(np.float32))[:, None, None, None]
     fg = (rel > band[0]) & (rel < band[1])
+    if smooth > 1:
+        # smoothness constraint (as in region growing, Rabbani et al. 2006): the plates are
+        # flat, the side faces of the spreader beam and the mixed edges are steep
+        gv = F.pad(zs[:, :, 2:] - zs[:, :, :-2], (0, 0, 1, 1)).abs()
+        gu = F.pad(zs[..., 2:] - zs[..., :-2], (1, 1)).abs()
+        fg = fg & (gv < 2 * _GRAD_MAX_MM_PER_PX) & (gu < 2 * _GRAD_MAX_MM_PER_PX)
     if use_amp and amp is not None:
         a = torch.from_numpy(np.ascontiguousarray(amp[:, r0:r1]))[:, None]
         am = torch.where(fg, a, torch.zeros((), dtype=a.dtype))
@@ -308,13 +315,16 @@ def calibrate_scene(frames: np.ndarray, amplitude: np.ndarray | None, intrinsics
     centres = 0.5 * (edges[:-1] + edges[1:])
     # depth levels: histogram peaks; the beam top is the farthest level that holds a large
     # connected surface (nearer ones are the spreader beam and actuator, farther the floor)
-    hist = np.convolve(hist, np.ones(3), mode="same")  # a level split between two bins
-    pk = np.flatnonzero((hist >= 0.1 * hist.max()) & (hist >= np.roll(hist, 1)) & (hist > np.roll(hist, -1)))
+    hist = np.convolve(np.pad(hist, 1), np.ones(3), mode="valid")  # a level split between two bins
+    hp = np.concatenate([[0.0], hist, [0.0]])
+    pk = np.flatnonzero((hist >= 0.1 * hist.max()) & (hist >= hp[:-2]) & (hist > hp[2:]))
     levels = []
     for c in centres[pk]:
         lab, n = ndi.label(np.abs(zmed - c) < 10, structure=_EIGHT)
         biggest = np.bincount(lab.ravel())[1:].max() if n else 0
         levels.append((c, biggest))
+    if not levels:
+        raise SceneError("no depth level found")
     biggest_all = max(b for _, b in levels)
     large = [c for c, b in levels if b >= 0.2 * biggest_all]
     if not np.isfinite(floor_z) and len(large) > 1:
