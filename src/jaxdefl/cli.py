@@ -123,7 +123,7 @@ def run(
 @app.command()
 def demo(
     out: Annotated[Path, typer.Option("--out", help="Report directory.")] = Path("demo_out"),
-    duration: Annotated[float, typer.Option(help="Simulated duration, s.")] = 600.0,
+    duration: Annotated[float, typer.Option(help="Simulated duration, s.")] = 120.0,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 1,
 ) -> None:
     """Run the main job on the built-in default (Experiment II, 3 Hz, SR4000 at 20 Hz) to a report."""

@@ -12,7 +12,7 @@ import numpy as np  # noqa: E402
 
 from ..spectral import THESIS_ALPHAS, significance_level  # noqa: E402
 
-__all__ = ["plot_periodogram", "plot_fit"]
+__all__ = ["plot_fit", "plot_frame", "plot_periodogram"]
 
 
 def plot_periodogram(freq_hz, power, n_indep, path: Path, title: str = "", alphas=THESIS_ALPHAS):
@@ -53,5 +53,25 @@ def plot_fit(
     ax.set_ylabel("mm")
     ax.set_title(title, fontsize=9)
     ax.legend(fontsize=8, loc="upper right")
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def plot_frame(frame_mm, intrinsics: dict, centroids, path: Path, title: str = ""):
+    """One range/depth frame with the extracted plate centroids projected back onto the image."""
+    fig, ax = plt.subplots(figsize=(6.4, 5.0), constrained_layout=True)
+    img = np.asarray(frame_mm, float)
+    lo, hi = np.nanpercentile(img, [2, 98])
+    im = ax.imshow(img, cmap="viridis", vmin=lo, vmax=hi)
+    fig.colorbar(im, ax=ax, shrink=0.8, label="mm")
+    fx, fy, cx, cy = (float(intrinsics[k]) for k in ("fx", "fy", "cx", "cy"))
+    for r in centroids.itertuples():
+        u = fx * r.x / r.z + cx
+        v = fy * r.y / r.z + cy
+        ax.plot(u, v, "r+", ms=10, mew=1.5)
+        ax.text(u + 2, v - 2, str(r.plate), color="w", fontsize=8)
+    ax.set_title(title, fontsize=9)
+    ax.set_xlabel("column (px)")
+    ax.set_ylabel("row (px)")
     fig.savefig(path, dpi=120)
     plt.close(fig)
