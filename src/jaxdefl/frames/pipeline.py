@@ -169,8 +169,11 @@ def _otsu_masked(amp: torch.Tensor, bins: int = 256) -> torch.Tensor:
 
 def _segment(z: np.ndarray, amp: np.ndarray | None, top: np.ndarray, band, smooth: int, use_amp: bool, r0: int,
              r1: int):
-    """Foreground (B, h, w) bool of rows r0:r1: depth band relative to ``top`` (B,), then Otsu."""
-    zt = torch.from_numpy(np.ascontiguousarray(z[:, r0:r1]))[:, None]
+    """Foreground (B, h, w) bool: depth band relative to ``top`` (B,), then Otsu.
+
+    ``z`` holds rows r0:r1 of the frames, ``amp`` the whole frames.
+    """
+    zt = torch.from_numpy(np.ascontiguousarray(z))[:, None]
     zs = _smooth(zt, smooth)
     rel = zs - torch.from_numpy(top.astype(np.float32))[:, None, None, None]
     fg = (rel > band[0]) & (rel < band[1])
@@ -225,7 +228,7 @@ def _regions(fg: torch.Tensor, z: np.ndarray, r0: int, inv_norm, xr, yr, clip_si
     elab = flat[eidx]
     efr, erem = np.divmod(eidx, h * w)
     pix = erem + r0 * w  # flat pixel index in the full frame
-    zz = z.reshape(b, -1)[efr, pix]
+    zz = z.reshape(b, -1)[efr, erem]  # z holds the rows r0:r0+h only
     ok = np.isfinite(zz)
     elab, pix, zz = elab[ok], pix[ok], zz[ok]
     if clip_sigma is not None and elab.size:
@@ -356,7 +359,7 @@ def calibrate_scene(frames: np.ndarray, amplitude: np.ndarray | None, intrinsics
     top1 = np.array([top_z])
     amp1 = None if amed is None else amed[None].astype(np.float32)
     for band in bands:
-        fg = _segment(zmed[None], amp1, top1, band, smooth, use_amp, 0, h)
+        fg = _segment(zmed[None], amp1, top1, band, smooth, use_amp, 0, h)  # all rows
         reg = _regions(fg, zmed[None], 0, inv, xr, yr, 3.0 if kind == "depth" else None, keep_pixels=True)
         cand = _plate_candidates(reg, min_area=10)
         if geometry is not None and cand.size:
@@ -408,9 +411,15 @@ def detect_chunk(scene: Scene, frames: np.ndarray, amplitude: np.ndarray | None 
     out = np.full((b, n_pl, 3), np.nan)
     if b == 0 or n_pl == 0:
         return out
-    z = _zimage(frames, scene.inv_norm if scene.kind == "range" else None)
-    top = _top_level(z, scene.top_idx)
     r0, r1 = scene.rows
+    b, h, w = frames.shape
+    rng = scene.kind == "range"
+    # only the rows searched and the top-surface pixels are converted to depth
+    z = _zimage(frames[:, r0:r1], scene.inv_norm[r0:r1] if rng else None)
+    ztop = np.asarray(frames.reshape(b, -1)[:, scene.top_idx], np.float32)
+    if rng:
+        ztop = ztop * scene.inv_norm.reshape(-1)[scene.top_idx]
+    top = _top_level(ztop, np.arange(ztop.shape[1]))
     fg = _segment(z, amplitude, top, scene.band, scene.smooth, scene.use_amplitude, r0, r1)
     reg = _regions(fg, z, r0, scene.inv_norm, scene.xr, scene.yr, 3.0 if scene.kind == "depth" else None)
     if reg["n"] == 0:
