@@ -204,3 +204,49 @@ def test_run_cli_exit_codes(tmp_path, capsys):
     cfg = make_campaign(tmp_path, days=1)
     assert main(["run", str(cfg), "--out", str(tmp_path / "o"), "--scheduler", "tcp://127.0.0.1:1"]) == 2
     assert "cannot reach a dask scheduler" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_simulated_campaign_frames_to_fatigue_curve(tmp_path):
+    """[simulate]: the simulator makes the frames, extraction units the trajectories."""
+    cfg_path = Path(__file__).resolve().parents[1] / "configs" / "exp2_tof_3hz.toml"
+    (tmp_path / "c.toml").write_text(
+        f'[processing]\nwindow_s = 10.0\n[simulate]\nconfig = "{cfg_path}"\nsessions = ["day1", "day11"]\n'
+        "duration_s = 20.0\nunit_frames = 150\n"
+    )
+    camp = load_campaign(tmp_path / "c.toml")
+    units = run_campaign(camp, tmp_path / "out", progress=False)
+    assert (units["status"] == "ok").all()
+    assert len(list((tmp_path / "out" / "units").glob("ext-day01-cam2-*"))) == 3
+    day = pd.read_csv(tmp_path / "out" / "per_day.csv").set_index("day")
+    # The fatigue law of the config: LDS 2.32 mm at day 1, 2.63 mm at day 11 (Table 6.16)
+    assert day.loc[1, "amplitude_mm_lds"] == pytest.approx(2.32, abs=0.01)
+    assert day.loc[11, "amplitude_mm_lds"] == pytest.approx(2.63, abs=0.01)
+    # camera amplitudes follow, lowered by the ToF motion artefact (-0.14 mm per 4 mm at 3 Hz / 20 Hz)
+    assert 0.2 < day.loc[11, "amplitude_mm"] - day.loc[1, "amplitude_mm"] < 0.4
+    assert np.all((day["delta_amplitude_mm"] < 0) & (day["delta_amplitude_mm"] > -0.15))
+    # a rerun reuses every unit: simulation, extraction and estimates
+    stamps = {p.parent.name: p.stat().st_mtime for p in (tmp_path / "out" / "units").glob("*/manifest.json")}
+    run_campaign(camp, tmp_path / "out", progress=False)
+    assert stamps == {
+        p.parent.name: p.stat().st_mtime for p in (tmp_path / "out" / "units").glob("*/manifest.json")
+    }
+
+
+def test_simulate_table_errors(tmp_path):
+    cfg_path = Path(__file__).resolve().parents[1] / "configs" / "exp2_tof_3hz.toml"
+    for body, msg in [
+        ('[simulate]\nconfig = "nope.toml"\n', "key 'simulate.config': file not found"),
+        (
+            f'[simulate]\nconfig = "{cfg_path}"\nsessions = ["day6"]\n',
+            "'day6' is not a session of exp2_tof_3hz.toml",
+        ),
+        (f'[simulate]\nconfig = "{cfg_path}"\nspeed = 2\n', "key 'simulate.speed': unknown key"),
+        (
+            f'[simulate]\nconfig = "{cfg_path}"\nduration_s = -1\n',
+            "key 'simulate.duration_s': expected a positive",
+        ),
+    ]:
+        (tmp_path / "c.toml").write_text(body)
+        with pytest.raises(ConfigError, match=msg):
+            load_campaign(tmp_path / "c.toml")

@@ -77,11 +77,14 @@ def simulate(
     out: Annotated[Path, typer.Option("--out", help="Output directory.")],
     duration: Annotated[float | None, typer.Option(help="Override the recording duration, s.")] = None,
     seed: Annotated[int | None, typer.Option(help="Random seed (default: from the config).")] = None,
+    session: Annotated[
+        str | None, typer.Option(help="A [[session]] of the config (default: the first).")
+    ] = None,
 ) -> None:
     """Simulate a recording: DIR/recording.zarr, DIR/truth.csv, DIR/lds.csv."""
     from .simulate import simulate_to_dir
 
-    simulate_to_dir(config, out, duration_s=duration, seed=seed)
+    simulate_to_dir(config, out, duration_s=duration, seed=seed, session=session)
 
 
 @app.command()

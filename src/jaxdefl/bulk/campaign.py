@@ -78,6 +78,7 @@ class Recording:
     trajectories: Path | None = None
     lds: Path | None = None
     simulate: dict | None = None  # simulator arguments when the campaign makes its own data
+    failed: str = ""  # why the recording could not be made (simulated campaigns)
 
     @property
     def unit_id(self) -> str:

@@ -81,7 +81,7 @@ def run_campaign(
     if campaign.simulate is not None:
         from .simulated import ensure_simulated
 
-        ensure_simulated(campaign, out, scheduler=scheduler, progress=progress)
+        recs = ensure_simulated(campaign, out, scheduler=scheduler, progress=progress)
     inputs = [unit_inputs(r) for r in recs]
     manifests = []
     t0 = time.perf_counter()

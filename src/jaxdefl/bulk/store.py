@@ -3,7 +3,9 @@
 A unit writes its outputs into ``DIR/units/<unit id>/`` through temporary files renamed into
 place (rename is atomic on POSIX), then writes ``manifest.json`` the same way. A unit is
 finished exactly when its manifest exists, names the same input digests, config hash and
-package version, and every output it lists still has the recorded size and digest. Anything
+package version, and every output it lists still has the recorded size and digest (for a
+directory output such as a Zarr store: the same number of files and bytes, since hashing
+gigabytes of frames on every rerun would cost more than it protects). Anything
 else (no manifest, a stale one, a missing or altered output) is recomputed; a half-written file
 is never read because it only ever exists under a temporary name.
 """
@@ -71,6 +73,13 @@ def atomic_write_text(path: Path, text: str) -> None:
     atomic_write_bytes(path, text.encode())
 
 
+def _signature(path: Path) -> dict:
+    if path.is_dir():
+        files = [f for f in path.rglob("*") if f.is_file()]
+        return {"files": len(files), "bytes": sum(f.stat().st_size for f in files)}
+    return {"sha256": digest_path(path), "bytes": path.stat().st_size}
+
+
 def write_manifest(
     unit_dir: Path,
     unit_id: str,
@@ -89,13 +98,7 @@ def write_manifest(
         "inputs": inputs,
         "config_hash": config_hash,
         "version": __version__,
-        "outputs": {
-            name: {
-                "sha256": digest_path(unit_dir / name),
-                "bytes": (unit_dir / name).stat().st_size,
-            }
-            for name in outputs
-        },
+        "outputs": {name: _signature(unit_dir / name) for name in outputs},
         "status": status,
         "reason": reason,
         "seconds": round(seconds, 3),
@@ -121,6 +124,11 @@ def is_finished(unit_dir: Path, inputs: dict, config_hash: str) -> dict | None:
         return None
     for name, meta in man.get("outputs", {}).items():
         p = Path(unit_dir) / name
-        if not p.is_file() or p.stat().st_size != meta["bytes"] or digest_path(p) != meta["sha256"]:
+        if not p.exists():
+            return None
+        if "files" in meta or p.is_dir():
+            if _signature(p) != meta:
+                return None
+        elif p.stat().st_size != meta["bytes"] or digest_path(p) != meta["sha256"]:
             return None
     return man

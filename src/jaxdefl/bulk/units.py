@@ -20,7 +20,7 @@ __all__ = ["estimate_unit", "unit_inputs"]
 
 def unit_inputs(rec: Recording) -> dict:
     """Digests of a recording's input files ("missing" for an absent one)."""
-    out = {}
+    out = {"failed": rec.failed} if rec.failed else {}
     for name in ("trajectories", "lds"):
         p = getattr(rec, name)
         if p is not None:
@@ -53,6 +53,8 @@ def estimate_unit(
     t0 = time.perf_counter()
     tag = dict(day=rec.day, camera=rec.camera, cycles=rec.cycles)
     try:
+        if rec.failed:
+            raise JaxdeflError(rec.failed)
         if inputs.get("trajectories") == "missing":
             raise JaxdeflError(f"{rec.trajectories}: file not found")
         traj = read_trajectory(rec.trajectories)

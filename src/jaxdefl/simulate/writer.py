@@ -155,8 +155,11 @@ def simulate_to_dir(
     duration_s: float | None = None,
     seed: int | None = None,
     progress: bool = True,
+    session: str | None = None,
 ) -> Path:
     """Simulate the recording described by ``config_path`` into ``out_dir`` (see module doc).
+
+    ``session`` picks a ``[[session]]`` of the config (default: ``recording.session`` or the first).
 
     Frames are rendered and appended ``recording.chunk_frames`` at a time, so memory stays bounded
     for long durations. Deterministic for a seed (the config's ``recording.seed`` by default).
@@ -167,7 +170,7 @@ def simulate_to_dir(
     import zarr
     from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
 
-    cfg = load_config(config_path)
+    cfg = load_config(config_path, session)
     duration = _check_duration(cfg, duration_s)
     seed = cfg.recording.seed if seed is None else int(seed)
     out = Path(out_dir)
