@@ -12,7 +12,35 @@ the noise having made the peak significant.
     python experiments/coverage.py [--out DIR] [--windows N] [--post-windows N] [--quick]
 
 Writes DIR/coverage.csv (one row per case), DIR/coverage_by_snr.csv (all fitted windows binned
-by Â/σ_A), DIR/coverage_by_cycles.csv, and figures; prints the tables.
+by Â/σ_A), coverage_by_cycles.csv, coverage_by_missing.csv, coverage_bursts.csv,
+posterior_demo.csv, and figures (coverage_cases.png, coverage_vs_snr.png,
+posterior_vs_linearised.png); prints the tables.
+
+Results (defaults: 500 windows a case, 48 posteriors a case and 500 for the thesis case,
+24 walkers x 2000 steps; 6 min on 2 shared cores):
+
+- Thesis SNR (A 2.5 mm, σ 0.75 mm, 30 s, 3 % drop-outs): posterior/linearised σ_A 1.001 and
+  σ_f0 1.002 (median over 500 windows); 95 % coverage of A 0.944 linearised, 0.940 posterior,
+  of f0 0.956 and 0.958; Â bias +0.1 %. The thesis' lateral SNR (0.05/0.017) is the same A/σ and
+  behaves the same (0.934-0.960 over 3-30 s windows and 3-60 % drop-outs).
+- The linearised interval under-covers where Â/σ_A is small. Pooled over all cases by Â/σ_A,
+  95 % coverage of (A, f0): 7-10 (0.936, 0.942); 5-7 (0.896, 0.906); 4-5 (0.785, 0.736);
+  3-4 (0.699, 0.362); 2-3 (0.856, 0.280). f0 fails first and worst: ω̂ lands on a noise or
+  side peak while σ_f0 describes only the curvature of the peak it found.
+- Where the posterior ran on low-SNR cases (48 windows each) it restores f0 coverage:
+  A/σ 0.5 in 3 s (A/σ_A 2.7) f0 0.604 -> 0.958, A 0.896 -> 0.979; A/σ 0.25 in 10 s (2.5)
+  f0 0.458 -> 0.979; A/σ 0.25 in 30 s (4.3) f0 0.833 -> 0.938; A/σ 1 in 3 s (5.4) f0 0.812 ->
+  0.917. Its chains then often fail the diagnostics (2-92 % pass): the ω posterior spreads over
+  side peaks (σ_f0 posterior/linearised 1.15 to 420), which is the message.
+- The Rice interval for A: A/σ 0.12 in 10 s (A/σ_A 1.2) 0.667 -> 0.809, in 3 s 0.624 -> 0.805,
+  in 30 s 0.908 -> 0.938; A/σ 0.25 in 3 s 0.836 -> 0.912.
+- Bias of Â: +0.1 % at thesis SNR, +0.3-5 % at A/σ_A 5-10, +8 % at 4.3, +22 % at 2.7, +33 % at
+  2.5, +97 % at 1.4. sqrt(Â² - 2σ_A²) leaves -2 to +2.5 % for A/σ_A >= 4.3 and halves the bias
+  below (+10 %, +20 %); the posterior mean (uniform-amplitude prior) is within ±8.5 % down to
+  A/σ_A 2.5.
+- Few cycles: at Â/σ_A >= 10, 3-cycle windows covered (0.919, 0.882), 9 cycles (0.935, 0.933).
+- Random drop-outs to 70 % missing and 1 s bursts at 30-60 % did not break coverage at
+  Â/σ_A >= 10. These set the thresholds of `jaxdefl.uncertainty.honesty_flags`.
 """
 
 from __future__ import annotations
@@ -139,9 +167,27 @@ def main() -> None:
     print(by_cyc.round(3).to_string(index=False))
     print("\nWindows with Â/σ_A >= 10 binned by missing frame fraction:")
     print(by_miss.round(3).to_string(index=False))
+    bursts = _bursts(args.windows)
+    bursts.to_csv(out / "coverage_bursts.csv", index=False)
+    print("\nBurst drop-outs (mean burst 20 frames = 1 s = 3 cycles), linearised and Rice:")
+    bc = ["amplitude_mm", "window_s", "dropout", "fitted", "snr_window", "bias_a_rel", "lin_a_95",
+          "rice_a_95", "lin_f0_95"]
+    print(bursts[bc].round(3).to_string(index=False))
     _headline(tab)
     _emcee_check(out)
     print(f"\ntotal {time.time() - t_all:.0f} s; wrote {out}")
+
+
+def _bursts(n_windows: int) -> pd.DataFrame:
+    rows = []
+    for i, (amp, sig) in enumerate([THESIS_V, LOW[0]]):
+        for j, win in enumerate((10.0, 30.0)):
+            for k, do in enumerate((0.3, 0.6)):
+                est, truth = simulate_case(amp, sig, win, do, n_windows, seed=1000 + 10 * i + 3 * j + k,
+                                           burst_frames=20.0)
+                rows.append(dict(amplitude_mm=amp, sigma_mm=sig, window_s=win, dropout=do,
+                                 **case_coverage(est, truth)))
+    return pd.DataFrame(rows)
 
 
 def _headline(tab: pd.DataFrame) -> None:

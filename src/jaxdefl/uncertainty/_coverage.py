@@ -37,12 +37,14 @@ Z95 = float(stats.norm.ppf(0.975))
 def simulate_case(
     amplitude_mm: float, sigma_mm: float, window_s: float, dropout: float, n_windows: int,
     seed: int = 0, fs_hz: float = 20.0, f0_range_hz=(2.9, 3.1), fap_max: float = 1.0,
-    band_hz: tuple[float, float] | None = (2.0, 4.0),
+    band_hz: tuple[float, float] | None = (2.0, 4.0), burst_frames: float = 1.0,
 ) -> tuple[Estimates, dict]:
     """Estimates of ``n_windows`` independent simulated windows and their truth (f0_hz, amplitude_mm).
 
     Each window is its own plate of a one-segment table on an epoch clock (t0 = 1.7e9 s); frames
-    drop out independently with probability ``dropout``. By default every window is fitted
+    drop out independently with probability ``dropout``, or, with ``burst_frames`` > 1, in
+    bursts of that mean length (a two-state Markov chain with the same drop-out fraction). By
+    default every window is fitted
     (``fap_max`` 1: no detection cut, so coverage is not conditioned on a noise-selected peak)
     with the periodogram searched in ``band_hz`` around the known loading frequency.
     """
@@ -51,7 +53,7 @@ def simulate_case(
     t = np.arange(n) / fs_hz
     f0 = rng.uniform(*f0_range_hz, n_windows)
     ph = rng.uniform(0, 2 * np.pi, n_windows)
-    keep = rng.random((n_windows, n)) >= dropout
+    keep = _keep_mask(rng, n_windows, n, dropout, burst_frames)
     keep[:, 0] = keep[:, -1] = True  # every window spans its full length
     y = amplitude_mm * np.cos(2 * np.pi * f0[:, None] * t + ph[:, None])
     y = y + sigma_mm * rng.standard_normal((n_windows, n))
@@ -62,6 +64,20 @@ def simulate_case(
     est = estimate_windows(make_windows(validate_trajectory(df), axes=("z",)), fmin_hz=fmin,
                            fmax_hz=fmax, fap_max=fap_max)
     return est, {"f0_hz": f0, "amplitude_mm": np.full(n_windows, float(amplitude_mm))}
+
+
+def _keep_mask(rng, b: int, n: int, dropout: float, burst: float) -> np.ndarray:
+    if burst <= 1.0 or dropout <= 0:
+        return rng.random((b, n)) >= dropout
+    p_exit = 1.0 / burst
+    p_enter = min(1.0, dropout / (1.0 - dropout) * p_exit)  # stationary drop fraction = dropout
+    keep = np.empty((b, n), bool)
+    state = rng.random(b) >= dropout
+    u = rng.random((b, n))
+    for i in range(n):
+        keep[:, i] = state
+        state = np.where(state, u[:, i] >= p_enter, u[:, i] < p_exit)
+    return keep
 
 
 def rice_interval(a_hat, sigma_a, level: float = 0.95, iters: int = 60):

@@ -10,6 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
+from matplotlib.ticker import NullFormatter  # noqa: E402
 
 __all__ = ["plot_posterior_vs_linearised", "plot_coverage"]
 
@@ -39,6 +40,8 @@ def plot_posterior_vs_linearised(table: pd.DataFrame, path) -> Path:
             grid = np.array([lo / 1.2, hi * 1.2])
             ax.plot(grid, grid, "k-", lw=0.8)
             ax.fill_between(grid, grid / 1.1, grid * 1.1, color="0.85", label="±10 %")
+        for axis in (ax.xaxis, ax.yaxis):
+            axis.set_minor_formatter(NullFormatter())  # log minor labels overlap
         ax.set_xlabel(f"linearised {name}")
         ax.set_ylabel(f"posterior {name}")
         ax.legend(fontsize=7)
