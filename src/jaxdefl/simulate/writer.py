@@ -101,6 +101,8 @@ class _Renderer:
             frame_kind=self.kind,
             frame_axes=["frame", "h", "w"],
             coordinates="camera frame: x along columns (beam), y along rows, z depth (down)",
+            plate_x_mm=self.cfg.plate_x_mm(),
+            camera_x_mm=float(cam.x_mm),
         )
         if cam.sensor == "sr4000":
             d.update(
