@@ -224,3 +224,39 @@ def test_sincos_matches_numpy(scale):
     s, c = jax.jit(sincos)(jnp.asarray(x))
     np.testing.assert_allclose(np.asarray(s), np.sin(x), rtol=0, atol=3e-16 * max(1.0, scale / 1e4))
     np.testing.assert_allclose(np.asarray(c), np.cos(x), rtol=0, atol=3e-16 * max(1.0, scale / 1e4))
+
+
+@pytest.mark.parametrize("dropout", [0.7, 0.85])
+def test_heavy_dropouts_keep_the_frame_clock(make_table, dropout):
+    df = validate_trajectory(make_table(duration_s=30, dropout=dropout, seed=4))
+    w = make_windows(df, axes=("z",))
+    assert w.on_clock[0] and w.dt[0] == pytest.approx(0.05, rel=1e-9)
+    est = estimate_windows(w)
+    row = est.table.iloc[0]
+    assert row["status"] == "converged"
+    assert abs(row["f0_hz"] - 3.0672) < 5 * row["sigma_f0_hz"]
+
+
+def test_phase_is_referenced_to_the_window_mid_time():
+    rng = np.random.default_rng(1)
+    t = 1.7e9 + np.arange(2400) * 0.05
+    t = t[rng.random(t.size) > 0.2]
+    t = t[t > t[0] + 7.3]  # the data do not start at the window start
+    t_mid = 0.5 * (t[0] + t[-1])
+    y = 2.0 * np.cos(2 * np.pi * 3.0 * (t - t_mid) - 0.7) + 0.05 * rng.standard_normal(t.size)
+    est = estimate_windows(
+        make_windows(validate_trajectory(pd.DataFrame({"t": t, "plate": 1, "z": y})), axes=("z",))
+    )
+    assert est.table["phase_rad"].iat[0] == pytest.approx(0.7, abs=0.01)
+
+
+def test_plates_on_separate_clocks_in_one_segment():
+    rng = np.random.default_rng(2)
+    frames = []
+    for plate, t0 in ((1, 1.7e9), (2, 1.7e9 + 5e3), (3, 1.7e9 + 2e4)):
+        t = t0 + np.arange(1200) * 0.05
+        z = 1.5 * np.cos(2 * np.pi * 2.9 * t + plate) + 0.3 * rng.standard_normal(t.size)
+        frames.append(pd.DataFrame({"t": t, "plate": plate, "z": z}))
+    est = estimate_windows(make_windows(validate_trajectory(pd.concat(frames)), axes=("z",)))
+    assert (est.table["status"] == "converged").all()
+    assert np.all(np.abs(est.table["f0_hz"] - 2.9) < 5 * est.table["sigma_f0_hz"])

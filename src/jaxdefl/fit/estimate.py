@@ -144,7 +144,9 @@ def estimate_windows(
     tab["sigma_f0_hz"] = fit.sigma_f0_hz
     tab["amplitude_mm"] = fit.amplitude_mm
     tab["sigma_amplitude_mm"] = fit.sigma_amplitude_mm
-    tab["phase_rad"] = fit.phase_rad
+    # The fit is centred on the window's data; report the phase at the window's mid time.
+    shift = fit.params[:, 3] * (tab["t_centre"].to_numpy() - tab["t_mid"].to_numpy())
+    tab["phase_rad"] = np.angle(np.exp(1j * (fit.phase_rad + shift)))
     tab["offset_mm"] = fit.offset_mm
     tab["sigma_residual_mm"] = fit.sigma_residual_mm
     tab["peak_fap"] = periodogram.fap

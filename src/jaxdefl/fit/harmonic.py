@@ -142,8 +142,9 @@ def _fit_batch(t, y, w, omega0, *, rtol, atol, max_steps):
 class HarmonicFit:
     """Fitted harmonic of every window (NaN where a window was not fitted).
 
-    Model: y(t) = offset + A cos(2π f0 (t - t_mid) - phase), i.e. C = A cos(phase),
-    D = A sin(phase), with t_mid the window's mid time.
+    Model: y(t) = offset + A cos(2π f0 (t - t_c) - phase), i.e. C = A cos(phase),
+    D = A sin(phase), with t_c the time origin of the windows (`Windows.table.t_centre`; the
+    estimates table re-references the phase to the window's t_mid).
 
     Attributes (all (window,) unless noted):
         f0_hz, sigma_f0_hz, amplitude_mm, sigma_amplitude_mm, phase_rad, offset_mm,

@@ -40,38 +40,105 @@ def write_demo_report(out: Path, rec, traj, whole, windowed, comparison, truth_f
     w = whole.windows
     if mid in whole.periodogram.spectra:
         f, p = whole.periodogram.spectra[mid]
-        plot_periodogram(f, p, whole.periodogram.n_indep[mid], out / "psd.png",
-                         title=f"Lomb periodogram, plate {row['plate']} {row['axis']}")
+        plot_periodogram(
+            f,
+            p,
+            whole.periodogram.n_indep[mid],
+            out / "psd.png",
+            title=f"Lomb periodogram, plate {row['plate']} {row['axis']}",
+        )
     m = w.mask[mid]
-    plot_fit(w.t[mid, m], w.y[mid, m], row["f0_hz"], row["amplitude_mm"], row["phase_rad"], row["offset_mm"],
-             out / "fit.png", title=f"plate {row['plate']} {row['axis']}: raw and fitted")
+    t_from_mid = w.t[mid, m] + (w.table["t_centre"].iat[mid] - w.table["t_mid"].iat[mid])
+    plot_fit(
+        t_from_mid,
+        w.y[mid, m],
+        row["f0_hz"],
+        row["amplitude_mm"],
+        row["phase_rad"],
+        row["offset_mm"],
+        out / "fit.png",
+        title=f"plate {row['plate']} {row['axis']}: raw and fitted",
+    )
     chunk = next(rec.chunks(1))
     t0 = float(chunk.t[0])
     first = traj[np.isclose(traj["t"], t0, rtol=0, atol=1e-6)]
-    plot_frame(chunk.frames[0], rec.intrinsics, first, out / "frame.png",
-               title=f"first frame ({rec.kind}) and the extracted plate centroids")
-    keep_cols = ["plate", "axis", "n", "f0_hz", "sigma_f0_hz", "amplitude_mm", "sigma_amplitude_mm",
-                 "sigma_residual_mm", "peak_fap", "status"]
-    fmt = {"f0_hz": ".5f", "sigma_f0_hz": ".2e", "amplitude_mm": ".3f", "sigma_amplitude_mm": ".4f",
-           "sigma_residual_mm": ".3f", "peak_fap": ".1e"}
+    plot_frame(
+        chunk.frames[0],
+        rec.intrinsics,
+        first,
+        out / "frame.png",
+        title=f"first frame ({rec.kind}) and the extracted plate centroids",
+    )
+    keep_cols = [
+        "plate",
+        "axis",
+        "n",
+        "f0_hz",
+        "sigma_f0_hz",
+        "amplitude_mm",
+        "sigma_amplitude_mm",
+        "sigma_residual_mm",
+        "peak_fap",
+        "status",
+    ]
+    fmt = {
+        "f0_hz": ".5f",
+        "sigma_f0_hz": ".2e",
+        "amplitude_mm": ".3f",
+        "sigma_amplitude_mm": ".4f",
+        "sigma_residual_mm": ".3f",
+        "peak_fap": ".1e",
+    }
     truth = truth_fit[["plate", "f0_hz", "amplitude_mm"]].rename(
-        columns={"f0_hz": "f0_true_hz", "amplitude_mm": "amplitude_true_mm"})
+        columns={"f0_hz": "f0_true_hz", "amplitude_mm": "amplitude_true_mm"}
+    )
     vs = z.merge(truth, on="plate")
-    vs = vs.assign(amplitude_error_mm=vs["amplitude_mm"] - vs["amplitude_true_mm"],
-                   f0_error_hz=vs["f0_hz"] - vs["f0_true_hz"])
-    vs_cols = ["plate", "amplitude_mm", "amplitude_true_mm", "amplitude_error_mm", "sigma_amplitude_mm",
-               "f0_error_hz"]
-    vs_fmt = {"amplitude_mm": ".4f", "amplitude_true_mm": ".4f", "amplitude_error_mm": "+.4f",
-              "sigma_amplitude_mm": ".4f", "f0_error_hz": "+.2e"}
+    vs = vs.assign(
+        amplitude_error_mm=vs["amplitude_mm"] - vs["amplitude_true_mm"],
+        f0_error_hz=vs["f0_hz"] - vs["f0_true_hz"],
+    )
+    vs_cols = [
+        "plate",
+        "amplitude_mm",
+        "amplitude_true_mm",
+        "amplitude_error_mm",
+        "sigma_amplitude_mm",
+        "f0_error_hz",
+    ]
+    vs_fmt = {
+        "amplitude_mm": ".4f",
+        "amplitude_true_mm": ".4f",
+        "amplitude_error_mm": "+.4f",
+        "sigma_amplitude_mm": ".4f",
+        "f0_error_hz": "+.2e",
+    }
     wt = windowed.table
     ok = wt[(wt["status"] == "converged") & (wt["axis"] == "z")]
-    per_plate = ok.groupby("plate").agg(windows=("amplitude_mm", "size"), amplitude_mm=("amplitude_mm", "mean"),
-                                        scatter_mm=("amplitude_mm", "std"),
-                                        median_sigma_mm=("sigma_amplitude_mm", "median")).reset_index()
-    cmp_cols = ["plate", "amplitude_mm", "amplitude_ref_mm", "delta_amplitude_mm", "sigma_delta_amplitude_mm",
-                "delta_f0_hz"]
-    cmp_fmt = {"delta_amplitude_mm": "+.4f", "sigma_delta_amplitude_mm": ".4f", "delta_f0_hz": "+.2e",
-               "amplitude_mm": ".4f", "amplitude_ref_mm": ".4f"}
+    per_plate = (
+        ok.groupby("plate")
+        .agg(
+            windows=("amplitude_mm", "size"),
+            amplitude_mm=("amplitude_mm", "mean"),
+            scatter_mm=("amplitude_mm", "std"),
+            median_sigma_mm=("sigma_amplitude_mm", "median"),
+        )
+        .reset_index()
+    )
+    cmp_cols = [
+        "plate",
+        "amplitude_mm",
+        "amplitude_ref_mm",
+        "delta_amplitude_mm",
+        "sigma_delta_amplitude_mm",
+        "delta_f0_hz",
+    ]
+    cmp_fmt = {
+        "delta_amplitude_mm": "+.4f",
+        "sigma_delta_amplitude_mm": ".4f",
+        "delta_f0_hz": "+.2e",
+        "amplitude_mm": ".4f",
+        "amplitude_ref_mm": ".4f",
+    }
     frames_n = rec.n_frames
     text = f"""# jaxdefl demo report
 
@@ -86,8 +153,8 @@ Files: `simulation/` (recording.zarr, truth.csv, lds.csv), `trajectories.csv` (e
 `estimates_whole.csv` (one fit per plate and axis), `estimates_30s.csv` (30-s windows),
 `estimates_lds.csv`, `comparison_lds.csv`; figures `frame.png`, `psd.png`, `fit.png`.
 
-Timings: simulation {timings['simulate_s']:.1f} s, extraction {timings['extract_s']:.1f} s,
-whole-record fits {timings['fit_whole_s']:.2f} s, {len(wt)} windowed fits {timings['fit_windows_s']:.2f} s
+Timings: simulation {timings["simulate_s"]:.1f} s, extraction {timings["extract_s"]:.1f} s,
+whole-record fits {timings["fit_whole_s"]:.2f} s, {len(wt)} windowed fits {timings["fit_windows_s"]:.2f} s
 (JIT compilation included).
 
 ![frame](frame.png)

@@ -31,6 +31,7 @@ STATUS_FEW_SAMPLES = "too_few_samples"
 # A window is on the frame clock when every timestamp is within this fraction of a frame
 # interval of t_first + k * dt: then the masked-grid FFT periodogram is exact to that level.
 CLOCK_TOLERANCE = 1e-5
+MAX_GRID_FILL = 64
 
 
 @dataclass(frozen=True)
@@ -38,13 +39,15 @@ class Windows:
     """A batch of windows, padded to a common number of samples.
 
     Attributes:
-        t: (window, sample) time relative to ``table.t_mid`` in s; 0 where masked.
+        t: (window, sample) time relative to ``table.t_centre`` (the mid-time of the window's
+            own samples, which conditions the fit best) in s; 0 where masked.
         y: (window, sample) values in mm; 0 where masked.
         mask: (window, sample) True where a sample is valid.
         k: (window, sample) frame index relative to the window's first sample; 0 where masked.
         dt: (window,) frame interval in s (median spacing, refined by least squares).
         on_clock: (window,) True when all samples sit on the frame clock (see CLOCK_TOLERANCE).
-        table: one row per window: segment, window, t_start, t_end, t_mid, plate, axis, n, status.
+        table: one row per window: segment, window, t_start, t_end, t_mid (middle of the bounds,
+            the reference of reported phases), t_centre, plate, axis, n, status.
     """
 
     t: np.ndarray
@@ -77,16 +80,20 @@ class Windows:
 def frame_clock(t_rel: np.ndarray) -> tuple[float, np.ndarray, bool]:
     """Frame interval, integer frame indices and on-clock flag for sorted times ``t_rel`` (s).
 
-    The interval starts as the median spacing (robust to drop-outs, which make gaps of whole
-    frames) and is refined by least squares of t on k, so long windows do not accumulate error.
+    The interval starts as the smallest spacing (drop-outs only make gaps of whole frames, and
+    with most frames lost even the median spacing spans several frames) and is refined by least
+    squares of t on k, so long windows do not accumulate error. A grid with more than
+    ``MAX_GRID_FILL`` frames per sample is not treated as a frame clock (the FFT grid would be
+    mostly empty; such times take the non-uniform path).
     """
     n = t_rel.size
     if n < 2:
         return np.nan, np.zeros(n, np.int64), False
     d = np.diff(t_rel)
-    dt = float(np.median(d))
-    if not dt > 0:
+    pos = d[d > 0]
+    if pos.size == 0:
         return np.nan, np.zeros(n, np.int64), False
+    dt = float(pos.min())
     rel = t_rel - t_rel[0]
     k = np.rint(rel / dt)
     for _ in range(2):
@@ -94,7 +101,11 @@ def frame_clock(t_rel: np.ndarray) -> tuple[float, np.ndarray, bool]:
         if kk > 0:
             dt = float(k @ rel) / kk
         k = np.rint(rel / dt)
-    on = bool(np.max(np.abs(rel - k * dt)) <= CLOCK_TOLERANCE * dt) and bool(np.all(np.diff(k) > 0))
+    on = (
+        bool(np.max(np.abs(rel - k * dt)) <= CLOCK_TOLERANCE * dt)
+        and bool(np.all(np.diff(k) > 0))
+        and k[-1] + 1 <= MAX_GRID_FILL * n
+    )
     return dt, k.astype(np.int64), on
 
 
@@ -125,9 +136,11 @@ def _pack(series: list[tuple], min_samples: int) -> Windows:
     dt = np.full(b, np.nan)
     on = np.zeros(b, bool)
     rows = []
+    centre = np.zeros(b)
     for i, (meta, t_abs, y, *clock) in enumerate(series):
         n = t_abs.size
-        T[i, :n] = t_abs - meta["t_mid"]
+        centre[i] = 0.5 * (t_abs[0] + t_abs[-1]) if n else meta["t_mid"]
+        T[i, :n] = t_abs - centre[i]
         Y[i, :n] = y
         M[i, :n] = True
         if clock and clock[0][2] and n:
@@ -137,6 +150,7 @@ def _pack(series: list[tuple], min_samples: int) -> Windows:
         rows.append({**meta, "n": n, "status": STATUS_OK if n >= min_samples else STATUS_FEW_SAMPLES})
     cols = ["segment", "window", "t_start", "t_end", "t_mid", "plate", "axis", "n", "status"]
     table = pd.DataFrame(rows, columns=cols)
+    table.insert(5, "t_centre", centre)
     return Windows(T, Y, M, K, dt, on, table)
 
 
