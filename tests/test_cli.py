@@ -109,8 +109,16 @@ def test_axes_default_to_the_columns_present_and_missing_ones_are_errors(tmp_pat
 def test_demo_runs_frames_to_report(tmp_path):
     out = tmp_path / "demo"
     assert main(["demo", "--out", str(out), "--duration", "20"]) == 0
-    for name in ("summary.md", "frame.png", "psd.png", "fit.png", "estimates_whole.csv", "comparison_lds.csv",
-                 "trajectories.csv", "simulation/recording.zarr"):
+    for name in (
+        "summary.md",
+        "frame.png",
+        "psd.png",
+        "fit.png",
+        "estimates_whole.csv",
+        "comparison_lds.csv",
+        "trajectories.csv",
+        "simulation/recording.zarr",
+    ):
         assert (out / name).exists(), name
     est = pd.read_csv(out / "estimates_whole.csv")
     z = est[est["axis"] == "z"]
@@ -118,3 +126,33 @@ def test_demo_runs_frames_to_report(tmp_path):
     assert (z["status"] == "converged").all()
     # Experiment II day 1 loads at 3.0680 Hz (configs/exp2_tof_3hz.toml)
     assert np.all(np.abs(z["f0_hz"] - 3.0680) < 5 * z["sigma_f0_hz"] + 1e-4)
+
+
+def test_fit_posterior_writes_flags_and_posteriors(recording, capsys):
+    out = recording / "est.csv"
+    args = [
+        "fit",
+        str(recording / "traj.csv"),
+        "--out",
+        str(out),
+        "--axes",
+        "z",
+        "--window",
+        "20",
+        "--posterior",
+        "2",
+    ]
+    assert main(args) == 0
+    unc = pd.read_csv(recording / "est_uncertainty.csv")
+    est = pd.read_csv(out)
+    assert len(unc) == len(est)
+    assert set(unc["flag"]) <= {"ok", "low_snr", "few_cycles", "heavy_dropouts", "not_fitted"} | {
+        f for f in unc["flag"] if "+" in f
+    }
+    post = pd.read_csv(recording / "est_posterior.csv")
+    assert len(post) == 2 and post["converged_chain"].all()
+    # at this SNR the posterior and the linearised σ_A agree (issue 6: within 10 %)
+    assert np.all(np.abs(post["sigma_ratio_amplitude"] - 1) < 0.15)
+    assert (recording / "est_posterior.png").exists()
+    assert main([*args[:-1], "-1"]) == 2
+    assert "--posterior: expected a number of windows >= 0, got -1" in capsys.readouterr().err

@@ -53,6 +53,10 @@ def fit(
         float, typer.Option(help="Largest peak false-alarm probability that is fitted.")
     ] = 0.01,
     reference: Annotated[Path | None, typer.Option(help="Reference (LDS) table t, plate, z.")] = None,
+    posterior: Annotated[
+        int | None,
+        typer.Option(help="Check N windows' σ's against emcee posteriors (0: honesty flags only)."),
+    ] = None,
 ) -> None:
     """Estimate loading frequency and deflection amplitude per segment, window, plate and axis."""
     from . import pipeline
@@ -68,6 +72,7 @@ def fit(
         oversampling=oversampling,
         fap_max=fap_max,
         reference=reference,
+        posterior=posterior,
     )
 
 

@@ -114,6 +114,54 @@ def compare_with_reference(cam: pd.DataFrame, ref: pd.DataFrame) -> pd.DataFrame
     return out[COMPARISON_COLUMNS]
 
 
+def check_uncertainty(est: Estimates, out: Path, n_posterior: int, seed: int = 0) -> pd.DataFrame:
+    """Honesty flags of every window (OUT stem + _uncertainty.csv) and, for ``n_posterior``
+    windows, emcee posteriors against the linearised σ's (_posterior.csv and .png)."""
+    from .uncertainty import (
+        debiased_amplitude,
+        honesty_features,
+        honesty_flags,
+        plot_posterior_vs_linearised,
+        posterior_table,
+        rice_interval,
+    )
+
+    if n_posterior < 0:
+        raise ConfigError(f"--posterior: expected a number of windows >= 0, got {n_posterior}")
+    tab = est.table
+    feat = honesty_features(est)
+    flags = honesty_flags(est)
+    lo, hi = rice_interval(tab["amplitude_mm"].to_numpy(), tab["sigma_amplitude_mm"].to_numpy())
+    low = np.char.find(flags.astype(str), "low_snr") >= 0
+    unc = tab[["segment", "window", "plate", "axis"]].assign(
+        snr=feat["snr"].to_numpy(),
+        cycles=feat["cycles"].to_numpy(),
+        missing=feat["missing"].to_numpy(),
+        flag=flags,
+        trust_amplitude=np.where(
+            flags == "ok", "linearised", np.where(low, "rice_or_posterior", "posterior")
+        ),
+        trust_f0=np.where(flags == "ok", "linearised", "posterior"),
+        amplitude_debiased_mm=debiased_amplitude(
+            tab["amplitude_mm"].to_numpy(), tab["sigma_amplitude_mm"].to_numpy()
+        ),
+        amplitude_rice_lo95_mm=lo,
+        amplitude_rice_hi95_mm=hi,
+    )
+    unc.loc[flags == "not_fitted", ["trust_amplitude", "trust_f0"]] = "none"
+    write_estimates(unc, out.with_name(out.stem + "_uncertainty.csv"))
+    if n_posterior > 0:
+        post = posterior_table(est, n_posterior, seed=seed)
+        write_estimates(post, out.with_name(out.stem + "_posterior.csv"))
+        if len(post):
+            plot_posterior_vs_linearised(post, out.with_name(out.stem + "_posterior.png"))
+    n_bad = int(((flags != "ok") & (flags != "not_fitted")).sum())
+    console.print(
+        f"  uncertainty: {n_bad} of {len(flags)} windows flagged (linearised σ not to be trusted there)"
+    )
+    return unc
+
+
 def _sidecar(path: Path, **settings) -> None:
     """The effective settings beside an output, so every result says how it was made."""
     meta = {
@@ -141,6 +189,7 @@ def fit_file(
     oversampling: float = 5.0,
     fap_max: float = 0.01,
     reference: Path | None = None,
+    posterior: int | None = None,
 ) -> tuple[pd.DataFrame, pd.DataFrame | None]:
     """`jaxdefl fit`: read, estimate, write OUT (and OUT stem + _reference/_comparison.csv)."""
     t0 = time.perf_counter()
@@ -155,6 +204,7 @@ def fit_file(
     _sidecar(
         out,
         command="fit",
+        posterior=posterior,
         trajectory=str(traj),
         window_s=window_s,
         step_s=step_s,
@@ -169,6 +219,8 @@ def fit_file(
         write_estimates(ref_est.table, out.with_name(out.stem + "_reference.csv"))
         comparison = compare_with_reference(tab, ref_est.table)
         write_estimates(comparison, out.with_name(out.stem + "_comparison.csv"))
+    if posterior is not None:
+        check_uncertainty(est, out, posterior)
     counts = tab["status"].value_counts().to_dict()
     console.print(
         f"[bold]jaxdefl fit[/]: {len(tab)} windows in {time.perf_counter() - t0:.1f} s -> {out} "
@@ -257,7 +309,13 @@ def demo(out: Path, duration_s: float = 120.0, seed: int = 1) -> None:
     write_estimates(ref.table, out / "estimates_lds.csv")
     write_estimates(comparison, out / "comparison_lds.csv")
     report = write_demo_report(
-        out, rec, traj_v, whole, windowed, comparison, true_fit.table,
+        out,
+        rec,
+        traj_v,
+        whole,
+        windowed,
+        comparison,
+        true_fit.table,
         timings=dict(simulate_s=t_sim, extract_s=t_extract, fit_whole_s=t_whole, fit_windows_s=t_windowed),
     )
     console.print(f"[bold]jaxdefl demo[/]: report in {report} ({time.perf_counter() - t0:.1f} s)")

@@ -19,12 +19,9 @@ of A or f0 covers the truth less than 93 % of the time:
   50-60 % missing, (0.944, 0.943) at 60-70 % (the covariance uses the samples that are there,
   and the lost SNR shows in Â/σ_A); drop-outs in bursts of 1 s (3 cycles) at 30-60 % neither
   (0.938-0.954 at Â/σ_A >= 10). Beyond 70 % the study has no data, so the flag marks windows
-  outside the validated range. There is also a measured failure: once most frames are lost, the median
-  sample spacing that `make_windows` takes as the frame interval is several frames, the
-  periodogram's band shrinks to that interval's Nyquist frequency, and a 3 Hz peak falls out
-  of it (thesis SNR, 30 s windows at 20 Hz: f0 wrong or not found in 0/10 windows at 70 %
-  drop-outs, 5/10 at 80 %, 10/10 at 85 %).
-
+  outside the validated range. (An earlier engine took the median spacing as
+  the frame interval, which spans several frames once most are lost, and lost the 3 Hz peak at
+  80-85 % drop-outs; windows now take the smallest spacing, tested at 70 and 85 %.)
 Several reasons are joined with ``+``; windows without a converged fit are ``not_fitted``.
 """
 
