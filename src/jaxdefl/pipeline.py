@@ -245,7 +245,8 @@ def run_file(config: Path, out: Path, scheduler: str = "none") -> pd.DataFrame:
     n_ok = int((units["status"] == "ok").sum())
     console.print(
         f"[bold]jaxdefl run[/]: {campaign.name}: {n_ok}/{len(units)} recordings estimated "
-        f"({int(units['skipped'].sum())} reused) in {time.perf_counter() - t0:.1f} s -> {Path(out) / 'report.md'}"
+        f"({int(units['skipped'].sum())} reused) in {time.perf_counter() - t0:.1f} s "
+        f"-> {Path(out) / 'report.md'}"
     )
     for r in units[units["status"] != "ok"].itertuples():
         console.print(f"  [red]failed[/] {r.unit}: {r.reason}")
