@@ -29,8 +29,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.ndimage as ndi
-import torch
-import torch.nn.functional as F
 
 from .floor import floor_targets
 
@@ -129,80 +127,121 @@ class Scene:
 def _zimage(frames: np.ndarray, inv_norm: np.ndarray | None) -> np.ndarray:
     """Depth z (frame, h, w) float32: range times the ray factor, or the depth itself."""
     f = np.asarray(frames, np.float32)
-    return f if inv_norm is None else f * inv_norm
+    return f if inv_norm is None else np.multiply(f, inv_norm, dtype=np.float32)
 
 
-def _smooth(z: torch.Tensor, k: int) -> torch.Tensor:
+def _box_mean(z: np.ndarray, k: int) -> np.ndarray:
+    """k x k mean of every frame (frame, h, w), over the pixels inside the frame only.
+
+    Equals ``avg_pool2d(z, k, stride=1, padding=k // 2, count_include_pad=False)``; separable
+    shifted sums, so a NaN spreads only to its k x k neighbourhood.
+    """
     if k <= 1:
         return z
-    return F.avg_pool2d(z, k, stride=1, padding=k // 2, count_include_pad=False)
+    r = k // 2
+    b, h, w = z.shape
+    zp = np.zeros((b, h + 2 * r, w), np.float32)
+    zp[:, r : r + h] = z
+    rows = zp[:, 0:h].copy()
+    for d in range(1, k):
+        rows += zp[:, d : d + h]
+    cp = np.zeros((b, h, w + 2 * r), np.float32)
+    cp[:, :, r : r + w] = rows
+    out = cp[:, :, 0:w].copy()
+    for d in range(1, k):
+        out += cp[:, :, d : d + w]
+    # in-frame pixel count of each window: separable too
+    nv = np.convolve(np.ones(h), np.ones(k))[r : r + h]
+    nu = np.convolve(np.ones(w), np.ones(k))[r : r + w]
+    out *= (1.0 / np.outer(nv, nu)).astype(np.float32)
+    return out
 
 
-def _erode3(fg: torch.Tensor) -> torch.Tensor:
-    """3x3 binary erosion, zero border (equals `kernels.erode` with size 3; max-pool is faster)."""
-    bg = F.pad((~fg).to(torch.float32), (1, 1, 1, 1), value=1.0)
-    return F.max_pool2d(bg, 3, stride=1) < 0.5
+def _erode3(fg: np.ndarray) -> np.ndarray:
+    """3x3 binary erosion of every frame (frame, h, w), zero border (equals `kernels.erode`, size 3).
+
+    Separable: a pixel survives if its row triple survives in the rows above, at and below.
+    """
+    r = np.zeros_like(fg)
+    np.logical_and(fg[:, :, :-2], fg[:, :, 1:-1], out=r[:, :, 1:-1])
+    r[:, :, 1:-1] &= fg[:, :, 2:]
+    out = np.zeros_like(fg)
+    np.logical_and(r[:, :-2], r[:, 1:-1], out=out[:, 1:-1])
+    out[:, 1:-1] &= r[:, 2:]
+    return out
 
 
-def _otsu_masked(amp: torch.Tensor, bins: int = 256) -> torch.Tensor:
-    """Otsu threshold of every frame (B, 1, h, w) of a masked amplitude image (float32 histogram)."""
+def _otsu_masked(amp: np.ndarray, bins: int = 256) -> np.ndarray:
+    """Otsu threshold of every frame (frame, h, w) float32 of a masked amplitude image (B,).
+
+    Same convention as `kernels.otsu_threshold` (skimage's): ``bins`` bins between the frame's
+    minimum and maximum, threshold at the centre of the best bin; the bin indices are computed
+    in float32, the class statistics in float64.
+    """
     b = amp.shape[0]
     v = amp.reshape(b, -1)
-    hi = v.amax(1)
-    lo = v.amin(1)
-    width = ((hi - lo) / bins).clamp_min(1e-12)
-    idx = ((v - lo[:, None]) / width[:, None]).to(torch.int64).clamp_(0, bins - 1)
-    idx = idx + (torch.arange(b) * bins)[:, None]
-    hist = torch.bincount(idx.reshape(-1), minlength=b * bins).reshape(b, bins).to(torch.float64)
-    centers = lo[:, None].double() + width[:, None].double() * (torch.arange(bins, dtype=torch.float64) + 0.5)
+    hi = v.max(1)
+    lo = v.min(1)
+    width = np.maximum((hi - lo) / np.float32(bins), np.float32(1e-12))
+    idx = ((v - lo[:, None]) / width[:, None]).astype(np.int32)
+    np.clip(idx, 0, bins - 1, out=idx)
+    idx += (np.arange(b, dtype=np.int32) * bins)[:, None]
+    hist = np.bincount(idx.ravel(), minlength=b * bins).reshape(b, bins).astype(np.float64)
+    centers = lo[:, None].astype(np.float64) + width[:, None].astype(np.float64) * (np.arange(bins) + 0.5)
     w1 = hist.cumsum(1)
     w2 = w1[:, -1:] - w1 + hist
     s1 = (hist * centers).cumsum(1)
     s2 = s1[:, -1:] - s1 + hist * centers
-    m1 = s1 / w1.clamp_min(1e-300)
-    m2 = s2 / w2.clamp_min(1e-300)
+    m1 = s1 / np.maximum(w1, 1e-300)
+    m2 = s2 / np.maximum(w2, 1e-300)
     between = w1[:, :-1] * w2[:, 1:] * (m1[:, :-1] - m2[:, 1:]) ** 2
     k = between.argmax(1)
-    thr = centers.gather(1, k[:, None])[:, 0].to(torch.float32)
-    return torch.where(hi > lo, thr, lo)
+    thr = centers[np.arange(b), k].astype(np.float32)
+    return np.where(hi > lo, thr, lo)
 
 
 def _segment(z: np.ndarray, amp: np.ndarray | None, top: np.ndarray, band, smooth: int, use_amp: bool, r0: int,
-             r1: int):
-    """Foreground (B, h, w) bool: depth band relative to ``top`` (B,), then Otsu.
+             r1: int) -> np.ndarray:
+    """Foreground (frame, h, w) bool: depth band relative to ``top`` (frame,), then Otsu.
 
-    ``z`` holds rows r0:r1 of the frames, ``amp`` the whole frames.
+    ``z`` holds rows r0:r1 of the frames, ``amp`` the whole frames. Plain numpy on float32:
+    on chunks this small, torch's intra-op threads cost more than they save when the cores
+    are shared (measured in experiments/bench_extract.py).
     """
-    zt = torch.from_numpy(np.ascontiguousarray(z))[:, None]
-    zs = _smooth(zt, smooth)
-    rel = zs - torch.from_numpy(top.astype(np.float32))[:, None, None, None]
-    fg = (rel > band[0]) & (rel < band[1])
+    zs = _box_mean(z, smooth)
+    rel = zs - top.astype(np.float32)[:, None, None]
+    fg = rel > band[0]
+    fg &= rel < band[1]
     if smooth > 1:
         # smoothness constraint (as in region growing, Rabbani et al. 2006): the plates are
         # flat, the side faces of the spreader beam and the mixed edges are steep
-        gv = F.pad(zs[:, :, 2:] - zs[:, :, :-2], (0, 0, 1, 1)).abs()
-        gu = F.pad(zs[..., 2:] - zs[..., :-2], (1, 1)).abs()
-        fg = fg & (gv < 2 * _GRAD_MAX_MM_PER_PX) & (gu < 2 * _GRAD_MAX_MM_PER_PX)
+        lim = 2 * _GRAD_MAX_MM_PER_PX
+        steep = np.zeros_like(fg)
+        steep[:, 1:-1] = ~(np.abs(zs[:, 2:] - zs[:, :-2]) < lim)
+        steep[:, :, 1:-1] |= ~(np.abs(zs[:, :, 2:] - zs[:, :, :-2]) < lim)
+        fg &= ~steep
     if use_amp and amp is not None:
-        a = torch.from_numpy(np.ascontiguousarray(amp[:, r0:r1]))[:, None]
-        am = torch.where(fg, a, torch.zeros((), dtype=a.dtype))
+        a = np.asarray(amp[:, r0:r1], np.float32)
+        am = np.where(fg, a, np.float32(0))
         thr = _otsu_masked(am)
-        fg = fg & (am > thr[:, None, None, None])
+        fg &= am > thr[:, None, None]
     return fg
 
 
-def _regions(fg: torch.Tensor, z: np.ndarray, r0: int, inv_norm, xr, yr, clip_sigma: float | None,
+def _regions(fg: np.ndarray, z: np.ndarray, r0: int, inv_norm, xr, yr, clip_sigma: float | None,
              keep_pixels: bool = False) -> dict:
-    """Label, measure, erode and average: per-region arrays (global labels over the stack)."""
-    b, _, h, w = fg.shape
-    fgn = fg[:, 0].numpy()
-    labels, n = ndi.label(fgn, structure=_EIGHT_2D_IN_3D)
+    """Label, measure, erode and average: per-region arrays (global labels over the stack).
+
+    ``fg`` and ``z`` (frame, h, w) hold rows r0:r0+h of the frames.
+    """
+    b, h, w = fg.shape
+    labels, n = ndi.label(fg, structure=_EIGHT_2D_IN_3D)
     H, W = inv_norm.shape
     out: dict = {"n": n}
     if n == 0:
         return out
     flat = labels.reshape(-1)
-    idx = np.flatnonzero(flat)
+    idx = np.flatnonzero(fg)
     lab = flat[idx]
     fr, rem = np.divmod(idx, h * w)
     v, u = np.divmod(rem, w)
@@ -210,11 +249,12 @@ def _regions(fg: torch.Tensor, z: np.ndarray, r0: int, inv_norm, xr, yr, clip_si
     m = n + 1
     area = np.bincount(lab, minlength=m).astype(np.float64)
     a = np.maximum(area, 1)
-    su, sv = np.bincount(lab, u, m), np.bincount(lab, v, m)
+    uf, vf = u.astype(np.float64), v.astype(np.float64)
+    su, sv = np.bincount(lab, uf, m), np.bincount(lab, vf, m)
     ub, vb = su / a, sv / a
-    muu = np.bincount(lab, u * u, m) / a - ub**2
-    mvv = np.bincount(lab, v * v, m) / a - vb**2
-    muv = np.bincount(lab, u * v, m) / a - ub * vb
+    muu = np.bincount(lab, uf * uf, m) / a - ub**2
+    mvv = np.bincount(lab, vf * vf, m) / a - vb**2
+    muv = np.bincount(lab, uf * vf, m) / a - ub * vb
     half, disc = 0.5 * (muu + mvv), np.sqrt((0.5 * (muu - mvv)) ** 2 + muv**2)
     l1, l2 = half + disc, np.maximum(half - disc, 0)
     border = np.bincount(lab, (u == 0) | (u == W - 1) | (v == 0) | (v == H - 1), m)
@@ -223,14 +263,14 @@ def _regions(fg: torch.Tensor, z: np.ndarray, r0: int, inv_norm, xr, yr, clip_si
     out.update(area=area, u=ub, v=vb, ecc=np.sqrt(l2 / np.maximum(l1, 1e-300)), minor=4 * np.sqrt(l2),
                border=border > 0, frame=frame)
     # erosion drops the mixed pixels at plate edges (thesis 5.1.4)
-    er = _erode3(fg)[:, 0].numpy().reshape(-1)
-    eidx = np.flatnonzero(er)
+    eidx = np.flatnonzero(_erode3(fg))
     elab = flat[eidx]
-    efr, erem = np.divmod(eidx, h * w)
-    pix = erem + r0 * w  # flat pixel index in the full frame
-    zz = z.reshape(b, -1)[efr, erem]  # z holds the rows r0:r0+h only
+    pix = eidx % (h * w) + r0 * w  # flat pixel index in the full frame
+    zz = z.reshape(-1)[eidx]  # z holds the rows r0:r0+h only
     ok = np.isfinite(zz)
-    elab, pix, zz = elab[ok], pix[ok], zz[ok]
+    if not ok.all():
+        elab, pix, zz = elab[ok], pix[ok], zz[ok]
+    zz = zz.astype(np.float64)
     if clip_sigma is not None and elab.size:
         # pixels farther than clip_sigma x the region's scatter from its mean depth are not the plate's
         cnt = np.maximum(np.bincount(elab, minlength=m), 1)
@@ -249,9 +289,15 @@ def _regions(fg: torch.Tensor, z: np.ndarray, r0: int, inv_norm, xr, yr, clip_si
 
 
 def _top_level(z: np.ndarray, top_idx: np.ndarray) -> np.ndarray:
-    """Per-frame beam-top depth: median over the top-surface pixels (B,)."""
-    t = torch.from_numpy(np.ascontiguousarray(z.reshape(z.shape[0], -1)[:, top_idx]))
-    return torch.nanmedian(t, dim=1).values.numpy().astype(np.float64)
+    """Per-frame beam-top depth (B,) float64: lower median over the top-surface pixels, NaN ignored.
+
+    The lower of the two middle values, as ``torch.nanmedian``; NaN for a frame without valid pixels.
+    """
+    t = np.sort(z.reshape(z.shape[0], -1)[:, top_idx], axis=1)  # NaN sort last
+    n = (~np.isnan(t)).sum(1)
+    med = t[np.arange(t.shape[0]), np.maximum(n - 1, 0) // 2].astype(np.float64)
+    med[n == 0] = np.nan
+    return med
 
 
 def _line_fit(u: np.ndarray, v: np.ndarray, tol: float) -> tuple[np.ndarray, tuple[float, float]]:
@@ -348,8 +394,7 @@ def calibrate_scene(frames: np.ndarray, amplitude: np.ndarray | None, intrinsics
     smooth = 5 if kind == "depth" else 0
     use_amp = kind == "range" and amplitude is not None
     # per-pixel noise of the segmentation image on the top surface (one frame, not the median)
-    z0 = torch.from_numpy(z_all[:1])[:, None]
-    zs0 = _smooth(z0, smooth)[0, 0].numpy().ravel()[top_idx]
+    zs0 = _box_mean(z_all[:1], smooth)[0].ravel()[top_idx]
     sigma = float(1.4826 * np.nanmedian(np.abs(zs0 - np.nanmedian(zs0))))
     gap = max(5.0, 4.0 * sigma)
     far = (floor_z - top_z - 50.0) if np.isfinite(floor_z) else 400.0
