@@ -6,7 +6,10 @@
 Frames come from the simulator (Experiment II, 3 Hz, SR4000 at 20 Hz), tiled to --frames.
 The OpenCV pipeline per frame: z from range (eq. 3.10), depth band relative to the beam top,
 Otsu on the masked amplitude (cv2.threshold, 8-bit), connectedComponentsWithStats, area
-filter, 3x3 erosion, per-region mean of the 3D points. Peak memory: the process's max RSS.
+filter, 3x3 erosion, per-region mean of the 3D points. The three are timed in turns (best of
+--repeat rounds), so a change in the load of a shared machine hits all of them alike. Peak
+memory: the process's max RSS (mostly the simulator's rendering) and the peak of the arrays
+allocated by one `detect_chunk` call (tracemalloc).
 """
 
 from __future__ import annotations
@@ -14,6 +17,7 @@ from __future__ import annotations
 import argparse
 import resource
 import time
+import tracemalloc
 
 import cv2
 import numpy as np
@@ -55,6 +59,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=2048)
     ap.add_argument("--chunk", type=int, default=256)
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--repeat", type=int, default=5)
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
     cv2.setNumThreads(args.threads)
@@ -69,14 +74,6 @@ def main() -> None:
     t_cal = time.perf_counter() - t0
     n = args.frames
 
-    def timed(fn, repeat=3):
-        best = np.inf
-        for _ in range(repeat):
-            s = time.perf_counter()
-            fn()
-            best = min(best, time.perf_counter() - s)
-        return best
-
     def full():
         for s in range(0, n, args.chunk):
             detect_chunk(scene, rng[s : s + args.chunk], amp[s : s + args.chunk])
@@ -90,14 +87,31 @@ def main() -> None:
     def ocv():
         opencv_pipeline(scene, rng, amp)
 
-    t_full, t_track, t_cv = timed(full), timed(tracked), timed(ocv)
+    fns = {"full": full, "tracked": tracked, "opencv": ocv}
+    for fn in fns.values():  # warm-up
+        fn()
+    best = dict.fromkeys(fns, np.inf)
+    for _ in range(args.repeat):
+        for name, fn in fns.items():
+            s = time.perf_counter()
+            fn()
+            best[name] = min(best[name], time.perf_counter() - s)
+    rate = {k: n / v for k, v in best.items()}
     found = np.isfinite(detect_chunk(scene, rng[:256], amp[:256])[..., 2]).mean()
-    print(f"frames {n} of {rng.shape[2]}x{rng.shape[1]}, chunk {args.chunk}, threads {args.threads}; "
-          f"calibration {t_cal * 1e3:.0f} ms, plates {scene.plates.tolist()}, found {found:.3f}")
-    print(f"full detection (batched torch/scipy): {n / t_full:9.0f} frames/s")
-    print(f"real-time (tracked):                  {n / t_track:9.0f} frames/s")
-    print(f"OpenCV per-frame pipeline:            {n / t_cv:9.0f} frames/s")
-    print(f"peak memory (max RSS): {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB")
+    tracemalloc.start()
+    detect_chunk(scene, rng[: args.chunk], amp[: args.chunk])
+    peak_chunk = tracemalloc.get_traced_memory()[1]
+    tracemalloc.stop()
+    print(f"frames {n} of {rng.shape[2]}x{rng.shape[1]}, chunk {args.chunk}, threads {args.threads}, "
+          f"best of {args.repeat}; calibration {t_cal * 1e3:.0f} ms, plates {scene.plates.tolist()}, found {found:.3f}")
+    print(f"full detection (batched numpy/scipy): {rate['full']:9.0f} frames/s  "
+          f"({best['full'] / n * args.chunk * 1e3:.1f} ms per chunk)")
+    print(f"real-time (tracked):                  {rate['tracked']:9.0f} frames/s")
+    print(f"OpenCV per-frame pipeline:            {rate['opencv']:9.0f} frames/s")
+    print(f"ratios: full / OpenCV {rate['full'] / rate['opencv']:.2f}, "
+          f"real-time / OpenCV {rate['tracked'] / rate['opencv']:.1f}, real-time / 5000 {rate['tracked'] / 5000:.1f}")
+    print(f"peak memory: max RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB, "
+          f"detect_chunk arrays {peak_chunk / 2**20:.1f} MB per chunk")
 
 
 if __name__ == "__main__":

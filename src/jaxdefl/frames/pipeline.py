@@ -35,8 +35,6 @@ from .floor import floor_targets
 __all__ = ["PlateGeometry", "Scene", "calibrate_scene", "detect_chunk", "ray_factors", "SceneError"]
 
 _EIGHT = np.ones((3, 3), bool)
-_EIGHT_2D_IN_3D = np.zeros((3, 3, 3), bool)
-_EIGHT_2D_IN_3D[1] = True  # label every frame of a stack separately in one call
 _GRAD_MAX_MM_PER_PX = 6.0  # structured light: steepest depth change across a plate (smoothed)
 
 
@@ -171,22 +169,9 @@ def _erode3(fg: np.ndarray) -> np.ndarray:
     return out
 
 
-def _otsu_masked(amp: np.ndarray, bins: int = 256) -> np.ndarray:
-    """Otsu threshold of every frame (frame, h, w) float32 of a masked amplitude image (B,).
-
-    Same convention as `kernels.otsu_threshold` (skimage's): ``bins`` bins between the frame's
-    minimum and maximum, threshold at the centre of the best bin; the bin indices are computed
-    in float32, the class statistics in float64.
-    """
-    b = amp.shape[0]
-    v = amp.reshape(b, -1)
-    hi = v.max(1)
-    lo = v.min(1)
-    width = np.maximum((hi - lo) / np.float32(bins), np.float32(1e-12))
-    idx = ((v - lo[:, None]) / width[:, None]).astype(np.int32)
-    np.clip(idx, 0, bins - 1, out=idx)
-    idx += (np.arange(b, dtype=np.int32) * bins)[:, None]
-    hist = np.bincount(idx.ravel(), minlength=b * bins).reshape(b, bins).astype(np.float64)
+def _otsu_thresholds(hist: np.ndarray, lo: np.ndarray, width: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """Otsu threshold (B,) float32 from per-frame histograms (B, bins) over [lo, lo + bins * width)."""
+    b, bins = hist.shape
     centers = lo[:, None].astype(np.float64) + width[:, None].astype(np.float64) * (np.arange(bins) + 0.5)
     w1 = hist.cumsum(1)
     w2 = w1[:, -1:] - w1 + hist
@@ -198,6 +183,54 @@ def _otsu_masked(amp: np.ndarray, bins: int = 256) -> np.ndarray:
     k = between.argmax(1)
     thr = centers[np.arange(b), k].astype(np.float32)
     return np.where(hi > lo, thr, lo)
+
+
+def _otsu_masked(amp: np.ndarray, bins: int = 256) -> np.ndarray:
+    """Otsu threshold of every frame (frame, h, w) float32 of a masked amplitude image (B,).
+
+    Same convention as `kernels.otsu_threshold` (skimage's): ``bins`` bins between the frame's
+    minimum and maximum, threshold at the centre of the best bin; the bin indices are computed
+    in float32, the class statistics in float64. (Slow reference of `_otsu_in_mask`.)
+    """
+    b = amp.shape[0]
+    v = amp.reshape(b, -1)
+    hi = v.max(1)
+    lo = v.min(1)
+    width = np.maximum((hi - lo) / np.float32(bins), np.float32(1e-12))
+    idx = ((v - lo[:, None]) / width[:, None]).astype(np.int32)
+    np.clip(idx, 0, bins - 1, out=idx)
+    idx += (np.arange(b, dtype=np.int32) * bins)[:, None]
+    hist = np.bincount(idx.ravel(), minlength=b * bins).reshape(b, bins).astype(np.float64)
+    return _otsu_thresholds(hist, lo, width, hi)
+
+
+def _otsu_in_mask(vals: np.ndarray, fr: np.ndarray, n_pix: int, b: int, bins: int = 256) -> np.ndarray:
+    """`_otsu_masked` of ``where(mask, amp, 0)`` from the masked pixels alone (B,) float32.
+
+    Args:
+        vals: amplitudes of the masked pixels, grouped by frame. fr: their frames (sorted).
+        n_pix: pixels per frame; the unmasked ones count as zeros in the histogram.
+    """
+    nfg = np.bincount(fr, minlength=b)
+    nbg = n_pix - nfg
+    lo = np.zeros(b, np.float32)
+    hi = np.zeros(b, np.float32)
+    has = nfg > 0
+    if vals.size:
+        starts = np.concatenate([[0], np.cumsum(nfg)[:-1]])[has]
+        lo[has] = np.minimum.reduceat(vals, starts)
+        hi[has] = np.maximum.reduceat(vals, starts)
+    # the zeros of the unmasked pixels take part in the minimum and maximum
+    lo = np.where(nbg > 0, np.minimum(lo, 0), lo).astype(np.float32)
+    hi = np.where(nbg > 0, np.maximum(hi, 0), hi).astype(np.float32)
+    width = np.maximum((hi - lo) / np.float32(bins), np.float32(1e-12))
+    idx = ((vals - lo[fr]) / width[fr]).astype(np.int32)
+    np.clip(idx, 0, bins - 1, out=idx)
+    idx += fr.astype(np.int32) * bins
+    hist = np.bincount(idx, minlength=b * bins).astype(np.float64)
+    zero = np.clip(((np.float32(0) - lo) / width).astype(np.int32), 0, bins - 1)
+    hist[np.arange(b) * bins + zero] += nbg
+    return _otsu_thresholds(hist.reshape(b, bins), lo, width, hi)
 
 
 def _segment(z: np.ndarray, amp: np.ndarray | None, top: np.ndarray, band, smooth: int, use_amp: bool, r0: int,
@@ -221,10 +254,14 @@ def _segment(z: np.ndarray, amp: np.ndarray | None, top: np.ndarray, band, smoot
         steep[:, :, 1:-1] |= ~(np.abs(zs[:, :, 2:] - zs[:, :, :-2]) < lim)
         fg &= ~steep
     if use_amp and amp is not None:
-        a = np.asarray(amp[:, r0:r1], np.float32)
-        am = np.where(fg, a, np.float32(0))
-        thr = _otsu_masked(am)
-        fg &= am > thr[:, None, None]
+        # Otsu on the amplitude masked by the band (eq. 5.22-5.24), from the band's pixels only
+        b, h, w = fg.shape
+        a = np.ascontiguousarray(amp, np.float32)
+        fidx = np.flatnonzero(fg)
+        fr, rem = np.divmod(fidx, h * w)
+        vals = a.reshape(-1)[fr * a[0].size + r0 * w + rem]
+        thr = _otsu_in_mask(vals, fr, h * w, b)
+        fg.reshape(-1)[fidx[~(vals > thr[fr])]] = False
     return fg
 
 
@@ -235,15 +272,19 @@ def _regions(fg: np.ndarray, z: np.ndarray, r0: int, inv_norm, xr, yr, clip_sigm
     ``fg`` and ``z`` (frame, h, w) hold rows r0:r0+h of the frames.
     """
     b, h, w = fg.shape
-    labels, n = ndi.label(fg, structure=_EIGHT_2D_IN_3D)
+    # the frames stacked into one tall image, an empty row under each: one 2D labelling
+    # (twice as fast as a 3D one with a flat structure)
+    tall = np.zeros((b, h + 1, w), bool)
+    tall[:, :h] = fg
+    labels, n = ndi.label(tall.reshape(-1, w), structure=_EIGHT)
     H, W = inv_norm.shape
     out: dict = {"n": n}
     if n == 0:
         return out
     flat = labels.reshape(-1)
-    idx = np.flatnonzero(fg)
-    lab = flat[idx]
-    fr, rem = np.divmod(idx, h * w)
+    idx = np.flatnonzero(tall)
+    lab = flat[idx].astype(np.intp)
+    fr, rem = np.divmod(idx, (h + 1) * w)
     v, u = np.divmod(rem, w)
     v = v + r0
     m = n + 1
@@ -262,11 +303,13 @@ def _regions(fg: np.ndarray, z: np.ndarray, r0: int, inv_norm, xr, yr, clip_sigm
     frame[lab] = fr
     out.update(area=area, u=ub, v=vb, ecc=np.sqrt(l2 / np.maximum(l1, 1e-300)), minor=4 * np.sqrt(l2),
                border=border > 0, frame=frame)
-    # erosion drops the mixed pixels at plate edges (thesis 5.1.4)
-    eidx = np.flatnonzero(_erode3(fg))
-    elab = flat[eidx]
-    pix = eidx % (h * w) + r0 * w  # flat pixel index in the full frame
-    zz = z.reshape(-1)[eidx]  # z holds the rows r0:r0+h only
+    # erosion drops the mixed pixels at plate edges (thesis 5.1.4); the empty rows act as the
+    # zero border of every frame
+    eidx = np.flatnonzero(_erode3(tall))
+    elab = flat[eidx].astype(np.intp)
+    efr, erem = np.divmod(eidx, (h + 1) * w)
+    pix = erem + r0 * w  # flat pixel index in the full frame
+    zz = z.reshape(-1)[efr * (h * w) + erem]  # z holds the rows r0:r0+h only
     ok = np.isfinite(zz)
     if not ok.all():
         elab, pix, zz = elab[ok], pix[ok], zz[ok]
