@@ -131,3 +131,45 @@ def test_points_from_range_and_depth_agree():
 def test_shape_errors():
     with pytest.raises(ValueError, match=r"x: expected a tensor of shape \(B, 1, H, W\), got \(3, 4\)"):
         otsu_threshold(torch.zeros(3, 4))
+
+
+# The per-chunk pipeline's numpy kernels (frames/pipeline.py) against references.
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_pipeline_otsu_from_mask_pixels_equals_masked_image(seed):
+    from jaxdefl.frames.pipeline import _otsu_in_mask, _otsu_masked
+
+    img = _scene(seed).astype(np.float32)
+    b, h, w = img.shape
+    mask = np.random.default_rng(seed).random(img.shape) < 0.3
+    mask[1] = True  # a frame with no unmasked zeros
+    mask[2] = False  # a frame with nothing in the mask
+    am = np.where(mask, img, np.float32(0))
+    fidx = np.flatnonzero(mask)
+    fr = fidx // (h * w)
+    fast = _otsu_in_mask(img.reshape(-1)[fidx], fr, h * w, b)
+    slow = _otsu_masked(am)
+    np.testing.assert_array_equal(fast, slow)
+    for i in (0, 1, 3):  # the masked image's Otsu is skimage's
+        assert slow[i] == pytest.approx(threshold_otsu(am[i]), rel=1e-5)
+
+
+def test_pipeline_erosion_box_mean_and_median_match_references():
+    import torch.nn.functional as F
+
+    from jaxdefl.frames.pipeline import _box_mean, _erode3, _top_level
+
+    rng = np.random.default_rng(3)
+    fg = rng.random((3, 20, 30)) < 0.8
+    ref = np.stack([ndimage.binary_erosion(f, np.ones((3, 3)), border_value=0) for f in fg])
+    np.testing.assert_array_equal(_erode3(fg), ref)
+    z = rng.normal(1000, 5, (3, 20, 30)).astype(np.float32)
+    z[0, 5, 5] = np.nan
+    pool = F.avg_pool2d(torch.from_numpy(z)[:, None], 5, stride=1, padding=2, count_include_pad=False)[:, 0]
+    np.testing.assert_allclose(_box_mean(z, 5), pool.numpy(), rtol=1e-6)
+    assert np.isnan(_box_mean(z, 5)[0, 3:8, 3:8]).all() and np.isfinite(_box_mean(z, 5)[0, 8:]).all()
+    t = z.reshape(3, -1)[:, :41].copy()
+    t[1, ::2] = np.nan
+    t[2] = np.nan
+    np.testing.assert_array_equal(_top_level(t, np.arange(41)), torch.nanmedian(torch.from_numpy(t), 1).values.numpy())
