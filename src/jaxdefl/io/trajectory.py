@@ -53,7 +53,7 @@ def _load_frame(path: Path) -> pd.DataFrame:
         if suffix in (".parquet", ".pq"):
             return pd.read_parquet(path)
         if suffix in (".csv", ".txt", ".gz"):
-            return pd.read_csv(path, comment="#", dtype=str)
+            return pd.read_csv(path, comment="#")
     except (ValueError, OSError, pd.errors.ParserError) as err:
         first = str(err).splitlines()[0] if str(err) else type(err).__name__
         raise InputError(f"{path}: cannot be read as a table ({first})") from None
