@@ -99,7 +99,20 @@ def test_fitted_deflection(simulated):
         assert abs(row.amplitude_mm - a_true) < 0.1, (name, row.plate, row.amplitude_mm, a_true)
     f0_err = np.abs(est["f0_hz"] - cfg.loading.frequency_hz)
     if name == "kinect" and not (f0_err < 1e-4).all():
-        # Known gap of issue 4: on 60 s of simulated Kinect data (with the level jumps of
-        # Table 6.21 inside the record) plate 4's f0 was off by 1.85e-4 Hz. Reported, not hidden.
-        pytest.xfail(f"Kinect f0 errors {f0_err.round(6).tolist()} Hz exceed 1e-4 Hz on a 60-s record")
+        # Known gap of issue 4, a limit of the data rather than of the extraction: the simulated
+        # Kinect adds a frame-common depth jitter (camera.frame_noise_mm = 0.4 mm, shared by all
+        # plates; no level jump falls inside this 60-s record), so sigma_f0 is about 7e-5 Hz and
+        # the f0 errors of all plates move together. The simulator's own reference centroids miss
+        # 1e-4 Hz alike (-1.0e-4 to -1.75e-4 Hz); with the frame-common part removed (oracle) the
+        # errors drop below 8e-5 Hz. What the extraction must not do is add to that error:
+        ref_est = estimate_table(
+            ref[ref.plate.isin(visible)].assign(segment=df.segment.iloc[0], x=0.0, y=0.0), axes=("z",), progress=False
+        ).table
+        both = est.merge(ref_est[["plate", "f0_hz"]], on="plate", suffixes=("", "_ref"))
+        gap = (both.f0_hz - both.f0_hz_ref).abs()
+        assert len(both) == len(est) and (gap < 1e-4).all(), (name, gap.tolist())
+        pytest.xfail(
+            f"Kinect f0 errors {f0_err.round(6).tolist()} Hz exceed 1e-4 Hz on a 60-s record; the simulator's "
+            f"reference centroids give {(ref_est.f0_hz - cfg.loading.frequency_hz).round(6).tolist()} Hz"
+        )
     assert (f0_err < 1e-4).all(), (name, est[["plate", "f0_hz"]].to_dict("records"))
