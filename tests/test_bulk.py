@@ -211,7 +211,7 @@ def test_simulated_campaign_frames_to_fatigue_curve(tmp_path):
     """[simulate]: the simulator makes the frames, extraction units the trajectories."""
     cfg_path = Path(__file__).resolve().parents[1] / "configs" / "exp2_tof_3hz.toml"
     (tmp_path / "c.toml").write_text(
-        f'[processing]\nwindow_s = 10.0\n[simulate]\nconfig = "{cfg_path}"\nsessions = ["day1", "day11"]\n'
+        f'[processing]\nwindow_s = 10.0\ncorrect_motion_artefact = true\n[simulate]\nconfig = "{cfg_path}"\nsessions = ["day1", "day11"]\n'
         "duration_s = 20.0\nunit_frames = 150\n"
     )
     camp = load_campaign(tmp_path / "c.toml")
@@ -225,6 +225,8 @@ def test_simulated_campaign_frames_to_fatigue_curve(tmp_path):
     # camera amplitudes follow, lowered by the ToF motion artefact (-0.14 mm per 4 mm at 3 Hz / 20 Hz)
     assert 0.2 < day.loc[11, "amplitude_mm"] - day.loc[1, "amplitude_mm"] < 0.4
     assert np.all((day["delta_amplitude_mm"] < 0) & (day["delta_amplitude_mm"] > -0.15))
+    # corrected for the artefact, the camera recovers the simulated truth per day within 0.05 mm
+    assert np.all(np.abs(day["amplitude_corrected_mm"] - day["amplitude_truth_mm"]) < 0.05)
     # a rerun reuses every unit: simulation, extraction and estimates
     stamps = {p.parent.name: p.stat().st_mtime for p in (tmp_path / "out" / "units").glob("*/manifest.json")}
     run_campaign(camp, tmp_path / "out", progress=False)

@@ -260,3 +260,14 @@ def test_plates_on_separate_clocks_in_one_segment():
     est = estimate_windows(make_windows(validate_trajectory(pd.concat(frames)), axes=("z",)))
     assert (est.table["status"] == "converged").all()
     assert np.all(np.abs(est.table["f0_hz"] - 2.9) < 5 * est.table["sigma_f0_hz"])
+
+
+@pytest.mark.parametrize("motion_hz, frame_hz, error_mm", [(1, 10, -0.061), (3, 10, -0.53), (3, 20, -0.14)])
+def test_motion_artefact_response_matches_thesis_fig_6_9(motion_hz, frame_hz, error_mm):
+    from jaxdefl.fit.motion import motion_artefact_response
+
+    gain, lag = motion_artefact_response(motion_hz, frame_hz)
+    assert 4.0 * (gain - 1) == pytest.approx(error_mm, abs=0.012)
+    assert 0 < lag < np.pi / 2
+    with pytest.raises(ValueError, match=r"tap_offsets: expected four offsets"):
+        motion_artefact_response(3.0, 20.0, (0.0, 0.5))

@@ -59,7 +59,11 @@ def _write_zarr(ds, path: Path) -> None:
 
 
 def per_day_table(
-    whole: pd.DataFrame, comparison: pd.DataFrame, lds: pd.DataFrame, plate: int
+    whole: pd.DataFrame,
+    comparison: pd.DataFrame,
+    lds: pd.DataFrame,
+    plate: int,
+    truth: pd.DataFrame | None = None,
 ) -> pd.DataFrame:
     """Thesis Tables 6.12/6.16/6.17 for one plate: f0, A, σ's and the LDS differences per day."""
     cam = whole[(whole["plate"] == plate) & (whole["axis"] == "z")]
@@ -75,7 +79,13 @@ def per_day_table(
         "sigma_residual_mm",
         "status",
     ]
+    cols += [c for c in ("amplitude_corrected_mm", "sigma_amplitude_corrected_mm") if c in cam]
     tab = cam[cols].sort_values(["camera", "day"]).reset_index(drop=True)
+    if truth is not None and len(truth):
+        tr = truth[(truth["plate"] == plate) & (truth["axis"] == "z")][["day", "camera", "amplitude_mm"]]
+        tab = tab.merge(
+            tr.rename(columns={"amplitude_mm": "amplitude_truth_mm"}), on=["day", "camera"], how="left"
+        )
     if len(lds):
         ref = lds[(lds["plate"] == plate)][
             ["day", "camera", "f0_hz", "sigma_f0_hz", "amplitude_mm", "sigma_amplitude_mm"]
@@ -134,18 +144,23 @@ def gather(
     windows = read_unit_tables(out, ok, "windows.csv")
     lds = read_unit_tables(out, ok, "lds.csv")
     comparison = read_unit_tables(out, ok, "comparison.csv")
+    truth = read_unit_tables(out, ok, "truth.csv")
     _write_csv(units, out / "units.csv")
     tables = {
         "estimates_whole.csv": whole,
         "estimates_windows.csv": windows,
         "estimates_lds.csv": lds,
+        "estimates_truth.csv": truth,
+        "estimates_truth.csv": truth,
         "comparison_lds.csv": comparison,
     }
     for name, df in tables.items():
         if len(df):
             _write_csv(df, out / name)
     proc = campaign.processing
-    day_tab = per_day_table(whole, comparison, lds, proc.reference_plate) if len(whole) else pd.DataFrame()
+    day_tab = (
+        per_day_table(whole, comparison, lds, proc.reference_plate, truth) if len(whole) else pd.DataFrame()
+    )
     profile = (
         fit_profile(whole, proc.plate_x_mm, proc.span_mm, proc.load_a_mm) if len(whole) else pd.DataFrame()
     )

@@ -54,6 +54,7 @@ class Processing:
     plate_x_mm: tuple[float, ...] = tuple(200.0 + 250.0 * i for i in range(13))
     span_mm: float = 3400.0
     load_a_mm: float = 1200.0
+    correct_motion_artefact: bool = False
 
     def estimation_kwargs(self) -> dict:
         return dict(
@@ -79,6 +80,9 @@ class Recording:
     lds: Path | None = None
     simulate: dict | None = None  # simulator arguments when the campaign makes its own data
     failed: str = ""  # why the recording could not be made (simulated campaigns)
+    truth: Path | None = None  # true trajectories (simulated campaigns)
+    frame_rate_hz: float | None = None  # ToF facts for the motion-artefact correction
+    tap_offsets: tuple[float, ...] | None = None
 
     @property
     def unit_id(self) -> str:
@@ -107,8 +111,17 @@ _PROC_TYPES = {
     "plate_x_mm": list,
     "span_mm": (int, float),
     "load_a_mm": (int, float),
+    "correct_motion_artefact": bool,
 }
-_REC_KEYS = {"day": int, "camera": str, "cycles": int, "trajectories": str, "lds": str}
+_REC_KEYS = {
+    "day": int,
+    "camera": str,
+    "cycles": int,
+    "trajectories": str,
+    "lds": str,
+    "frame_rate_hz": (int, float),
+    "tap_offsets": list,
+}
 
 
 def _err(path: Path, key: str, msg: str) -> ConfigError:
@@ -140,7 +153,7 @@ def load_campaign(path: Path | str) -> Campaign:
     for key, val in proc_raw.items():
         if key not in _PROC_TYPES:
             raise _err(path, f"processing.{key}", f"unknown key; expected one of {', '.join(_PROC_TYPES)}")
-        if not isinstance(val, _PROC_TYPES[key]) or isinstance(val, bool):
+        if not isinstance(val, _PROC_TYPES[key]) or (isinstance(val, bool) and _PROC_TYPES[key] is not bool):
             raise _err(path, f"processing.{key}", f"expected {_type_name(_PROC_TYPES[key])}, got {val!r}")
     for key in ("window_s", "step_s", "oversampling", "span_mm", "fap_max"):
         if key in proc_raw and not proc_raw[key] > 0:
@@ -181,6 +194,8 @@ def load_campaign(path: Path | str) -> Campaign:
                 cycles=rec.get("cycles", 0),
                 trajectories=(path.parent / rec["trajectories"]),
                 lds=(path.parent / rec["lds"]) if "lds" in rec else None,
+                frame_rate_hz=float(rec["frame_rate_hz"]) if "frame_rate_hz" in rec else None,
+                tap_offsets=tuple(float(v) for v in rec["tap_offsets"]) if "tap_offsets" in rec else None,
             )
         )
     seen = set()
@@ -207,4 +222,4 @@ def load_campaign(path: Path | str) -> Campaign:
 def _type_name(t) -> str:
     if isinstance(t, tuple):
         return "a number"
-    return {int: "an integer", str: "a string", list: "a list", float: "a number"}[t]
+    return {int: "an integer", str: "a string", list: "a list", float: "a number", bool: "true or false"}[t]

@@ -254,7 +254,18 @@ def ensure_simulated(campaign, out: Path, scheduler: str = "none", progress: boo
             text = merged.to_csv(index=False, float_format="%.6f")
             if not traj.exists() or traj.read_text() != text:
                 atomic_write_text(traj, text)
-            resolved.append(replace(r, trajectories=traj, lds=sim_dir / "lds.csv"))
+            attrs = open_recording(sim_dir / "recording.zarr").attrs
+            tof = attrs.get("sensor") == "sr4000"
+            resolved.append(
+                replace(
+                    r,
+                    trajectories=traj,
+                    lds=sim_dir / "lds.csv",
+                    truth=sim_dir / "truth.csv",
+                    frame_rate_hz=float(attrs["frame_rate_hz"]) if tof else None,
+                    tap_offsets=tuple(attrs["tap_offsets"]) if tof else None,
+                )
+            )
         else:
             bad = next((m for m in [sm, *mine] if m["status"] != "ok"), sm)
             reason = bad.get("reason") or f"{r.unit_id}: no frames to extract"

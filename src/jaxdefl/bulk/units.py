@@ -21,7 +21,9 @@ __all__ = ["estimate_unit", "unit_inputs"]
 def unit_inputs(rec: Recording) -> dict:
     """Digests of a recording's input files ("missing" for an absent one)."""
     out = {"failed": rec.failed} if rec.failed else {}
-    for name in ("trajectories", "lds"):
+    if rec.frame_rate_hz is not None:
+        out["sensor"] = f"{rec.frame_rate_hz}:{rec.tap_offsets}"
+    for name in ("trajectories", "lds", "truth"):
         p = getattr(rec, name)
         if p is not None:
             out[name] = digest_path(p) if Path(p).exists() else "missing"
@@ -30,6 +32,20 @@ def unit_inputs(rec: Recording) -> dict:
 
 def _csv(df: pd.DataFrame) -> str:
     return df.to_csv(index=False, float_format="%.10g")
+
+
+def _correct_motion(df: pd.DataFrame, rec: Recording) -> pd.DataFrame:
+    """Amplitudes corrected for the ToF motion artefact (`jaxdefl.fit.motion`): A / gain(f0)."""
+    from ..fit.motion import EVEN_TAPS, motion_artefact_response
+
+    gain, _ = motion_artefact_response(
+        df["f0_hz"].to_numpy(), rec.frame_rate_hz, rec.tap_offsets or EVEN_TAPS
+    )
+    return df.assign(
+        motion_gain=gain,
+        amplitude_corrected_mm=df["amplitude_mm"] / gain,
+        sigma_amplitude_corrected_mm=df["sigma_amplitude_mm"] / gain,
+    )
 
 
 def estimate_unit(
@@ -77,6 +93,15 @@ def estimate_unit(
                 traj, axes=axes, window_s=proc.window_s, step_s=proc.step_s, progress=False, **kw
             )
             outputs["windows.csv"] = win.table.assign(**tag)
+        if proc.correct_motion_artefact and rec.frame_rate_hz is not None:
+            for name in list(outputs):
+                outputs[name] = _correct_motion(outputs[name], rec)
+        if rec.truth is not None:
+            truth = read_trajectory(rec.truth)
+            truth = truth[truth["plate"].isin(traj["plate"].unique())]
+            outputs["truth.csv"] = estimate_table(truth, axes=("z",), progress=False, **kw).table.assign(
+                **tag
+            )
         if rec.lds is not None:
             if inputs.get("lds") == "missing":
                 raise JaxdeflError(f"{rec.lds}: file not found")

@@ -29,6 +29,16 @@ def plot_fatigue(day_tab: pd.DataFrame, path: Path, plate: int) -> None:
             ms=4,
             label=f"{cam}",
         )
+        if "amplitude_corrected_mm" in g:
+            ax.plot(
+                g["cycles"],
+                g["amplitude_corrected_mm"],
+                "^-",
+                ms=4,
+                label=f"{cam}, motion artefact corrected",
+            )
+        if "amplitude_truth_mm" in g:
+            ax.plot(g["cycles"], g["amplitude_truth_mm"], "k:", lw=1, label="simulated truth")
         if "amplitude_mm_lds" in g and g["amplitude_mm_lds"].notna().any():
             ax.errorbar(
                 g["cycles"],
@@ -97,6 +107,8 @@ def write_campaign_report(out: Path, campaign, units, whole, day_tab, profile, e
                 "cycles",
                 "f0_hz",
                 "amplitude_mm",
+                "amplitude_corrected_mm",
+                "amplitude_truth_mm",
                 "f0_hz_lds",
                 "amplitude_mm_lds",
                 "delta_f0_hz",
@@ -113,6 +125,8 @@ def write_campaign_report(out: Path, campaign, units, whole, day_tab, profile, e
             "f0_hz": ".4f",
             "f0_hz_lds": ".4f",
             "amplitude_mm": ".3f",
+            "amplitude_corrected_mm": ".3f",
+            "amplitude_truth_mm": ".3f",
             "amplitude_mm_lds": ".3f",
             "delta_f0_hz": "+.4f",
             "delta_amplitude_mm": "+.3f",
