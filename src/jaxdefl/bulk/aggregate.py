@@ -151,7 +151,6 @@ def gather(
         "estimates_windows.csv": windows,
         "estimates_lds.csv": lds,
         "estimates_truth.csv": truth,
-        "estimates_truth.csv": truth,
         "comparison_lds.csv": comparison,
     }
     for name, df in tables.items():
