@@ -32,7 +32,7 @@ def opencv_pipeline(scene, frames, amplitude):
     lo, hi = scene.band
     kern = np.ones((3, 3), np.uint8)
     out = []
-    for f, a in zip(frames, amplitude):
+    for f, a in zip(frames, amplitude, strict=True):
         z = f * inv
         top = np.median(z.reshape(-1)[scene.top_idx])
         rel = z - top
@@ -49,8 +49,16 @@ def opencv_pipeline(scene, frames, amplitude):
         lb = lab[sel]
         zz = z[sel]
         cnt = np.maximum(np.bincount(lb, minlength=n), 1)
-        out.append(np.stack([np.bincount(lb, zz * xr[sel], n) / cnt, np.bincount(lb, zz * yr[sel], n) / cnt,
-                             np.bincount(lb, zz, n) / cnt], 1))
+        out.append(
+            np.stack(
+                [
+                    np.bincount(lb, zz * xr[sel], n) / cnt,
+                    np.bincount(lb, zz * yr[sel], n) / cnt,
+                    np.bincount(lb, zz, n) / cnt,
+                ],
+                1,
+            )
+        )
     return out
 
 
@@ -102,16 +110,26 @@ def main() -> None:
     detect_chunk(scene, rng[: args.chunk], amp[: args.chunk])
     peak_chunk = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()
-    print(f"frames {n} of {rng.shape[2]}x{rng.shape[1]}, chunk {args.chunk}, threads {args.threads}, "
-          f"best of {args.repeat}; calibration {t_cal * 1e3:.0f} ms, plates {scene.plates.tolist()}, found {found:.3f}")
-    print(f"full detection (batched numpy/scipy): {rate['full']:9.0f} frames/s  "
-          f"({best['full'] / n * args.chunk * 1e3:.1f} ms per chunk)")
+    print(
+        f"frames {n} of {rng.shape[2]}x{rng.shape[1]}, chunk {args.chunk}, threads {args.threads}, "
+        f"best of {args.repeat}; calibration {t_cal * 1e3:.0f} ms, plates {scene.plates.tolist()}, "
+        f"found {found:.3f}"
+    )
+    print(
+        f"full detection (batched numpy/scipy): {rate['full']:9.0f} frames/s  "
+        f"({best['full'] / n * args.chunk * 1e3:.1f} ms per chunk)"
+    )
     print(f"real-time (tracked):                  {rate['tracked']:9.0f} frames/s")
     print(f"OpenCV per-frame pipeline:            {rate['opencv']:9.0f} frames/s")
-    print(f"ratios: full / OpenCV {rate['full'] / rate['opencv']:.2f}, "
-          f"real-time / OpenCV {rate['tracked'] / rate['opencv']:.1f}, real-time / 5000 {rate['tracked'] / 5000:.1f}")
-    print(f"peak memory: max RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB, "
-          f"detect_chunk arrays {peak_chunk / 2**20:.1f} MB per chunk")
+    print(
+        f"ratios: full / OpenCV {rate['full'] / rate['opencv']:.2f}, "
+        f"real-time / OpenCV {rate['tracked'] / rate['opencv']:.1f}, "
+        f"real-time / 5000 {rate['tracked'] / 5000:.1f}"
+    )
+    print(
+        f"peak memory: max RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB, "
+        f"detect_chunk arrays {peak_chunk / 2**20:.1f} MB per chunk"
+    )
 
 
 if __name__ == "__main__":

@@ -77,7 +77,9 @@ def test_range_frames_back_projected():
     norm = np.sqrt(((u - INTR["cx"]) / INTR["fx"]) ** 2 + ((v - INTR["cy"]) / INTR["fy"]) ** 2 + 1)
     rng = (z * norm).astype(np.float32)
     amp = np.where(z < 1890, 1000.0, np.where(z < 2000, 800.0, 50.0)).astype(np.float32)
-    df = extract_frames(rng, t, INTR, kind="range", amplitude=amp, geometry=PlateGeometry(PLATE_X_MM, CAMERA_X_MM))
+    df = extract_frames(
+        rng, t, INTR, kind="range", amplitude=amp, geometry=PlateGeometry(PLATE_X_MM, CAMERA_X_MM)
+    )
     g = df[df.plate == 5].sort_values("t")
     assert len(g) == len(t)
     assert np.std(g.z.to_numpy() - (1880 + 1.1 * defl)) < 0.2
@@ -96,8 +98,15 @@ def test_no_plates_is_an_input_error(tmp_path):
 
 def test_npz_roundtrip_and_cli_entry(tmp_path):
     t, z, _ = _scene(n=30)
-    np.savez(tmp_path / "rec.npz", timestamps=t, depth=z, intrinsics=[100.0, 100.0, 63.5, 31.5],
-             segment="s1", plate_x_mm=PLATE_X_MM, camera_x_mm=CAMERA_X_MM)
+    np.savez(
+        tmp_path / "rec.npz",
+        timestamps=t,
+        depth=z,
+        intrinsics=[100.0, 100.0, 63.5, 31.5],
+        segment="s1",
+        plate_x_mm=PLATE_X_MM,
+        camera_x_mm=CAMERA_X_MM,
+    )
     extract_to_table(tmp_path / "rec.npz", tmp_path / "traj.csv", chunk_frames=7)
     import pandas as pd
 

@@ -172,4 +172,6 @@ def test_pipeline_erosion_box_mean_and_median_match_references():
     t = z.reshape(3, -1)[:, :41].copy()
     t[1, ::2] = np.nan
     t[2] = np.nan
-    np.testing.assert_array_equal(_top_level(t, np.arange(41)), torch.nanmedian(torch.from_numpy(t), 1).values.numpy())
+    np.testing.assert_array_equal(
+        _top_level(t, np.arange(41)), torch.nanmedian(torch.from_numpy(t), 1).values.numpy()
+    )

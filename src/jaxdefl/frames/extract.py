@@ -26,8 +26,14 @@ class Extractor:
     triggers a new calibration on that chunk (plate numbers kept by position).
     """
 
-    def __init__(self, intrinsics: dict, kind: str, geometry: PlateGeometry | None = None,
-                 realtime: bool = False, source: str = "<frames>"):
+    def __init__(
+        self,
+        intrinsics: dict,
+        kind: str,
+        geometry: PlateGeometry | None = None,
+        realtime: bool = False,
+        source: str = "<frames>",
+    ):
         if kind not in ("range", "depth"):
             raise ValueError(f"kind: expected 'range' or 'depth', got {kind!r}")
         self.intrinsics, self.kind, self.geometry = intrinsics, kind, geometry
@@ -47,7 +53,7 @@ class Extractor:
             keep = num > 0
             for name in ("area", "ecc", "u", "v"):
                 setattr(scene, name, getattr(scene, name)[keep])
-            scene.track = [p for p, k in zip(scene.track, keep) if k]
+            scene.track = [p for p, k in zip(scene.track, keep, strict=True) if k]
             scene.plates = num[keep]
             order = np.argsort(scene.plates)
             for name in ("plates", "area", "ecc", "u", "v"):
@@ -78,19 +84,33 @@ def _table(t: np.ndarray, cents: np.ndarray, plates: np.ndarray, segment: str) -
     b, n, _ = cents.shape
     ok = np.isfinite(cents).all(axis=2)
     fi, pi = np.nonzero(ok)
-    return pd.DataFrame({
-        "segment": segment, "t": t[fi], "plate": plates[pi].astype(np.int64),
-        "x": cents[fi, pi, 0], "y": cents[fi, pi, 1], "z": cents[fi, pi, 2],
-    })
+    return pd.DataFrame(
+        {
+            "segment": segment,
+            "t": t[fi],
+            "plate": plates[pi].astype(np.int64),
+            "x": cents[fi, pi, 0],
+            "y": cents[fi, pi, 1],
+            "z": cents[fi, pi, 2],
+        }
+    )
 
 
 def _sort(df: pd.DataFrame) -> pd.DataFrame:
     return df.sort_values(["plate", "t"], kind="stable").reset_index(drop=True)
 
 
-def extract_frames(frames: np.ndarray, t_s: np.ndarray, intrinsics: dict, kind: str = "range",
-                   amplitude: np.ndarray | None = None, realtime: bool = False,
-                   geometry: PlateGeometry | None = None, segment: str = "", chunk_frames: int = 256) -> pd.DataFrame:
+def extract_frames(
+    frames: np.ndarray,
+    t_s: np.ndarray,
+    intrinsics: dict,
+    kind: str = "range",
+    amplitude: np.ndarray | None = None,
+    realtime: bool = False,
+    geometry: PlateGeometry | None = None,
+    segment: str = "",
+    chunk_frames: int = 256,
+) -> pd.DataFrame:
     """Plate centroid trajectories from in-memory frames.
 
     Args:
@@ -116,7 +136,9 @@ def extract_frames(frames: np.ndarray, t_s: np.ndarray, intrinsics: dict, kind: 
     return _sort(pd.concat(parts, ignore_index=True))
 
 
-def extract_recording(recording, realtime: bool = False, chunk_frames: int = 256, progress: bool = True) -> pd.DataFrame:
+def extract_recording(
+    recording, realtime: bool = False, chunk_frames: int = 256, progress: bool = True
+) -> pd.DataFrame:
     """Stream a `jaxdefl.io.recording.Recording` through the extraction, chunk by chunk."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
@@ -124,8 +146,14 @@ def extract_recording(recording, realtime: bool = False, chunk_frames: int = 256
     geo = PlateGeometry(rec.plate_x_mm, rec.camera_x_mm) if rec.plate_x_mm is not None else None
     ex = Extractor(rec.intrinsics, rec.kind, geo, realtime, source=str(rec.path))
     parts = []
-    with Progress(TextColumn("extract {task.description}"), BarColumn(), MofNCompleteColumn(),
-                  TimeRemainingColumn(), disable=not progress, transient=True) as bar:
+    with Progress(
+        TextColumn("extract {task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeRemainingColumn(),
+        disable=not progress,
+        transient=True,
+    ) as bar:
         task = bar.add_task(rec.path.name, total=rec.n_frames)
         for ch in rec.chunks(chunk_frames):
             cents, plates = ex.run(ch.frames, ch.amplitude)

@@ -30,8 +30,13 @@ def bilinear(img: np.ndarray, u: float, v: float) -> float:
     return float((1 - b) * ((1 - a) * p[0, 0] + a * p[0, 1]) + b * ((1 - a) * p[1, 0] + a * p[1, 1]))
 
 
-def floor_targets(amplitude: np.ndarray, z_mm: np.ndarray, min_axis_px: float = 1.5,
-                  max_axis_px: float = 40.0, min_roundness: float = 0.6) -> np.ndarray:
+def floor_targets(
+    amplitude: np.ndarray,
+    z_mm: np.ndarray,
+    min_axis_px: float = 1.5,
+    max_axis_px: float = 40.0,
+    min_roundness: float = 0.6,
+) -> np.ndarray:
     """Circular floor targets in one frame: (target, 3) rows of ellipse centre u, v and depth z.
 
     Args:
@@ -60,7 +65,11 @@ def floor_targets(amplitude: np.ndarray, z_mm: np.ndarray, min_axis_px: float = 
         if ev[1] <= 0 or np.sqrt(max(ev[0], 0) / ev[1]) < min_roundness:  # fake eccentricity
             continue
         ell = fit_ellipse(uu, vv)
-        if ell is None or not (min_axis_px <= ell.b and ell.a <= max_axis_px) or ell.b / ell.a < min_roundness:
+        if (
+            ell is None
+            or not (min_axis_px <= ell.b and ell.a <= max_axis_px)
+            or ell.b / ell.a < min_roundness
+        ):
             continue
         zc = bilinear(z_mm, ell.xc, ell.yc)
         if np.isfinite(zc):

@@ -117,7 +117,11 @@ class Scene:
         order = np.argsort(self.u)
         us = self.u[order]
         gap = np.min(np.diff(us)) if us.size > 1 else float(self.width)
-        k = np.argmin(np.abs(np.asarray(u_px)[:, None] - us[None, :]), axis=1) if us.size else np.zeros(0, int)
+        k = (
+            np.argmin(np.abs(np.asarray(u_px)[:, None] - us[None, :]), axis=1)
+            if us.size
+            else np.zeros(0, int)
+        )
         ok = np.abs(np.asarray(u_px) - us[k]) <= 0.3 * gap
         return np.where(ok, self.plates[order][k], 0)
 
@@ -233,8 +237,9 @@ def _otsu_in_mask(vals: np.ndarray, fr: np.ndarray, n_pix: int, b: int, bins: in
     return _otsu_thresholds(hist.reshape(b, bins), lo, width, hi)
 
 
-def _segment(z: np.ndarray, amp: np.ndarray | None, top: np.ndarray, band, smooth: int, use_amp: bool, r0: int,
-             r1: int) -> np.ndarray:
+def _segment(
+    z: np.ndarray, amp: np.ndarray | None, top: np.ndarray, band, smooth: int, use_amp: bool, r0: int, r1: int
+) -> np.ndarray:
     """Foreground (frame, h, w) bool: depth band relative to ``top`` (frame,), then Otsu.
 
     ``z`` holds rows r0:r1 of the frames, ``amp`` the whole frames. Plain numpy on float32:
@@ -265,8 +270,16 @@ def _segment(z: np.ndarray, amp: np.ndarray | None, top: np.ndarray, band, smoot
     return fg
 
 
-def _regions(fg: np.ndarray, z: np.ndarray, r0: int, inv_norm, xr, yr, clip_sigma: float | None,
-             keep_pixels: bool = False) -> dict:
+def _regions(
+    fg: np.ndarray,
+    z: np.ndarray,
+    r0: int,
+    inv_norm,
+    xr,
+    yr,
+    clip_sigma: float | None,
+    keep_pixels: bool = False,
+) -> dict:
     """Label, measure, erode and average: per-region arrays (global labels over the stack).
 
     ``fg`` and ``z`` (frame, h, w) hold rows r0:r0+h of the frames.
@@ -301,8 +314,15 @@ def _regions(fg: np.ndarray, z: np.ndarray, r0: int, inv_norm, xr, yr, clip_sigm
     border = np.bincount(lab, (u == 0) | (u == W - 1) | (v == 0) | (v == H - 1), m)
     frame = np.zeros(m, np.int64)
     frame[lab] = fr
-    out.update(area=area, u=ub, v=vb, ecc=np.sqrt(l2 / np.maximum(l1, 1e-300)), minor=4 * np.sqrt(l2),
-               border=border > 0, frame=frame)
+    out.update(
+        area=area,
+        u=ub,
+        v=vb,
+        ecc=np.sqrt(l2 / np.maximum(l1, 1e-300)),
+        minor=4 * np.sqrt(l2),
+        border=border > 0,
+        frame=frame,
+    )
     # erosion drops the mixed pixels at plate edges (thesis 5.1.4); the empty rows act as the
     # zero border of every frame
     eidx = np.flatnonzero(_erode3(tall))
@@ -324,8 +344,12 @@ def _regions(fg: np.ndarray, z: np.ndarray, r0: int, inv_norm, xr, yr, clip_sigm
         elab, pix, zz = elab[keep], pix[keep], zz[keep]
     ne = np.bincount(elab, minlength=m).astype(np.float64)
     nn = np.maximum(ne, 1)
-    out.update(n_eroded=ne, x=np.bincount(elab, zz * xr.reshape(-1)[pix], m) / nn,
-               y=np.bincount(elab, zz * yr.reshape(-1)[pix], m) / nn, z=np.bincount(elab, zz, m) / nn)
+    out.update(
+        n_eroded=ne,
+        x=np.bincount(elab, zz * xr.reshape(-1)[pix], m) / nn,
+        y=np.bincount(elab, zz * yr.reshape(-1)[pix], m) / nn,
+        z=np.bincount(elab, zz, m) / nn,
+    )
     if keep_pixels:
         out["pixels"] = (elab, pix)
     return out
@@ -376,8 +400,14 @@ def _plate_candidates(reg: dict, min_area: float) -> np.ndarray:
     return lab[keep]
 
 
-def calibrate_scene(frames: np.ndarray, amplitude: np.ndarray | None, intrinsics: dict, kind: str,
-                    geometry: PlateGeometry | None = None, n_median: int = 15) -> Scene:
+def calibrate_scene(
+    frames: np.ndarray,
+    amplitude: np.ndarray | None,
+    intrinsics: dict,
+    kind: str,
+    geometry: PlateGeometry | None = None,
+    n_median: int = 15,
+) -> Scene:
     """Find the floor, the beam top and the plates in the first frames of a recording.
 
     Args:
@@ -388,7 +418,9 @@ def calibrate_scene(frames: np.ndarray, amplitude: np.ndarray | None, intrinsics
         SceneError: no plate layer found.
     """
     _, h, w = frames.shape
-    inv, xr, yr = ray_factors(h, w, intrinsics["fx"], intrinsics["fy"], intrinsics["cx"], intrinsics["cy"], kind)
+    inv, xr, yr = ray_factors(
+        h, w, intrinsics["fx"], intrinsics["fy"], intrinsics["cx"], intrinsics["cy"], kind
+    )
     nm = min(n_median, frames.shape[0])
     z_all = _zimage(frames[:nm], inv if kind == "range" else None)
     with np.errstate(all="ignore"):
@@ -481,11 +513,30 @@ def calibrate_scene(frames: np.ndarray, amplitude: np.ndarray | None, intrinsics
     r0 = max(0, int(np.floor(v.min() - margin)))
     r1 = min(h, int(np.ceil(v.max() + margin)) + 1)
     return Scene(
-        kind=kind, height=h, width=w, inv_norm=inv, xr=xr, yr=yr, top_idx=top_idx, top_z_mm=top_z,
-        floor_z_mm=floor_z, n_floor_targets=len(floor), sigma_mm=sigma, band=band, smooth=smooth,
-        use_amplitude=use_amp, rows=(r0, r1), plates=plates.astype(np.int64), area=reg["area"][cand],
-        ecc=reg["ecc"][cand], u=reg["u"][cand], v=reg["v"][cand], line=line, line_tol_px=tol,
-        geometry=geometry, track=track,
+        kind=kind,
+        height=h,
+        width=w,
+        inv_norm=inv,
+        xr=xr,
+        yr=yr,
+        top_idx=top_idx,
+        top_z_mm=top_z,
+        floor_z_mm=floor_z,
+        n_floor_targets=len(floor),
+        sigma_mm=sigma,
+        band=band,
+        smooth=smooth,
+        use_amplitude=use_amp,
+        rows=(r0, r1),
+        plates=plates.astype(np.int64),
+        area=reg["area"][cand],
+        ecc=reg["ecc"][cand],
+        u=reg["u"][cand],
+        v=reg["v"][cand],
+        line=line,
+        line_tol_px=tol,
+        geometry=geometry,
+        track=track,
     )
 
 
@@ -519,9 +570,15 @@ def detect_chunk(scene: Scene, frames: np.ndarray, amplitude: np.ndarray | None 
     known = (num > 0) & (scene.plates[slot] == num)
     # the region must look like its plate did at calibration (size, shape, on the line)
     ar = reg["area"][lab] / scene.area[slot]
-    ok = (known & ~reg["border"][lab] & (ar > 0.6) & (ar < 1.6)
-          & (np.abs(reg["ecc"][lab] - scene.ecc[slot]) < 0.2) & (reg["n_eroded"][lab] >= 3)
-          & (np.abs(reg["v"][lab] - (scene.line[0] + scene.line[1] * reg["u"][lab])) <= 2 * scene.line_tol_px))
+    ok = (
+        known
+        & ~reg["border"][lab]
+        & (ar > 0.6)
+        & (ar < 1.6)
+        & (np.abs(reg["ecc"][lab] - scene.ecc[slot]) < 0.2)
+        & (reg["n_eroded"][lab] >= 3)
+        & (np.abs(reg["v"][lab] - (scene.line[0] + scene.line[1] * reg["u"][lab])) <= 2 * scene.line_tol_px)
+    )
     fr = reg["frame"][lab]
     key = fr * n_pl + slot
     # two plate-like regions claiming one plate in one frame: neither is trusted

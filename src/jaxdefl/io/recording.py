@@ -91,9 +91,13 @@ def _intrinsics(path: Path, src: dict, where: str) -> dict:
         try:
             v = float(src[k])
         except (TypeError, ValueError):
-            raise _err(path, f"camera intrinsic {k!r} in {where}: expected a number, got {src[k]!r}") from None
+            raise _err(
+                path, f"camera intrinsic {k!r} in {where}: expected a number, got {src[k]!r}"
+            ) from None
         if not np.isfinite(v) or (k in ("fx", "fy") and v <= 0):
-            raise _err(path, f"camera intrinsic {k!r} in {where}: expected a finite number (> 0 for fx, fy), got {v}")
+            raise _err(
+                path, f"camera intrinsic {k!r} in {where}: expected a finite number (> 0 for fx, fy), got {v}"
+            )
         out[k] = v
     return out
 
@@ -105,7 +109,9 @@ def _check_timestamps(path: Path, t: np.ndarray, where: str = "timestamps") -> N
     d = np.diff(t)
     if np.any(d <= 0):
         i = int(np.flatnonzero(d <= 0)[0]) + 1
-        raise _err(path, f"{where}: timestamps must increase; frame {i} has t={t[i]:.6f} after {t[i - 1]:.6f}")
+        raise _err(
+            path, f"{where}: timestamps must increase; frame {i} has t={t[i]:.6f} after {t[i - 1]:.6f}"
+        )
 
 
 def _geometry(rec: Recording, src: dict) -> None:
@@ -152,7 +158,9 @@ def _open_zarr(path: Path) -> Recording:
         raise _err(path, f"array {kind!r}: expected shape (frame, h, w), got {fr.shape}")
     n, h, w = fr.shape
     if ts.ndim != 1 or ts.shape[0] != n:
-        raise _err(path, f"array 'timestamps' has shape {ts.shape}; expected ({n},) to match {kind!r} {fr.shape}")
+        raise _err(
+            path, f"array 'timestamps' has shape {ts.shape}; expected ({n},) to match {kind!r} {fr.shape}"
+        )
     amp = g["amplitude"] if "amplitude" in keys else None
     if amp is not None and amp.shape != fr.shape:
         raise _err(path, f"array 'amplitude' has shape {amp.shape}; expected {fr.shape} like {kind!r}")
@@ -173,7 +181,9 @@ def _open_zarr(path: Path) -> Recording:
             f = np.asarray(fr[s:e], np.float32)
             a = None if amp is None else np.asarray(amp[s:e], np.float32)
         except Exception as err:
-            raise _err(path, f"frames {s}..{e - 1} cannot be read ({type(err).__name__}: corrupt chunk?)") from None
+            raise _err(
+                path, f"frames {s}..{e - 1} cannot be read ({type(err).__name__}: corrupt chunk?)"
+            ) from None
         return t_all[s:e], f, a
 
     rec = Recording(path, kind, n, h, w, intr, str(attrs.get("segment", path.stem)), attrs, _read=read)
@@ -206,17 +216,23 @@ def _open_npz(path: Path) -> Recording:
         raise _err(path, f"key {kind!r}: expected shape (frame, h, w), got {fr.shape}")
     n, h, w = fr.shape
     if t.shape != (n,):
-        raise _err(path, f"key 'timestamps' has shape {t.shape}; expected ({n},) to match {kind!r} {fr.shape}")
+        raise _err(
+            path, f"key 'timestamps' has shape {t.shape}; expected ({n},) to match {kind!r} {fr.shape}"
+        )
     if amp is not None and amp.shape != fr.shape:
         raise _err(path, f"key 'amplitude' has shape {amp.shape}; expected {fr.shape} like {kind!r}")
     if intr_v.size != 4:
         raise _err(path, f"key 'intrinsics': expected [fx, fy, cx, cy], got {intr_v.tolist()}")
-    intr = _intrinsics(path, dict(zip(("fx", "fy", "cx", "cy"), intr_v)), "key 'intrinsics'")
+    intr = _intrinsics(path, dict(zip(("fx", "fy", "cx", "cy"), intr_v, strict=True)), "key 'intrinsics'")
     _check_timestamps(path, t)
     seg = str(z["segment"]) if "segment" in keys else path.stem
 
     def read(s, e):
-        return t[s:e], np.asarray(fr[s:e], np.float32), None if amp is None else np.asarray(amp[s:e], np.float32)
+        return (
+            t[s:e],
+            np.asarray(fr[s:e], np.float32),
+            None if amp is None else np.asarray(amp[s:e], np.float32),
+        )
 
     rec = Recording(path, kind, n, h, w, intr, seg, {}, _read=read)
     _geometry(rec, {k: z[k] for k in ("plate_x_mm", "camera_x_mm") if k in keys})
@@ -228,7 +244,9 @@ def _open_tum(path: Path, depth_scale_mm: float | None, intrinsics: dict | None)
 
     listing = path / "depth.txt"
     if not listing.exists():
-        raise _err(path, "not a recording: a folder needs depth.txt (TUM RGB-D style: 'timestamp filename' lines)")
+        raise _err(
+            path, "not a recording: a folder needs depth.txt (TUM RGB-D style: 'timestamp filename' lines)"
+        )
     cam: dict = {}
     cam_path = path / "camera.json"
     if cam_path.exists():
@@ -239,7 +257,9 @@ def _open_tum(path: Path, depth_scale_mm: float | None, intrinsics: dict | None)
     if intrinsics is not None:
         cam = {**cam, **intrinsics}
     intr = _intrinsics(path, cam, "camera.json or the intrinsics argument")
-    scale = float(depth_scale_mm if depth_scale_mm is not None else cam.get("depth_scale_mm", TUM_DEPTH_SCALE_MM))
+    scale = float(
+        depth_scale_mm if depth_scale_mm is not None else cam.get("depth_scale_mm", TUM_DEPTH_SCALE_MM)
+    )
     if not scale > 0:
         raise _err(path, f"depth scale must be > 0 mm per unit, got {scale}")
     t, files = [], []
@@ -263,7 +283,9 @@ def _open_tum(path: Path, depth_scale_mm: float | None, intrinsics: dict | None)
     if first is None:
         raise _err(files[0], "missing or not a readable PNG (frame 0 of depth.txt)")
     if first.ndim != 2 or first.dtype != np.uint16:
-        raise _err(files[0], f"expected a single-channel 16-bit PNG, got {first.dtype} with shape {first.shape}")
+        raise _err(
+            files[0], f"expected a single-channel 16-bit PNG, got {first.dtype} with shape {first.shape}"
+        )
     h, w = first.shape
 
     def read(s, e):
@@ -273,18 +295,25 @@ def _open_tum(path: Path, depth_scale_mm: float | None, intrinsics: dict | None)
             if img is None:
                 raise _err(files[j], f"missing or not a readable PNG (frame {j} of depth.txt)")
             if img.shape != (h, w) or img.dtype != np.uint16:
-                raise _err(files[j], f"frame {j}: expected a {w}x{h} 16-bit PNG like frame 0, got {img.dtype} {img.shape}")
+                raise _err(
+                    files[j],
+                    f"frame {j}: expected a {w}x{h} 16-bit PNG like frame 0, got {img.dtype} {img.shape}",
+                )
             d = img.astype(np.float32) * scale
             d[img == 0] = np.nan
             out[j - s] = d
         return t[s:e], out, None
 
-    rec = Recording(path, "depth", len(files), h, w, intr, str(cam.get("segment", path.name)), cam, _read=read)
+    rec = Recording(
+        path, "depth", len(files), h, w, intr, str(cam.get("segment", path.name)), cam, _read=read
+    )
     _geometry(rec, cam)
     return rec
 
 
-def open_recording(path: Path | str, depth_scale_mm: float | None = None, intrinsics: dict | None = None) -> Recording:
+def open_recording(
+    path: Path | str, depth_scale_mm: float | None = None, intrinsics: dict | None = None
+) -> Recording:
     """Open and validate a recording (.zarr store, TUM-style depth-PNG folder or .npz).
 
     Args:
@@ -304,4 +333,6 @@ def open_recording(path: Path | str, depth_scale_mm: float | None = None, intrin
         return _open_zarr(path / "recording.zarr")
     if path.is_dir():
         return _open_zarr(path)
-    raise _err(path, "unknown recording format; expected a .zarr store, a folder with depth.txt or an .npz file")
+    raise _err(
+        path, "unknown recording format; expected a .zarr store, a folder with depth.txt or an .npz file"
+    )
