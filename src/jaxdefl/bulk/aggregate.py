@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from ..fit import ESTIMATE_COLUMNS
 from ..synthetic import beam_shape
 from .campaign import Campaign
 from .store import atomic_write_text
@@ -15,18 +16,7 @@ from .units import read_unit_tables
 
 __all__ = ["fit_profile", "gather", "per_day_table", "to_dataset"]
 
-_VARS = [
-    "n",
-    "f0_hz",
-    "sigma_f0_hz",
-    "amplitude_mm",
-    "sigma_amplitude_mm",
-    "phase_rad",
-    "offset_mm",
-    "sigma_residual_mm",
-    "peak_fap",
-    "status",
-]
+_VARS = ESTIMATE_COLUMNS[ESTIMATE_COLUMNS.index("n") :]  # the estimates of each window
 
 
 def _write_csv(df: pd.DataFrame, path: Path) -> None:
