@@ -27,7 +27,7 @@ from jaxdefl.simulate.scene import beam_shape, intrinsics, midspan_amplitude_mm
 
 pytestmark = pytest.mark.slow
 
-CASES = {"tof": ("configs/exp2_tof_3hz.toml", 120.0), "kinect": ("configs/exp2_kinect_3hz.toml", 60.0)}
+CASES = {"tof": ("configs/exp2_tof_3hz.toml", 120.0), "kinect": ("configs/exp2_kinect_3hz.toml", 180.0)}
 
 
 def _reference(cfg, rec) -> pd.DataFrame:
@@ -98,24 +98,8 @@ def test_fitted_deflection(simulated):
         a_true = a_mid * float(beam_shape(xs[row.plate - 1], cfg.beam.span_mm, cfg.beam.load_a_mm))
         assert abs(row.amplitude_mm - a_true) < 0.1, (name, row.plate, row.amplitude_mm, a_true)
     f0_err = np.abs(est["f0_hz"] - cfg.loading.frequency_hz)
-    if name == "kinect" and not (f0_err < 1e-4).all():
-        # Known gap of issue 4, a limit of the data rather than of the extraction: the simulated
-        # Kinect adds a frame-common depth jitter (camera.frame_noise_mm = 0.4 mm, shared by all
-        # plates; no level jump falls inside this 60-s record), so sigma_f0 is about 7e-5 Hz and
-        # the f0 errors of all plates move together. The simulator's own reference centroids miss
-        # 1e-4 Hz alike (-1.0e-4 to -1.75e-4 Hz); with the frame-common part removed (oracle) the
-        # errors drop below 8e-5 Hz. What the extraction must not do is add to that error:
-        ref_est = estimate_table(
-            ref[ref.plate.isin(visible)].assign(segment=df.segment.iloc[0], x=0.0, y=0.0),
-            axes=("z",),
-            progress=False,
-        ).table
-        both = est.merge(ref_est[["plate", "f0_hz"]], on="plate", suffixes=("", "_ref"))
-        gap = (both.f0_hz - both.f0_hz_ref).abs()
-        assert len(both) == len(est) and (gap < 1e-4).all(), (name, gap.tolist())
-        ref_err = (ref_est.f0_hz - cfg.loading.frequency_hz).round(6).tolist()
-        pytest.xfail(
-            f"Kinect f0 errors {f0_err.round(6).tolist()} Hz exceed 1e-4 Hz on a 60-s record; "
-            f"the simulator's reference centroids give {ref_err} Hz"
-        )
+    # The simulated Kinect adds a frame-common depth jitter (camera.frame_noise_mm = 0.4 mm shared
+    # by all plates): on 60 s sigma_f0 is ~7e-5 Hz and all plates missed 1e-4 Hz together (the
+    # simulator's own reference centroids too). The Kinect case records 180 s, where sigma_f0 is
+    # ~1.4e-5 Hz and the 1e-4 Hz criterion of issue 4 is a fair test.
     assert (f0_err < 1e-4).all(), (name, est[["plate", "f0_hz"]].to_dict("records"))
