@@ -307,6 +307,7 @@ def demo(out: Path, duration_s: float = 120.0, seed: int = 1) -> None:
     comparison = compare_with_reference(whole.table, ref.table)
     write_estimates(whole.table, out / "estimates_whole.csv")
     write_estimates(windowed.table, out / "estimates_30s.csv")
+    uncertainty = check_uncertainty(windowed, out / "estimates_30s.csv", n_posterior=3, seed=seed)
     write_estimates(ref.table, out / "estimates_lds.csv")
     write_estimates(comparison, out / "comparison_lds.csv")
     report = write_demo_report(
@@ -317,6 +318,7 @@ def demo(out: Path, duration_s: float = 120.0, seed: int = 1) -> None:
         windowed,
         comparison,
         true_fit.table,
+        uncertainty,
         timings=dict(simulate_s=t_sim, extract_s=t_extract, fit_whole_s=t_whole, fit_windows_s=t_windowed),
     )
     console.print(f"[bold]jaxdefl demo[/]: report in {report} ({time.perf_counter() - t0:.1f} s)")

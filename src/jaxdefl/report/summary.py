@@ -24,13 +24,56 @@ def md_table(df: pd.DataFrame, floatfmt: dict[str, str]) -> str:
     return "\n".join(lines)
 
 
-def write_demo_report(out: Path, rec, traj, whole, windowed, comparison, truth_fit, timings: dict) -> Path:
+def _uncertainty_md(out: Path, unc: pd.DataFrame) -> str:
+    counts = unc["flag"].value_counts().to_dict()
+    lines = [
+        "Honesty flags of the 30-s windows (`estimates_30s_uncertainty.csv`; thresholds from the "
+        "coverage study): " + ", ".join(f"{k} {v}" for k, v in counts.items()) + ". Where a window is "
+        "flagged, trust the posterior (f0) or the Rice interval (A) rather than the linearised σ.",
+    ]
+    post = out / "estimates_30s_posterior.csv"
+    if post.exists():
+        p = pd.read_csv(post)
+        cols = [
+            "plate",
+            "axis",
+            "window",
+            "amplitude_post_mm",
+            "sigma_amplitude_post_mm",
+            "sigma_amplitude_lin_mm",
+            "sigma_ratio_amplitude",
+            "sigma_f0_post_hz",
+            "sigma_f0_lin_hz",
+            "converged_chain",
+        ]
+        fmt = {
+            "amplitude_post_mm": ".4f",
+            "sigma_amplitude_post_mm": ".4f",
+            "sigma_amplitude_lin_mm": ".4f",
+            "sigma_ratio_amplitude": ".3f",
+            "sigma_f0_post_hz": ".2e",
+            "sigma_f0_lin_hz": ".2e",
+        }
+        lines += [
+            "",
+            "emcee posteriors of three windows against the linearised σ's "
+            "(`estimates_30s_posterior.csv`, `estimates_30s_posterior.png`):",
+            "",
+            md_table(p[cols], fmt),
+        ]
+    return "\n".join(lines)
+
+
+def write_demo_report(
+    out: Path, rec, traj, whole, windowed, comparison, truth_fit, uncertainty, timings: dict
+) -> Path:
     """Figures and ``summary.md`` for the demo; returns the summary's path.
 
     Args:
         rec: the simulated recording (`jaxdefl.io.recording.Recording`), for the frame figure.
         traj: extracted trajectories; whole, windowed: `Estimates`; comparison: camera - LDS;
         truth_fit: estimates table of the simulator's true plate trajectories (z).
+        uncertainty: honesty flags of the windowed estimates (`jaxdefl.pipeline.check_uncertainty`).
     """
     tab = whole.table
     z = tab[tab["axis"] == "z"]
@@ -179,6 +222,10 @@ uncertainty is honest.
 ## Camera minus LDS (thesis-style ΔA and Δf0)
 
 {md_table(comparison[cmp_cols], cmp_fmt)}
+
+## How far to trust the σ's
+
+{_uncertainty_md(out, uncertainty)}
 
 ![periodogram](psd.png)
 
