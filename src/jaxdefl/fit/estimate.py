@@ -88,28 +88,31 @@ def estimate_windows(
     spectra: dict = {}
     fit_parts = []
 
+    spans = _span(w)
+
     def run(rows: np.ndarray):
-        sub = w.select(rows)
-        kk = tuple(int(np.flatnonzero(rows == r)[0]) for r in keep if r in set(rows.tolist()))
+        # Whole-batch arrays indexed by ``rows``: no copy of the windows per block.
+        rowset = set(rows.tolist())
         p = lomb_peaks(
-            sub,
+            w,
+            rows=rows,
             fmin_hz=fmin_hz,
             fmax_hz=fmax_hz,
             oversampling=oversampling,
-            keep=kk,
+            keep=tuple(k for k in keep if k in rowset),
             search_dtype="float32",
         )
-        few_cycles = p.freq_hz * _span(sub) < min_cycles
-        insignificant = ~(p.fap <= fap_max)
+        few_cycles = p.freq_hz[rows] * spans[rows] < min_cycles
+        insignificant = ~(p.fap[rows] <= fap_max)
         go = ~few_cycles & ~insignificant
         st = np.where(
             few_cycles,
             "too_few_cycles",
             np.where(insignificant, "no_significant_peak", "converged"),
         )
-        sub_w = None if weights is None else weights[rows]
-        f = fit_harmonics(sub, p.freq_hz, rows=np.flatnonzero(go), weights=sub_w)
-        return rows, p, np.where(go & ~f.converged, "did_not_converge", st), f
+        f = fit_harmonics(w, p.freq_hz, rows=rows[go], weights=weights)
+        converged = f.converged[rows]
+        return rows, p, np.where(go & ~converged, "did_not_converge", st), f
 
     # Blocks run on a thread per core: XLA and the FFTs release the GIL.
     workers = max(1, os.cpu_count() or 1) if workers is None else max(1, workers)
@@ -118,10 +121,9 @@ def estimate_windows(
     with ThreadPoolExecutor(max_workers=workers) as pool:
         for rows, p, st, f in (fut.result() for fut in [pool.submit(run, r) for r in blocks]):
             for k in per:
-                per[k][rows] = getattr(p, k)
-            method[rows] = p.method
-            for local, spec in p.spectra.items():
-                spectra[int(rows[local])] = spec
+                per[k][rows] = getattr(p, k)[rows]
+            method[rows] = p.method[rows]
+            spectra.update(p.spectra)
             status[rows] = st
             fit_parts.append((rows, f))
             if on_block is not None:
@@ -177,6 +179,6 @@ def _merge_fits(b: int, parts: list[tuple[np.ndarray, HarmonicFit]]) -> Harmonic
         shape = (b,) + proto.shape[1:]
         arr = np.zeros(shape, proto.dtype) if proto.dtype.kind in "biu" else np.full(shape, np.nan)
         for rows, f in parts:
-            arr[rows] = getattr(f, name)
+            arr[rows] = getattr(f, name)[rows]
         out[name] = arr
     return HarmonicFit(**out)

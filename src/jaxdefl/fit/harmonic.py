@@ -169,6 +169,13 @@ class HarmonicFit:
     converged: np.ndarray
 
 
+def _weights(w: Windows, weights: np.ndarray | None, rows: np.ndarray) -> np.ndarray:
+    """Per-sample weights of ``rows``: 1 (or the given weight) where valid, 0 where masked."""
+    if weights is None:
+        return w.mask[rows].astype(np.float64)
+    return np.where(w.mask[rows], weights[rows], 0.0)
+
+
 def _width(a: np.ndarray, s: int) -> np.ndarray:
     """``a`` (window, sample) cut or zero-padded to ``s`` samples."""
     if a.shape[1] >= s:
@@ -197,7 +204,7 @@ def fit_harmonics(
     """
     b, s_all = w.t.shape
     rows = np.flatnonzero(w.mask.sum(axis=1) > N_PARAMS) if rows is None else np.asarray(rows)
-    wt = w.mask.astype(np.float64) if weights is None else np.where(w.mask, weights, 0.0)
+
     res = {
         k: np.full(b, np.nan)
         for k in (
@@ -229,7 +236,7 @@ def fit_harmonics(
             out = _fit_batch(
                 jnp.asarray(_width(w.t[pad], s_pad)),
                 jnp.asarray(_width(w.y[pad], s_pad)),
-                jnp.asarray(_width(wt[pad], s_pad)),
+                jnp.asarray(_width(_weights(w, weights, pad), s_pad)),
                 jnp.asarray(2 * np.pi * np.asarray(freq0_hz)[pad]),
                 rtol=rtol,
                 atol=atol,
