@@ -1,0 +1,350 @@
+"""The diagnosis' data model: series, their nominal harmonics, the current model of each series,
+and the contract between the search (`_search.py`) and the candidate effects (`effects/`).
+
+Vocabulary
+----------
+- A *series* is one plate and axis of the camera's trajectory table, with time ``t`` in s
+  relative to the record's first timestamp (`Context.t0`) and values ``y`` in mm.
+- Its *nominal harmonic* is the thesis' model (5.29): y ≈ offset + C cos ω(t − t_ref) +
+  D sin ω(t − t_ref). Without a reference it is the camera's own Gauss-Newton fit. With a
+  reference (LDS), the z series of a plate that has an LDS is *tied*: its nominal harmonic is the
+  LDS's (same ω, C, D: the camera should see what the LDS sees), only the offset is the camera's.
+  Differences camera − LDS are then residual structure for `motion_artefact`/`timing_error`.
+- The *state* of a series is its current model: the mean (nominal harmonic plus the accepted
+  effects' terms) and the noise model (relative scale per sample, inlier mask and the outlier
+  component). Its log-likelihood is computed by `loglik` alone, for every effect alike.
+- An *effect* (`Effect`) looks at the states, runs its signature test and returns
+  `Proposal`s: new means / noise models for some series, the number of parameters added, the
+  signature's p-value (already corrected for the effect's own scan, e.g. over frequencies), the
+  located span and band, the fitted parameters with σ's, and a plain-language explanation. The
+  search scores proposals by ΔBIC, controls the multiple testing and accepts the best.
+
+Rules for effects: never refit what the nominal model owns with new parameters (re-estimating
+the offset and, on untied series, the harmonic's C and D through `Context.nuisance` is allowed
+and costs no parameter); build columns orthogonal to the harmonic where the physics allows
+(centred time); count every new parameter in `Proposal.n_params`, including nonlinear ones and
+each per-series amplitude; keep only the series whose own evidence pays for their own
+parameters (see `keep_series`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+__all__ = [
+    "Series",
+    "Harmonic",
+    "State",
+    "Context",
+    "Proposal",
+    "Effect",
+    "loglik",
+    "rms_equivalent",
+    "lstsq",
+    "regress",
+    "keep_series",
+    "masked_periodogram",
+    "LOG_2PI",
+]
+
+LOG_2PI = math.log(2 * math.pi)
+
+
+@dataclass(frozen=True)
+class Series:
+    """One plate and axis of the recording.
+
+    Attributes:
+        plate, axis: the plate number and axis (``z``, ``x`` or ``y``).
+        t: (sample,) s since `Context.t0`, increasing; missing samples are absent.
+        y: (sample,) mm.
+        k: (sample,) frame index on the record's frame clock (``round(t / dt)``).
+        tied: the nominal harmonic is the reference's (z of a plate with an LDS).
+    """
+
+    plate: int
+    axis: str
+    t: np.ndarray
+    y: np.ndarray
+    k: np.ndarray
+    tied: bool = False
+
+    @property
+    def n(self) -> int:
+        return int(self.t.size)
+
+    @property
+    def key(self) -> str:
+        return f"{self.plate}{self.axis}"
+
+
+@dataclass(frozen=True)
+class Harmonic:
+    """offset + C cos ω(t − t_ref) + D sin ω(t − t_ref) = offset + A cos(ω(t − t_ref) − phase)."""
+
+    omega: float
+    C: float
+    D: float
+    offset: float
+    t_ref: float
+    sigma_omega: float = float("nan")
+    sigma_amplitude: float = float("nan")
+
+    @property
+    def f0_hz(self) -> float:
+        return self.omega / (2 * math.pi)
+
+    @property
+    def amplitude(self) -> float:
+        return math.hypot(self.C, self.D)
+
+    @property
+    def phase(self) -> float:
+        return math.atan2(self.D, self.C)
+
+    def argument(self, t: np.ndarray) -> np.ndarray:
+        """ω(t − t_ref) − phase: the motion's phase angle at ``t`` (0 at the peak of y)."""
+        return self.omega * (np.asarray(t) - self.t_ref) - self.phase
+
+    def motion(self, t: np.ndarray) -> np.ndarray:
+        """The harmonic without its offset: A cos(ω(t − t_ref) − phase)."""
+        return self.amplitude * np.cos(self.argument(t))
+
+    def __call__(self, t: np.ndarray) -> np.ndarray:
+        return self.offset + self.motion(t)
+
+
+@dataclass(frozen=True)
+class State:
+    """The current model of one series.
+
+    Attributes:
+        mean: (sample,) model prediction (mm).
+        scale: (sample,) relative noise σ per sample (the noise is σ̂ · scale, σ̂ profiled).
+        inlier: (sample,) False for samples assigned to the outlier component.
+        outlier_fraction, outlier_scale_mm: the outlier component (fraction 0: none).
+        n_params: parameters of the model so far (nominal 4 or 1 when tied, plus effects).
+        effects: ids of the accepted effects that touch this series.
+    """
+
+    mean: np.ndarray
+    scale: np.ndarray
+    inlier: np.ndarray
+    outlier_fraction: float = 0.0
+    outlier_scale_mm: float = 0.0
+    n_params: int = 4
+    effects: tuple[str, ...] = ()
+
+    def with_(self, **kw) -> State:
+        return replace(self, **kw)
+
+
+def loglik(y: np.ndarray, st: State, mean: np.ndarray | None = None) -> float:
+    """Log-likelihood of ``y`` under the state (optionally with another ``mean``).
+
+    Inliers: Gaussian with σ_i = σ̂ scale_i, σ̂ the maximum-likelihood value (profiled), so
+    -2 log L = Σ 2 log σ_i + n (log 2π + 1). Outliers: Gaussian of σ = outlier_scale_mm about the
+    mean, each sample also paying log ε (inliers log(1 − ε)): a hard-assigned two-component
+    mixture.
+    """
+    mean = st.mean if mean is None else mean
+    r = y - mean
+    inl = st.inlier
+    n_in = int(inl.sum())
+    if n_in == 0:
+        return -np.inf
+    z = r[inl] / st.scale[inl]
+    s2 = max(float(np.mean(z * z)), 1e-300)
+    ll = -np.sum(np.log(st.scale[inl])) - 0.5 * n_in * (math.log(s2) + LOG_2PI + 1.0)
+    if st.outlier_fraction > 0:
+        eps, s = st.outlier_fraction, st.outlier_scale_mm
+        ro = r[~inl]
+        ll += n_in * math.log1p(-eps)
+        ll += np.sum(math.log(eps) - math.log(s) - 0.5 * LOG_2PI - 0.5 * (ro / s) ** 2)
+    return float(ll)
+
+
+def rms_equivalent(total_loglik: float, n: int) -> float:
+    """The σ (mm) of white Gaussian noise with the same likelihood: the residual RMS for a
+    homoscedastic model, the geometric-mean σ for a heteroscedastic one."""
+    return float(math.exp(-total_loglik / n - 0.5 * LOG_2PI - 0.5))
+
+
+@dataclass
+class Proposal:
+    """What an effect proposes to add to the model.
+
+    Attributes:
+        effect: the effect id (DESIGN.md list).
+        series: indices into `Context.series` of the series the effect touches.
+        states: {series index: new State} for those series (new mean and/or noise model).
+        n_params: parameters added in total (shared nonlinear ones once, per-series ones each).
+        p_value: the signature test's p-value, corrected for the effect's own scan.
+        parameters: {name: {"value": v, "sigma": s or None}} (JSON-able), the contract names.
+        t_start, t_end: the located span in s since `Context.t0`.
+        band_hz: [lo, hi] of the frequencies involved, or None.
+        explanation: one or two sentences for a structural engineer.
+    """
+
+    effect: str
+    series: list[int]
+    states: dict[int, State]
+    n_params: int
+    p_value: float
+    parameters: dict
+    t_start: float
+    t_end: float
+    band_hz: list[float] | None
+    explanation: str
+    detail: dict = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Context:
+    """Everything an effect may look at (read-only).
+
+    Attributes:
+        series: the camera's series.
+        nominal: (series,) nominal harmonic of each series (tied ones: the reference's harmonic
+            with the camera's offset).
+        free: (series,) the camera's own harmonic fit of each series.
+        reference: {plate: Series} of the LDS (axis ``z``), empty without a reference.
+        reference_harmonic: {plate: Harmonic} fitted to the LDS over the camera's span.
+        t0: epoch (or table) time of t = 0; duration_s: span of the record.
+        dt_s: frame interval; n_frames: frames on the clock (max k + 1).
+        f0_hz: the loading frequency (median of the nominal fits).
+        sensor: "tof", "structured_light" or None; frame_rate_hz, modulation_mhz: sensor facts
+            (frame_rate_hz measured from the table when not given).
+        tap_offsets: the ToF tap offsets (fractions of the frame period), default evenly spread.
+    """
+
+    series: list[Series]
+    nominal: list[Harmonic]
+    free: list[Harmonic]
+    reference: dict[int, Series]
+    reference_harmonic: dict[int, Harmonic]
+    t0: float
+    duration_s: float
+    dt_s: float
+    n_frames: int
+    f0_hz: float
+    sensor: str | None = None
+    frame_rate_hz: float | None = None
+    modulation_mhz: float | None = None
+    tap_offsets: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75)
+
+    @property
+    def plates(self) -> list[int]:
+        return sorted({s.plate for s in self.series})
+
+    def indices(self, axis: str | None = None, tied: bool | None = None) -> list[int]:
+        """Indices of the series on ``axis`` (all axes if None), optionally only (un)tied ones."""
+        return [
+            i
+            for i, s in enumerate(self.series)
+            if (axis is None or s.axis == axis) and (tied is None or s.tied == tied)
+        ]
+
+    def nuisance(self, i: int, t: np.ndarray | None = None) -> np.ndarray:
+        """(sample, k) columns an effect may re-estimate for free on series i: the offset, and on
+        an untied series the harmonic's cosine and sine (its C and D)."""
+        s = self.series[i]
+        t = s.t if t is None else t
+        cols = [np.ones_like(t)]
+        if not s.tied:
+            h = self.nominal[i]
+            a = h.omega * (t - h.t_ref)
+            cols += [np.cos(a), np.sin(a)]
+        return np.stack(cols, axis=1)
+
+
+class Effect:
+    """A candidate effect: subclasses set the class attributes and implement `propose`.
+
+    Attributes:
+        id: the DESIGN.md effect id.
+        meaning: what physics it stands for (one line, for reports).
+        needs_reference: it can only be told against an LDS reference.
+        min_cycles: loading cycles the record needs before the effect can be told apart from
+            the nominal model (e.g. a slow drift from the offset).
+        min_plates: plates needed (an effect defined as common to all plates needs several).
+    """
+
+    id: str = ""
+    meaning: str = ""
+    needs_reference: bool = False
+    min_cycles: float = 20.0
+    min_plates: int = 1
+
+    def cannot_tell(self, ctx: Context) -> str | None:
+        """Why this effect cannot be told on this record, or None when it can."""
+        if self.needs_reference and not ctx.reference:
+            return "needs a reference (--reference LDS.csv) on at least one plate"
+        cycles = ctx.f0_hz * ctx.duration_s
+        if not cycles >= self.min_cycles:
+            return f"record too short: {cycles:.0f} loading cycles, needs {self.min_cycles:.0f}"
+        if len(ctx.plates) < self.min_plates:
+            return f"needs at least {self.min_plates} plates, the table has {len(ctx.plates)}"
+        return None
+
+    def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:  # pragma: no cover
+        raise NotImplementedError
+
+
+def lstsq(cols: np.ndarray, r: np.ndarray, w: np.ndarray | None = None):
+    """Weighted linear least squares r ≈ cols @ beta.
+
+    Args:
+        cols: (sample, k); r: (sample,); w: (sample,) weights (1/scale², 0 to skip) or None.
+    Returns:
+        (beta (k,), cov (k, k) with σ̂² from the weighted residual, fitted (sample,)).
+    """
+    w = np.ones_like(r) if w is None else w
+    gw = cols * w[:, None]
+    gtg = gw.T @ cols
+    beta = np.linalg.lstsq(gtg, gw.T @ r, rcond=None)[0]
+    fitted = cols @ beta
+    dof = max(int((w > 0).sum()) - cols.shape[1], 1)
+    s2 = float(np.sum(w * (r - fitted) ** 2) / dof)
+    cov = s2 * np.linalg.pinv(gtg)
+    return beta, cov, fitted
+
+
+def regress(ctx: Context, i: int, st: State, y: np.ndarray, cols: np.ndarray):
+    """Fit effect columns plus the free nuisance of series i to its current residual.
+
+    Returns (beta of the effect columns, their covariance, the new mean of the series).
+    """
+    r = y - st.mean
+    nu = ctx.nuisance(i)
+    g = np.concatenate([cols, nu], axis=1)
+    w = np.where(st.inlier, 1.0 / st.scale**2, 0.0)
+    beta, cov, fitted = lstsq(g, r, w)
+    k = cols.shape[1]
+    return beta[:k], cov[:k, :k], st.mean + fitted
+
+
+def keep_series(delta_loglik: float, k_own: int, n: int, margin: float = 0.0) -> bool:
+    """A series stays in a proposal when its own evidence pays for its own parameters (BIC)."""
+    return 2.0 * delta_loglik > k_own * math.log(max(n, 2)) + margin
+
+
+def masked_periodogram(ctx: Context, i: int, r: np.ndarray, oversample: int = 1):
+    """Classical periodogram of a residual on the frame clock (zero-filled gaps), normalised by
+    the residual variance so that white noise gives Exp(1) powers.
+
+    Returns (freq_hz (freq,), power (freq,)), frequencies k/(M dt) from 1/(M dt) to Nyquist,
+    M = oversample × frames.
+    """
+    s = ctx.series[i]
+    m = int(ctx.n_frames * oversample)
+    g = np.zeros(m)
+    g[s.k] = r - r.mean()
+    spec = np.fft.rfft(g)[1:]
+    var = float(np.mean((r - r.mean()) ** 2)) or 1e-300
+    power = np.abs(spec) ** 2 / (s.n * var)
+    freq = np.arange(1, m // 2 + 1) / (m * ctx.dt_s)
+    return freq, power

@@ -1,0 +1,161 @@
+"""Variable projection with optimistix: nonlinear parameters shared by many series, linear
+amplitudes per series solved in closed form.
+
+An effect's model on series s is r_s ≈ G_s(θ) β_s + N_s γ_s: columns G_s that depend on a few
+nonlinear parameters θ shared by all series (a frequency, a time constant, a jump time, a tap
+spread), per-series linear amplitudes β_s and the free nuisance columns N_s (offset, harmonic).
+For fixed θ the β's are a weighted linear least squares per series; Levenberg-Marquardt
+(optimistix) then minimises the projected residual over θ alone (Golub & Pereyra 1973). The
+covariance of θ is σ̂² (JᵀJ)⁻¹ with J the Jacobian of the projected residual, which is the
+profile covariance of θ; the β's get their covariance at the fitted θ.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+
+from .. import _jax  # noqa: F401
+from .._shapes import bucket
+
+__all__ = ["SharedFit", "fit_shared", "pad_series"]
+
+_RIDGE = 1e-10
+
+
+@dataclass(frozen=True)
+class SharedFit:
+    """Result of `fit_shared`.
+
+    Attributes:
+        theta, theta_cov: (p,), (p, p) shared nonlinear parameters and their covariance.
+        beta, beta_cov: (series, k), (series, k, k) effect amplitudes (nuisance excluded).
+        fitted: list of (sample,) fitted effect + nuisance per series (unpadded).
+        rss: (series,) weighted residual sum of squares per series.
+        converged: the solver succeeded.
+    """
+
+    theta: np.ndarray
+    theta_cov: np.ndarray
+    beta: np.ndarray
+    beta_cov: np.ndarray
+    fitted: list[np.ndarray]
+    rss: np.ndarray
+    converged: bool
+
+
+def pad_series(arrays: list[np.ndarray], width: int | None = None, fill: float = 0.0) -> np.ndarray:
+    """Stack (sample, ...) arrays into (series, width, ...) padded with ``fill`` (width bucketed)."""
+    width = bucket(max(a.shape[0] for a in arrays)) if width is None else width
+    out = np.full((len(arrays), width) + arrays[0].shape[1:], fill, dtype=np.float64)
+    for i, a in enumerate(arrays):
+        out[i, : a.shape[0]] = a
+    return out
+
+
+def _project(g, r, w):
+    """Weighted LS of r on the columns g (sample, k): (beta, weighted residual)."""
+    sw = jnp.sqrt(w)
+    gw = g * sw[:, None]
+    k = g.shape[1]
+    gtg = gw.T @ gw
+    gtg = gtg + _RIDGE * (jnp.trace(gtg) / k + 1e-300) * jnp.eye(k)
+    beta = jnp.linalg.solve(gtg, gw.T @ (r * sw))
+    return beta, sw * r - gw @ beta
+
+
+_SOLVERS: dict = {}
+
+
+def _solver(columns_fn: Callable, max_steps: int):
+    key = (columns_fn, max_steps)
+    if key in _SOLVERS:
+        return _SOLVERS[key]
+
+    def residual(theta, args):
+        t, r, w, nu, aux = args
+
+        def one(t, r, w, nu, aux):
+            g = jnp.concatenate([columns_fn(theta, t, aux), nu], axis=1)
+            return _project(g, r, w)[1]
+
+        return jax.vmap(one)(t, r, w, nu, aux)
+
+    @jax.jit
+    def solve(theta0, t, r, w, nu, aux):
+        args = (t, r, w, nu, aux)
+        solver = optx.LevenbergMarquardt(rtol=1e-8, atol=1e-10)
+        sol = optx.least_squares(residual, solver, theta0, args=args, max_steps=max_steps, throw=False)
+        theta = sol.value
+        jac = jax.jacfwd(lambda th: residual(th, args).reshape(-1))(theta)
+
+        def one(t, r, w, nu, aux):
+            g = jnp.concatenate([columns_fn(theta, t, aux), nu], axis=1)
+            beta, res = _project(g, r, w)
+            gw = g * jnp.sqrt(w)[:, None]
+            return beta, jnp.sum(res**2), jnp.linalg.pinv(gw.T @ gw), g @ beta
+
+        beta, rss, ginv, fitted = jax.vmap(one)(t, r, w, nu, aux)
+        ok = sol.result == optx.RESULTS.successful
+        return theta, jac.T @ jac, beta, rss, ginv, fitted, ok
+
+    _SOLVERS[key] = solve
+    return solve
+
+
+def fit_shared(
+    columns_fn: Callable,
+    theta0: np.ndarray,
+    t: list[np.ndarray],
+    r: list[np.ndarray],
+    w: list[np.ndarray],
+    nuisance: list[np.ndarray],
+    aux: dict | None = None,
+    max_steps: int = 60,
+) -> SharedFit:
+    """Fit shared θ and per-series amplitudes by variable projection (Levenberg-Marquardt).
+
+    Args:
+        columns_fn: ``columns_fn(theta, t, aux) -> (sample, k)`` effect columns of one series in
+            jax.numpy (the same function object each call: its compiled solver is cached).
+        theta0: (p,) start value (e.g. from a grid search of the signature).
+        t, r, w: per series (sample,) times, current residuals, weights (1/scale², 0 skip).
+        nuisance: per series (sample, q) free columns (`Context.nuisance`), same q for all.
+        aux: {name: per-series list of (sample,) arrays or (series,) scalars} passed to
+            ``columns_fn`` as a dict for the one series (e.g. the harmonic's phase angle).
+    """
+    width = bucket(max(a.size for a in t))
+    tp, rp, wp = (pad_series(x, width) for x in (t, r, w))
+    nup = pad_series(nuisance, width)
+    auxp = {}
+    for name, vals in (aux or {}).items():
+        if np.ndim(vals[0]) == 0:
+            auxp[name] = np.asarray(vals, np.float64)
+        else:
+            auxp[name] = pad_series([np.asarray(v, np.float64) for v in vals], width)
+    solve = _solver(columns_fn, max_steps)
+    theta, jtj, beta, rss, ginv, fitted, ok = solve(
+        jnp.asarray(np.asarray(theta0, np.float64)), tp, rp, wp, nup, auxp
+    )
+    theta, jtj, beta, rss, ginv, fitted = (np.asarray(a) for a in (theta, jtj, beta, rss, ginv, fitted))
+    k = beta.shape[1] - nup.shape[2]
+    n_used = sum(int((x > 0).sum()) for x in w)
+    dof = max(n_used - theta.size - beta.size, 1)
+    s2 = float(rss.sum() / dof)
+    theta_cov = s2 * np.linalg.pinv(jtj)
+    s2_each = rss / np.maximum(np.array([(x > 0).sum() for x in w]) - beta.shape[1], 1)
+    beta_cov = s2_each[:, None, None] * ginv
+    return SharedFit(
+        theta=theta,
+        theta_cov=theta_cov,
+        beta=beta[:, :k],
+        beta_cov=beta_cov[:, :k, :k],
+        fitted=[fitted[i, : a.size] for i, a in enumerate(t)],
+        rss=rss,
+        converged=bool(ok) and bool(np.all(np.isfinite(theta))),
+    )
