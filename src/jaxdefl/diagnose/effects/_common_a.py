@@ -1,0 +1,130 @@
+"""Helpers shared by the effect modules harmonic_distortion, drift, level_jump, outliers,
+heteroscedastic_noise and quantization: residuals and weights of the current states, weighted
+projections out of the free nuisance, per-series likelihood gains and scan-corrected p-values.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy import stats
+
+from .._base import Context, State, loglik
+
+__all__ = [
+    "residual",
+    "weights",
+    "param",
+    "gain",
+    "updated",
+    "chi2_sf",
+    "bonferroni",
+    "combined_p",
+    "project_out",
+    "screen_columns",
+    "touched",
+]
+
+
+def residual(ctx: Context, i: int, st: State) -> np.ndarray:
+    """(sample,) y − mean of series i."""
+    return ctx.series[i].y - st.mean
+
+
+def weights(st: State) -> np.ndarray:
+    """(sample,) least-squares weights of a state: 1/scale² on inliers, 0 on outliers."""
+    return np.where(st.inlier, 1.0 / st.scale**2, 0.0)
+
+
+def param(value, sigma=None) -> dict:
+    """A contract parameter {"value": v, "sigma": s} with JSON-able floats (None for NaN)."""
+
+    def clean(x):
+        if x is None or isinstance(x, str):
+            return x
+        x = float(x)
+        return x if math.isfinite(x) else None
+
+    return {"value": clean(value), "sigma": clean(sigma)}
+
+
+def gain(ctx: Context, i: int, old: State, new: State) -> float:
+    """Log-likelihood gain of series i from ``old`` to ``new`` (`_base.loglik`)."""
+    y = ctx.series[i].y
+    return loglik(y, new) - loglik(y, old)
+
+
+def updated(st: State, effect: str, k_own: int, **kw) -> State:
+    """The state with the effect's changes, its own parameter count and the effect id added."""
+    return st.with_(n_params=st.n_params + int(k_own), effects=st.effects + (effect,), **kw)
+
+
+def touched(st: State, effect: str) -> bool:
+    return effect in st.effects
+
+
+def chi2_sf(x, dof) -> np.ndarray:
+    """Survival function of χ²_dof (vectorised, 1 for x <= 0)."""
+    x = np.maximum(np.asarray(x, dtype=float), 0.0)
+    return stats.chi2.sf(x, dof)
+
+
+def bonferroni(p, m: float) -> float:
+    return float(min(1.0, float(p) * max(float(m), 1.0)))
+
+
+def combined_p(
+    single: np.ndarray,
+    dof_single: int,
+    n_scan: float,
+    total: float | None = None,
+    dof_total: int | None = None,
+    n_scan_total: float | None = None,
+) -> float:
+    """Scan-corrected p-value of a signature seen on some of many series.
+
+    Two tests, each Bonferroni-corrected for the scan, and the smaller one doubled: the largest
+    single-series statistic (χ²_dof_single, over all series and ``n_scan`` scanned alternatives),
+    and optionally a statistic summed over all series (χ²_dof_total, over ``n_scan_total``).
+    """
+    single = np.asarray(single, dtype=float)
+    p = bonferroni(chi2_sf(single.max(initial=0.0), dof_single), n_scan * max(single.size, 1))
+    if total is not None:
+        p = min(p, bonferroni(chi2_sf(total, dof_total), n_scan_total or 1.0))
+        p = min(1.0, 2.0 * p)
+    return float(p)
+
+
+def project_out(nu: np.ndarray, w: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """(sample, k) columns made W-orthogonal to the nuisance columns ``nu`` (sample, q)."""
+    nw = nu * w[:, None]
+    gram = nw.T @ nu
+    coef = np.linalg.solve(gram + 1e-12 * np.trace(gram) * np.eye(gram.shape[0]), nw.T @ cols)
+    return cols - nu @ coef
+
+
+def screen_columns(nu: np.ndarray, w: np.ndarray, r: np.ndarray, cols: np.ndarray):
+    """Each column alone, with the nuisance free, against the residual: its χ²_1 statistic.
+
+    Args:
+        nu: (sample, q) nuisance; w: (sample,) weights; r: (sample,) residual;
+        cols: (sample, c) candidate columns (e.g. one per grid value of a nonlinear parameter).
+    Returns:
+        (stat (c,), beta (c,)): the drop of the weighted RSS over σ̂² (σ̂² from ``r`` after the
+        nuisance), and each column's coefficient.
+    """
+    nw = nu * w[:, None]
+    gram = nw.T @ nu
+    gram = gram + 1e-12 * np.trace(gram) * np.eye(gram.shape[0])
+    a_r = np.linalg.solve(gram, nw.T @ r)
+    r0 = r - nu @ a_r
+    n_used = max(int((w > 0).sum()) - nu.shape[1], 1)
+    s2 = float(np.sum(w * r0 * r0) / n_used) or 1e-300
+    cw = cols * w[:, None]
+    ctr = cw.T @ r0  # (c,) — r0 is W-orthogonal to nu, so this is the projected product
+    ctn = cw.T @ nu  # (c, q)
+    ctc = np.einsum("sc,sc->c", cw, cols) - np.einsum("cq,cq->c", ctn, np.linalg.solve(gram, ctn.T).T)
+    ctc = np.maximum(ctc, 1e-300)
+    beta = ctr / ctc
+    return ctr * ctr / ctc / s2, beta

@@ -1,0 +1,133 @@
+"""Effects harmonic_distortion, drift, level_jump, outliers, heteroscedastic_noise, quantization:
+each one found on the series it was injected into, below the noise, with its parameters within
+25 %, and nothing that would pass the search's gates on clean series."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from jaxdefl.diagnose._base import Context, Harmonic, Series, State, loglik, lstsq
+
+F0 = 3.0
+OMEGA = 2 * math.pi * F0
+ALPHA = 0.01 / 400  # the search's Bonferroni level over ~400 tests
+
+
+def make_case(
+    inject=None,
+    n_plates=4,
+    minutes=10.0,
+    fs=20.0,
+    sigma=0.76,
+    seed=0,
+    axes=("z", "x"),
+    amplitude=3.0,
+    base_z=2000.0,
+    dropout=0.03,
+):
+    """A hand-built context: harmonic + white noise per plate and axis, with ``inject(t, p, axis,
+    clean, eps, sigma) -> y`` changing what it wants; the nominal harmonic is linear LS at f0."""
+    rng = np.random.default_rng(seed)
+    dt = 1.0 / fs
+    n_frames = int(minutes * 60 * fs)
+    k_all = np.arange(n_frames)
+    phase = rng.uniform(0, 2 * math.pi)
+    series, nominal, states = [], [], []
+    duration = (n_frames - 1) * dt
+    t_ref = 0.5 * duration
+    for p in range(1, n_plates + 1):
+        keep = rng.random(n_frames) >= dropout
+        k = k_all[keep]
+        t = k * dt
+        for axis in axes:
+            amp = (
+                amplitude
+                * (0.6 + 0.4 * math.sin(math.pi * p / (n_plates + 1)))
+                * (1.0 if axis == "z" else 0.3)
+            )
+            level = base_z + 10.0 * p if axis == "z" else 100.0 * p
+            clean = level + amp * np.cos(OMEGA * t - phase)
+            eps = rng.standard_normal(t.size)
+            sig = sigma if axis == "z" else 0.4 * sigma
+            y = clean + sig * eps if inject is None else inject(t, p, axis, clean, eps, sig)
+            a = OMEGA * (t - t_ref)
+            beta, _, _ = lstsq(np.stack([np.ones_like(t), np.cos(a), np.sin(a)], axis=1), y)
+            h = Harmonic(OMEGA, float(beta[1]), float(beta[2]), float(beta[0]), t_ref)
+            series.append(Series(p, axis, t, y, k))
+            nominal.append(h)
+            states.append(State(mean=h(t), scale=np.ones(t.size), inlier=np.ones(t.size, bool)))
+    ctx = Context(
+        series=series,
+        nominal=nominal,
+        free=list(nominal),
+        reference={},
+        reference_harmonic={},
+        t0=0.0,
+        duration_s=duration,
+        dt_s=dt,
+        n_frames=n_frames,
+        f0_hz=F0,
+        frame_rate_hz=fs,
+    )
+    return ctx, states
+
+
+def total_gain(ctx, states, prop):
+    return sum(
+        loglik(ctx.series[i].y, st) - loglik(ctx.series[i].y, states[i]) for i, st in prop.states.items()
+    )
+
+
+def delta_bic(ctx, states, prop):
+    n = sum(s.n for s in ctx.series)  # the whole record: the most demanding penalty
+    return -2.0 * total_gain(ctx, states, prop) + prop.n_params * math.log(n)
+
+
+def passing(ctx, states, props):
+    return [p for p in props if p.p_value < ALPHA and delta_bic(ctx, states, p) < -10]
+
+
+def keys(ctx, prop):
+    return sorted(ctx.series[i].key for i in prop.series)
+
+
+def value(prop, name):
+    return prop.parameters[name]["value"]
+
+
+def close(a, b, tol=0.25):
+    return abs(a - b) <= tol * abs(b)
+
+
+# ---------------------------------------------------------------------------------------------
+# harmonic_distortion
+
+
+def test_harmonic_distortion_found_on_its_plates():
+    from jaxdefl.diagnose.effects.harmonic_distortion import EFFECT
+
+    def inject(t, p, axis, clean, eps, sig):
+        y = clean + sig * eps
+        if axis == "z" and p in (2, 3):
+            y = y + 0.2 * np.cos(2 * OMEGA * t - 1.0)
+        return y
+
+    ctx, states = make_case(inject, seed=1)
+    props = EFFECT.propose(ctx, states)
+    assert len(passing(ctx, states, props)) == 1
+    (prop,) = props
+    assert keys(ctx, prop) == ["2z", "3z"]
+    assert value(prop, "order") == 2
+    assert close(value(prop, "amplitude_mm"), 0.2)
+    assert prop.n_params == 4
+
+
+def test_harmonic_distortion_clean():
+    from jaxdefl.diagnose.effects.harmonic_distortion import EFFECT
+
+    for seed in range(3):
+        ctx, states = make_case(seed=10 + seed, n_plates=5)
+        assert passing(ctx, states, EFFECT.propose(ctx, states)) == []
