@@ -1,0 +1,806 @@
+"""Recordings with concealed effects: the generator of the missing-physics benchmark (issue 7).
+
+A recording is the simulator's exact plate-centroid kinematics (`simulate_trajectories`, fatigue
+switched off so that the amplitude is constant within the record) at the delivered frame times
+(drop-outs included), plus white sensor noise per plate and axis. Zero, one or two *effects* are
+injected into the camera trajectories; the LDS reference (300 Hz, 2 µm) sees the beam's motion
+only, so it carries the physical modulations of the load (`amplitude_modulation`,
+`frequency_modulation`) and none of the camera's artefacts.
+
+Nominal model: y = offset + A cos(ω t_rel − φ) + white noise, per plate and axis. Notation of the
+effects' parameters (the contract with ``jaxdefl diagnose``): t_rel = t − first timestamp of the
+table, t_mid the middle of the record, ω = 2π f0, φ the plate's motion phase.
+
+=====================  ======================================================================
+id                     injection and parameters
+=====================  ======================================================================
+motion_artefact        the four correlation samples at 0, T/4, T/2, 3T/4 after the frame time:
+                       the camera reads the mean of the four positions, i.e. H(ω)·truth
+                       (`jaxdefl.fit.motion.motion_artefact_response`); ``tap_spread_s`` = T.
+                       Every plate and axis; visible against the LDS only.
+timing_error           t_cam = t_true + offset + rate·(t_true − t_first); ``offset_s`` or
+                       ``rate_ppm``. Every plate and axis; visible against the LDS only.
+harmonic_distortion    z += a cos(k ω t_rel − ψ); ``order`` (k), ``amplitude_mm`` (a).
+drift                  z += a exp(−t_rel/τ); ``amplitude_mm`` (signed), ``tau_s``.
+level_jump             z += δ for t_rel ≥ t_j; ``t_jump_s``, ``size_mm``.
+amplitude_modulation   A(t) = A0 (1 + r (t − t_mid)) (``relative_rate_per_s``) or
+                       A0 (1 + m cos(2π f_m t_rel + ψ)) (``depth``, ``freq_hz``); z and x.
+frequency_modulation   phase + β sin(2π f_m t_rel + ψ) (``depth_rad``, ``freq_hz``) or
+                       f(t) = f0 + d (t − t_mid) (``drift_hz_per_s``); every axis.
+extra_periodic         z (and x) += a_p cos(2π f_e t_rel + ψ); ``freq_hz``, ``amplitude_mm``
+                       (median over the plates of the z amplitudes a_p).
+outliers               a fraction ε of the samples of 1-3 plates get an error N(0, s²) or ±s;
+                       ``fraction``, ``scale_mm``.
+heteroscedastic_noise  σ_i = σ0 (1 + m u_i), u = cos(ω t_rel − φ − ψ) (kind "phase") or
+                       (t − t_mid)/(duration/2) (kind "time"); ``modulation`` (m).
+quantization           z = q round((z_clean − o)/q) + o before the noise; ``step_mm``,
+                       ``offset_mm`` (structured-light recordings only).
+=====================  ======================================================================
+
+Magnitudes (`draw_effect`): "below the raw noise": the effect's RMS contribution, after removing
+what the nominal model absorbs (offset, the harmonic and a small change of its frequency; for the
+reference-tied effects only the offset), is 0.1-0.6 σ of the series it touches (log-uniform), and
+large enough for statistics: the likelihood signal S = Σ n·rms²/σ² over the affected series is at
+least `SIGNAL_MIN`. Noise-structure effects use m in 0.15-0.4; the timing effects use the physical
+ranges (offset 2-10 ms, late; rate 20-200 ppm, either sign).
+
+Public surface: `EFFECT_IDS`, `RecordingSpec`, `random_spec`, `draw_effect`, `make_recording`,
+`make_case`, `primary_parameters`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import numpy as np
+import pandas as pd
+
+from .config import SimConfig, load_config
+from .lds import frame_clock, truth_table
+from .writer import simulate_trajectories
+
+__all__ = [
+    "EFFECT_IDS",
+    "NEEDS_REFERENCE",
+    "STRUCTURED_LIGHT_ONLY",
+    "SIGNAL_MIN",
+    "RMS_RATIO_RANGE",
+    "RecordingSpec",
+    "random_spec",
+    "draw_effect",
+    "make_recording",
+    "make_case",
+    "primary_parameters",
+]
+
+EFFECT_IDS = (
+    "motion_artefact",
+    "harmonic_distortion",
+    "drift",
+    "level_jump",
+    "amplitude_modulation",
+    "frequency_modulation",
+    "timing_error",
+    "extra_periodic",
+    "outliers",
+    "heteroscedastic_noise",
+    "quantization",
+)
+NEEDS_REFERENCE = frozenset({"motion_artefact", "timing_error"})
+STRUCTURED_LIGHT_ONLY = frozenset({"quantization"})
+SIGNAL_MIN = 200.0  # Σ n rms²/σ² over the affected series (aim: >= ~150, with a margin)
+RMS_RATIO_RANGE = (0.1, 0.6)  # effect RMS / raw noise σ of the touched series
+MODULATION_RANGE = (0.15, 0.4)  # heteroscedastic noise
+
+_ROOT = Path(__file__).resolve().parents[3]
+_CONFIGS = {"tof": "exp2_tof_3hz.toml", "structured_light": "exp2_kinect_3hz.toml"}
+_AXES = ("x", "y", "z")
+# raw noise σ (mm) per axis: the thesis' Table 6.17 (ToF, 20 Hz: 0.76 mm in z); ToF noise grows with
+# the frame rate as the range noise of Table 6.1 (29 MHz: 2.56 -> 3.14 mm from 20 to 30 Hz)
+_NOISE_MM = {
+    ("tof", 20.0): {"x": 0.30, "y": 0.10, "z": 0.76},
+    ("tof", 30.0): {"x": 0.37, "y": 0.12, "z": 0.93},
+    ("structured_light", 30.0): {"x": 0.40, "y": 0.15, "z": 1.00},
+}
+
+
+@dataclass(frozen=True)
+class RecordingSpec:
+    """What the recording looks like (the decoys the nominal model must handle).
+
+    Attributes:
+        sensor: ``tof`` (SR4000 config) or ``structured_light`` (Kinect config); the sensor hint.
+        frame_rate_hz: camera frame rate (20 or 30).
+        duration_s: record length.
+        n_plates: 9-13 plates spread over the span (the beam's shape gives them different
+            amplitudes).
+        dropout_prob: probability of a lost frame.
+        reference: whether an LDS table comes with the recording.
+        session: the config's ``[[session]]`` (day): loading frequency and amplitude.
+        noise_mm: raw noise σ per axis (mm); None: from sensor and frame rate (`_NOISE_MM`).
+        plate_noise_spread: per-plate σ factors drawn uniformly in 1 ± this.
+        noisy_plate: a plate (1-based) whose noise is ``noisy_factor`` times larger; 0: none.
+    """
+
+    sensor: Literal["tof", "structured_light"] = "tof"
+    frame_rate_hz: float = 20.0
+    duration_s: float = 900.0
+    n_plates: int = 13
+    dropout_prob: float = 0.03
+    reference: bool = True
+    session: str = ""  # "": the config's first session
+    noise_mm: tuple[float, float, float] | None = None  # x, y, z
+    plate_noise_spread: float = 0.15
+    noisy_plate: int = 0
+    noisy_factor: float = 1.8
+
+    def sigma_mm(self) -> dict[str, float]:
+        if self.noise_mm is not None:
+            return dict(zip(_AXES, self.noise_mm, strict=True))
+        key = (self.sensor, float(self.frame_rate_hz))
+        if key in _NOISE_MM:
+            return dict(_NOISE_MM[key])
+        base = _NOISE_MM[(self.sensor, 30.0 if self.sensor == "structured_light" else 20.0)]
+        return dict(base)
+
+    @property
+    def lds_plates(self) -> tuple[int, ...]:
+        """LDS under every other plate away from the supports (3, 5, ... n-2)."""
+        return tuple(range(3, self.n_plates - 1, 2)) if self.reference else ()
+
+
+def sim_config(spec: RecordingSpec) -> SimConfig:
+    """The simulator config of a spec: Experiment II's day, fatigue off, plates over the span."""
+    cfg = load_config(_ROOT / "configs" / _CONFIGS[spec.sensor], session=spec.session or None)
+    span = cfg.beam.span_mm
+    x0 = 200.0
+    spacing = (span - 2 * x0) / (spec.n_plates - 1)
+    lds_plates = spec.lds_plates or (3,)
+    return dataclasses.replace(
+        cfg,
+        recording=dataclasses.replace(cfg.recording, duration_s=float(spec.duration_s)),
+        fatigue=dataclasses.replace(cfg.fatigue, law="none"),
+        plates=dataclasses.replace(cfg.plates, count=spec.n_plates, x0_mm=x0, spacing_mm=spacing),
+        camera=dataclasses.replace(
+            cfg.camera, frame_rate_hz=float(spec.frame_rate_hz), dropout_prob=spec.dropout_prob, plates=()
+        ),
+        lds=dataclasses.replace(cfg.lds, enabled=True, plates=lds_plates, defective_plate=0),
+    )
+
+
+def random_spec(
+    rng: np.random.Generator,
+    minutes: float | None = None,
+    sensor: str | None = None,
+    reference: bool | None = None,
+) -> RecordingSpec:
+    """A recording with random decoys: 9-13 plates, 20/30 Hz, 3-30 % drop-outs, 15-20 minutes
+    (or ``minutes``), with or without the LDS, sometimes a plate with a larger noise."""
+    if sensor is None:
+        sensor = "structured_light" if rng.random() < 0.2 else "tof"
+    fs = 30.0 if sensor == "structured_light" else float(rng.choice([20.0, 30.0], p=[0.6, 0.4]))
+    duration = 60.0 * (float(rng.uniform(15.0, 20.0)) if minutes is None else float(minutes))
+    n_plates = int(rng.integers(9, 14))
+    days = ["day1", "day2", "day3", "day5", "day8", "day11"] if sensor == "tof" else ["day7", "day8", "day10"]
+    return RecordingSpec(
+        sensor=sensor,  # type: ignore[arg-type]
+        frame_rate_hz=fs,
+        duration_s=round(duration, 3),
+        n_plates=n_plates,
+        dropout_prob=round(float(rng.uniform(0.03, 0.30)), 4),
+        reference=bool(rng.random() < 0.6) if reference is None else reference,
+        session=str(rng.choice(days)),
+        noisy_plate=int(rng.integers(1, n_plates + 1)) if rng.random() < 0.4 else 0,
+        noisy_factor=round(float(rng.uniform(1.5, 2.0)), 3),
+    )
+
+
+class _Base:
+    """The clean kinematics, frame clock, noise levels and LDS of one recording (no effects)."""
+
+    def __init__(self, spec: RecordingSpec, seed: int):
+        self.spec, self.seed = spec, int(seed)
+        cfg = sim_config(spec)
+        self.cfg = cfg
+        self.truth, lds = simulate_trajectories(cfg, spec.duration_s, seed)
+        _, t = frame_clock(cfg, spec.duration_s, seed)
+        self.t = t  # (frame,) epoch s, true acquisition times
+        self.t_first, self.t_last = float(t[0]), float(t[-1])
+        self.t_mid = 0.5 * (self.t_first + self.t_last)
+        self.duration = self.t_last - self.t_first
+        ld = cfg.loading
+        self.f0 = ld.frequency_hz
+        self.omega = 2 * math.pi * ld.frequency_hz
+        self.amp0 = ld.amplitude_mm
+        zero = dataclasses.replace(ld, amplitude_mm=0.0, mean_mm=0.0, longitudinal_mm=0.0, lateral_mm=0.0)
+        one = dataclasses.replace(zero, mean_mm=1.0)
+        t1 = t[:1]
+        st = truth_table(dataclasses.replace(cfg, loading=zero), t1)
+        self.static = st[list(_AXES)].to_numpy()  # (plate, axis)
+        self.shape = (
+            truth_table(dataclasses.replace(cfg, loading=one), t1)["z"].to_numpy() - self.static[:, 2]
+        )
+        self.n_plates = spec.n_plates
+        # motion phase φ of y = A cos(ω t_rel − φ): sin(ω τ + φ0) with τ = t − t0
+        self.phase = float(
+            np.mod(math.pi / 2 - ld.phase_rad - self.omega * (self.t_first - cfg.t0_s), 2 * math.pi)
+        )
+        self.lds = lds if spec.reference else None
+        rng = np.random.default_rng([self.seed, 7001])
+        sig = spec.sigma_mm()
+        fac = 1.0 + spec.plate_noise_spread * rng.uniform(-1.0, 1.0, spec.n_plates)
+        if spec.noisy_plate:
+            fac[spec.noisy_plate - 1] *= spec.noisy_factor
+        self.sigma = np.stack([sig[a] * fac for a in _AXES], axis=1)  # (plate, axis)
+        self.eps = rng.standard_normal((t.size, spec.n_plates, 3))  # unit white noise
+
+    def motion(self, t: np.ndarray, am=None, fm=None) -> np.ndarray:
+        """(frame, plate, axis) clean positions at true epoch times t, with the load's AM / FM."""
+        ld = self.cfg.loading
+        phase = self.omega * (t - self.cfg.t0_s) + ld.phase_rad
+        if fm is not None:
+            phase = phase + fm(t)
+        s = np.sin(phase)
+        g = am(t) if am is not None else 1.0
+        out = np.empty((t.size, self.n_plates, 3))
+        out[..., 0] = self.static[:, 0] + (ld.longitudinal_mm * g * s)[:, None]
+        out[..., 1] = self.static[:, 1] + (ld.lateral_mm * s)[:, None]
+        out[..., 2] = self.static[:, 2] + self.shape * (ld.mean_mm + self.amp0 * g * s)[:, None]
+        return out
+
+
+# ---------------------------------------------------------------------------------------------
+# rendering: effects -> camera table and LDS
+
+
+def _by_id(effects: Sequence[Mapping], eid: str) -> Mapping | None:
+    found = [e for e in effects if e["id"] == eid]
+    return found[0] if found else None
+
+
+def _modulations(base: _Base, effects: Sequence[Mapping]):
+    """AM gain g(t) and FM phase Δφ(t) functions of true epoch time (None when absent)."""
+    am = fm = None
+    e = _by_id(effects, "amplitude_modulation")
+    if e is not None:
+        p = e["parameters"]
+        if e["kind"] == "linear":
+            r = float(p["relative_rate_per_s"])
+
+            def am(t, r=r):
+                return 1.0 + r * (t - base.t_mid)
+        else:
+            m, fmod, psi = float(p["depth"]), float(p["freq_hz"]), float(p["phase_rad"])
+
+            def am(t, m=m, fmod=fmod, psi=psi):
+                return 1.0 + m * np.cos(2 * math.pi * fmod * (t - base.t_first) + psi)
+
+    e = _by_id(effects, "frequency_modulation")
+    if e is not None:
+        p = e["parameters"]
+        if e["kind"] == "linear":
+            d = float(p["drift_hz_per_s"])
+
+            def fm(t, d=d):
+                return math.pi * d * (t - base.t_mid) ** 2
+        else:
+            beta, fmod, psi = float(p["depth_rad"]), float(p["freq_hz"]), float(p["phase_rad"])
+
+            def fm(t, beta=beta, fmod=fmod, psi=psi):
+                return beta * np.sin(2 * math.pi * fmod * (t - base.t_first) + psi)
+
+    return am, fm
+
+
+def _camera_clean(base: _Base, effects: Sequence[Mapping]) -> tuple[np.ndarray, np.ndarray]:
+    """(table times, clean camera positions (frame, plate, axis)) before noise and quantisation."""
+    am, fm = _modulations(base, effects)
+    t = base.t
+    e = _by_id(effects, "motion_artefact")
+    if e is not None:
+        tap = float(e["parameters"]["tap_spread_s"])
+        pos = sum(base.motion(t + k * tap / 4, am, fm) for k in range(4)) / 4.0
+    else:
+        pos = base.motion(t, am, fm)
+    e = _by_id(effects, "timing_error")
+    t_tab = t
+    if e is not None:
+        p = e["parameters"]
+        t_tab = t + float(p.get("offset_s", 0.0)) + float(p.get("rate_ppm", 0.0)) * 1e-6 * (t - base.t_first)
+    trel = t_tab - t_tab[0]
+    w = base.omega
+    for e in effects:
+        p = e["parameters"]
+        idx = np.asarray(e.get("plates", []), int) - 1
+        if e["id"] == "harmonic_distortion":
+            k, a, psi = int(p["order"]), float(p["amplitude_mm"]), float(p["phase_rad"])
+            pos[:, idx, 2] += (a * np.cos(k * w * trel - psi))[:, None]
+        elif e["id"] == "drift":
+            pos[:, idx, 2] += (float(p["amplitude_mm"]) * np.exp(-trel / float(p["tau_s"])))[:, None]
+        elif e["id"] == "level_jump":
+            pos[:, idx, 2] += (float(p["size_mm"]) * (trel >= float(p["t_jump_s"])))[:, None]
+        elif e["id"] == "extra_periodic":
+            c = np.cos(2 * math.pi * float(p["freq_hz"]) * trel + float(p["phase_rad"]))
+            for a, amps in _plate_amplitudes(e).items():
+                pos[:, idx, _AXES.index(a)] += c[:, None] * amps[None, :]
+    return t_tab, pos
+
+
+def _render(base: _Base, effects: Sequence[Mapping]) -> tuple[np.ndarray, np.ndarray, dict]:
+    """(table times, camera positions with noise (frame, plate, axis), realised extras)."""
+    t_tab, pos = _camera_clean(base, effects)
+    extras: dict[str, Any] = {}
+    e = _by_id(effects, "quantization")
+    if e is not None:
+        q, o = float(e["parameters"]["step_mm"]), float(e["parameters"]["offset_mm"])
+        idx = np.asarray(e["plates"], int) - 1
+        pos[:, idx, 2] = q * np.round((pos[:, idx, 2] - o) / q) + o
+    scale = np.ones_like(base.eps)
+    e = _by_id(effects, "heteroscedastic_noise")
+    if e is not None:
+        idx = np.asarray(e["plates"], int) - 1
+        scale[:, idx, 2] = 1.0 + float(e["parameters"]["modulation"]) * _het_u(base, e, t_tab)[:, None]
+    pos = pos + base.sigma[None] * scale * base.eps
+    e = _by_id(effects, "outliers")
+    if e is not None:
+        rng = np.random.default_rng([base.seed, 7002])
+        p = e["parameters"]
+        s = float(p["scale_mm"])
+        count = 0
+        for plate in e["plates"]:
+            n = t_tab.size
+            k = max(1, int(round(float(p["fraction"]) * n)))
+            rows = rng.choice(n, size=k, replace=False)
+            err = s * rng.standard_normal(k) if e["kind"] == "gaussian" else s * rng.choice([-1.0, 1.0], k)
+            pos[rows, plate - 1, 2] += err
+            count += k
+        extras["outlier_count"] = count
+    return t_tab, pos, extras
+
+
+def _het_u(base: _Base, e: Mapping, t_tab: np.ndarray) -> np.ndarray:
+    if e["kind"] == "phase":
+        trel = t_tab - t_tab[0]
+        return np.cos(base.omega * trel - base.phase - float(e["parameters"]["phase_rad"]))
+    mid = 0.5 * (t_tab[0] + t_tab[-1])
+    return (t_tab - mid) / (0.5 * (t_tab[-1] - t_tab[0]))
+
+
+def _lds(base: _Base, effects: Sequence[Mapping]) -> pd.DataFrame | None:
+    """The LDS table: the beam's motion (with the load's AM / FM) at 300 Hz, 2 µm noise."""
+    if base.lds is None:
+        return None
+    lds = base.lds.copy()
+    am, fm = _modulations(base, effects)
+    if am is not None or fm is not None:
+        t = lds["t"].to_numpy()
+        ld = base.cfg.loading
+        phase = base.omega * (t - base.cfg.t0_s) + ld.phase_rad
+        nominal = base.amp0 * np.sin(phase)
+        moved = base.amp0 * (am(t) if am is not None else 1.0) * np.sin(phase + (fm(t) if fm else 0.0))
+        shape = base.shape[lds["plate"].to_numpy() - 1]
+        lds["z"] = lds["z"].to_numpy() + shape * (moved - nominal)
+    lds.attrs = {}
+    return lds.reset_index(drop=True)
+
+
+def _table(base: _Base, t_tab: np.ndarray, pos: np.ndarray) -> pd.DataFrame:
+    n, m = pos.shape[:2]
+    return pd.DataFrame(
+        {
+            "segment": base.cfg.recording.segment,
+            "t": np.repeat(t_tab, m),
+            "plate": np.tile(np.arange(1, m + 1), n),
+            "x": pos[..., 0].ravel(),
+            "y": pos[..., 1].ravel(),
+            "z": pos[..., 2].ravel(),
+        }
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# magnitudes: effective RMS and likelihood signal of an effect
+
+
+def _absorbed_rms(base: _Base, t: np.ndarray, delta: np.ndarray, tied: bool) -> np.ndarray:
+    """RMS per column of ``delta`` (frame, series) after removing what the nominal model absorbs."""
+    if tied:
+        return np.sqrt(np.mean((delta - delta.mean(axis=0)) ** 2, axis=0))
+    tc = (t - 0.5 * (t[0] + t[-1])) / max(0.5 * (t[-1] - t[0]), 1e-9)
+    trel = t - t[0]
+    c, s = np.cos(base.omega * trel), np.sin(base.omega * trel)
+    x = np.stack([np.ones_like(t), c, s, tc * c, tc * s], axis=1)
+    coef, *_ = np.linalg.lstsq(x, delta, rcond=None)
+    return np.sqrt(np.mean((delta - x @ coef) ** 2, axis=0))
+
+
+def _series_mask(e: Mapping) -> tuple[np.ndarray, list[int]]:
+    idx = np.asarray(e["plates"], int) - 1
+    axes = [_AXES.index(a) for a in e["axes"]]
+    return idx, axes
+
+
+def effect_strength(base: _Base, e: Mapping) -> tuple[float, float]:
+    """(pooled RMS ratio r, likelihood signal S) of one effect on the series it touches."""
+    eid, p = e["id"], e["parameters"]
+    idx, axes = _series_mask(e)
+    n = base.t.size
+    sig = base.sigma[np.ix_(idx, axes)]  # (plate, axis)
+    if eid == "heteroscedastic_noise":
+        u = _het_u(base, e, base.t)
+        v = np.log1p(float(p["modulation"]) * u)
+        s = 2.0 * n * np.var(v) * sig.size
+        return float(p["modulation"]), float(s)
+    if eid == "outliers":
+        rms = math.sqrt(float(p["fraction"])) * float(p["scale_mm"])
+        ratio = rms / sig
+        return float(np.sqrt(np.mean(ratio**2))), float(n * np.sum(ratio**2))
+    if eid in NEEDS_REFERENCE:  # visible against the LDS only: on its plates, z
+        idx, axes = np.asarray(base.spec.lds_plates, int) - 1, [2]
+        sig = base.sigma[np.ix_(idx, axes)]
+    t_tab, pos = _camera_clean(base, [e])
+    # the camera against the truth at the table's own timestamps (what a reference would show)
+    clean = base.motion(t_tab) if eid == "timing_error" else _camera_clean(base, [])[1]
+    if eid == "quantization":
+        q, o = float(p["step_mm"]), float(p["offset_mm"])
+        pos = pos.copy()
+        pos[:, idx, 2] = q * np.round((pos[:, idx, 2] - o) / q) + o
+    delta = (pos - clean)[:, idx][:, :, axes].reshape(n, -1)
+    rms = _absorbed_rms(base, t_tab, delta, tied=eid in NEEDS_REFERENCE)
+    ratio = (rms / sig.ravel()) ** 2
+    return float(np.sqrt(np.mean(ratio))), float(n * np.sum(ratio))
+
+
+# ---------------------------------------------------------------------------------------------
+# drawing effects
+
+
+def _loguniform(rng: np.random.Generator, lo: float, hi: float) -> float:
+    return float(np.exp(rng.uniform(math.log(lo), math.log(hi))))
+
+
+def _adjacent(rng: np.random.Generator, n_plates: int, k: int) -> list[int]:
+    start = int(rng.integers(1, n_plates - k + 2))
+    return list(range(start, start + k))
+
+
+def _fit_magnitude(base: _Base, e: dict, key: str, target: float, signal_min: float) -> dict:
+    """Scale ``parameters[key]`` so that r = target (and S >= signal_min); secant on the log."""
+    p = e["parameters"]
+    for _ in range(6):
+        r, s = effect_strength(base, e)
+        want = max(target, r * math.sqrt(signal_min / s)) if s > 0 else target
+        if r <= 0:
+            break
+        factor = want / r
+        p[key] = p[key] * factor
+        if abs(factor - 1.0) < 1e-3:
+            break
+    return e
+
+
+def _extra_frequency(rng: np.random.Generator, f0: float, fs: float) -> float:
+    """0.3-8 Hz, >= 0.1 Hz from every k f0 (k = 0..6) and their aliases, below Nyquist."""
+    bad = [abs(k * f0 - m * fs) for k in range(7) for m in range(-3, 4)]
+    hi = min(8.0, fs / 2 - 0.2)
+    for _ in range(1000):
+        f = float(rng.uniform(0.3, hi))
+        if min(abs(f - b) for b in bad) >= 0.1:
+            return round(f, 4)
+    raise RuntimeError("no extra frequency found")  # pragma: no cover
+
+
+def draw_effect(
+    effect_id: str,
+    base: _Base,
+    rng: np.random.Generator,
+    target_ratio: float | None = None,
+    signal_min: float = SIGNAL_MIN,
+) -> dict:
+    """A fully specified effect with random parameters, plates and a hidden magnitude.
+
+    Args:
+        effect_id: one of `EFFECT_IDS`.
+        base: the recording it goes into (magnitudes are relative to its noise).
+        rng: randomness.
+        target_ratio: effect RMS / σ; default log-uniform in `RMS_RATIO_RANGE`.
+        signal_min: floor of the likelihood signal S = Σ n rms²/σ².
+
+    Returns:
+        {"id", "kind", "parameters", "plates", "axes", ...}: what `make_recording` injects.
+    """
+    if effect_id not in EFFECT_IDS:
+        raise ValueError(f"effect_id: expected one of {', '.join(EFFECT_IDS)}, got {effect_id!r}")
+    spec, n_pl = base.spec, base.n_plates
+    everyone = list(range(1, n_pl + 1))
+    target = target_ratio if target_ratio is not None else _loguniform(rng, *RMS_RATIO_RANGE)
+    psi = round(float(rng.uniform(0, 2 * math.pi)), 4)
+    e: dict[str, Any]
+    if effect_id == "motion_artefact":
+        t_span = float(rng.uniform(0.4, 1.0)) / spec.frame_rate_hz
+        e = dict(
+            kind="sequential_taps", parameters={"tap_spread_s": t_span}, plates=everyone, axes=list(_AXES)
+        )
+        return e | {"id": effect_id}
+    if effect_id == "timing_error":
+        if rng.random() < 0.5:
+            e = dict(kind="offset", parameters={"offset_s": float(rng.uniform(0.002, 0.010))})
+        else:
+            sign = float(rng.choice([-1.0, 1.0]))
+            e = dict(kind="rate", parameters={"rate_ppm": sign * _loguniform(rng, 20.0, 200.0)})
+        return e | {"id": effect_id, "plates": everyone, "axes": list(_AXES)}
+    if effect_id == "harmonic_distortion":
+        plates = _adjacent(rng, n_pl, int(rng.integers(1, 4))) if rng.random() < 0.6 else everyone
+        e = dict(
+            kind="mixed_pixels" if len(plates) < n_pl else "cyclic_error",
+            parameters={"order": int(rng.choice([2, 3])), "amplitude_mm": 0.1, "phase_rad": psi},
+            plates=plates,
+            axes=["z"],
+        )
+        key = "amplitude_mm"
+    elif effect_id == "drift":
+        e = dict(
+            kind="exponential",
+            parameters={
+                "amplitude_mm": float(rng.choice([-1.0, 1.0])) * 0.1,
+                "tau_s": round(_loguniform(rng, 60.0, 400.0), 2),
+            },
+            plates=everyone,
+            axes=["z"],
+        )
+        key = "amplitude_mm"
+    elif effect_id == "level_jump":
+        plates = everyone if rng.random() < 0.6 else [int(rng.integers(1, n_pl + 1))]
+        t_j = round(float(rng.uniform(0.15, 0.85)) * base.duration, 3)
+        e = dict(
+            kind="all_plates" if len(plates) > 1 else "one_plate",
+            parameters={"t_jump_s": t_j, "size_mm": float(rng.choice([-1.0, 1.0])) * 0.1},
+            plates=plates,
+            axes=["z"],
+        )
+        key = "size_mm"
+    elif effect_id == "amplitude_modulation":
+        if rng.random() < 0.5:
+            pars = {"relative_rate_per_s": float(rng.choice([-1.0, 1.0])) * 1e-4}
+            e = dict(kind="linear", parameters=pars)
+            key = "relative_rate_per_s"
+        else:
+            pars = {"depth": 0.05, "freq_hz": round(_loguniform(rng, 0.005, 0.05), 5), "phase_rad": psi}
+            e = dict(kind="sinusoidal", parameters=pars)
+            key = "depth"
+        e |= dict(plates=everyone, axes=["z", "x"])
+    elif effect_id == "frequency_modulation":
+        if rng.random() < 0.5:
+            pars = {"drift_hz_per_s": float(rng.choice([-1.0, 1.0])) * 1e-7}
+            e = dict(kind="linear", parameters=pars)
+            key = "drift_hz_per_s"
+        else:
+            pars = {"depth_rad": 0.05, "freq_hz": round(_loguniform(rng, 0.005, 0.05), 5), "phase_rad": psi}
+            e = dict(kind="sinusoidal", parameters=pars)
+            key = "depth_rad"
+        e |= dict(plates=everyone, axes=list(_AXES))
+    elif effect_id == "extra_periodic":
+        axes = ["z", "x"] if rng.random() < 0.3 else ["z"]
+        fac = rng.uniform(0.8, 1.2, n_pl)
+        fac = fac / np.median(fac)
+        e = dict(
+            kind="vibration",
+            parameters={
+                "freq_hz": _extra_frequency(rng, base.f0, spec.frame_rate_hz),
+                "amplitude_mm": 0.1,
+                "phase_rad": psi,
+            },
+            plates=everyone,
+            axes=axes,
+            plate_factors={"z": fac.round(4).tolist()}
+            | ({"x": (0.5 * fac).round(4).tolist()} if "x" in axes else {}),
+        )
+        key = "amplitude_mm"
+    elif effect_id == "outliers":
+        plates = sorted(rng.choice(everyone, size=int(rng.integers(1, 4)), replace=False).tolist())
+        frac = _loguniform(rng, 0.002, 0.01)
+        sig = float(np.median(base.sigma[np.asarray(plates) - 1, 2]))
+        scale = float(np.clip(max(target, 0.15) * sig / math.sqrt(frac), 4 * sig, 12 * sig))
+        e = dict(
+            kind=str(rng.choice(["gaussian", "sign"])),
+            parameters={"fraction": frac, "scale_mm": round(scale, 4)},
+            plates=plates,
+            axes=["z"],
+        )
+        return e | {"id": effect_id}
+    elif effect_id == "heteroscedastic_noise":
+        plates = everyone if rng.random() < 0.5 else _adjacent(rng, n_pl, int(rng.integers(1, 4)))
+        kind = str(rng.choice(["phase", "time"]))
+        e = dict(
+            id=effect_id,
+            kind=kind,
+            parameters={"modulation": round(float(rng.uniform(*MODULATION_RANGE)), 4)}
+            | ({"phase_rad": psi} if kind == "phase" else {}),
+            plates=plates,
+            axes=["z"],
+        )
+        for _ in range(8):  # raise m (up to the range's top) until the signal is enough
+            _, s = effect_strength(base, e)
+            if s >= signal_min or e["parameters"]["modulation"] >= MODULATION_RANGE[1]:
+                break
+            e["parameters"]["modulation"] = min(MODULATION_RANGE[1], e["parameters"]["modulation"] * 1.2)
+        return e
+    elif effect_id == "quantization":
+        if spec.sensor != "structured_light":
+            raise ValueError("quantization: only for structured-light recordings (spec.sensor)")
+        sig = float(np.median(base.sigma[:, 2]))
+        q = target * sig * math.sqrt(12.0)
+        e = dict(
+            kind="depth_steps",
+            parameters={"step_mm": q, "offset_mm": float(rng.uniform(0, q))},
+            plates=everyone,
+            axes=["z"],
+        )
+        key = "step_mm"
+    e["id"] = effect_id
+    _fit_magnitude(base, e, key, target, signal_min)
+    if effect_id == "quantization":
+        e["parameters"]["offset_mm"] = float(rng.uniform(0, e["parameters"]["step_mm"]))
+    return e
+
+
+def _plate_amplitudes(e: Mapping) -> dict[str, np.ndarray]:
+    """Per-plate amplitudes (mm) of extra_periodic by axis: ``amplitude_mm`` times the plate factors
+    (``plate_factors`` {axis: [per plate]}; default 1 on z); amplitude_mm is the median over z."""
+    a = float(e["parameters"]["amplitude_mm"])
+    factors = e.get("plate_factors") or {"z": [1.0] * len(e["plates"])}
+    return {ax: a * np.asarray(f, float) for ax, f in factors.items()}
+
+
+# ---------------------------------------------------------------------------------------------
+# primary parameters (what the benchmark scores)
+
+
+def primary_parameters(effect: Mapping) -> dict[str, tuple[float, bool]]:
+    """{name: (true value, sign matters)} of the parameters the benchmark requires within 25 %."""
+    eid, kind, p = effect["id"], effect.get("kind", ""), effect["parameters"]
+    names: dict[str, bool]
+    if eid == "motion_artefact":
+        names = {"tap_spread_s": True}
+    elif eid == "timing_error":
+        names = {"offset_s": True} if kind == "offset" else {"rate_ppm": True}
+    elif eid == "harmonic_distortion":
+        names = {"amplitude_mm": False}
+    elif eid == "drift":
+        names = {"amplitude_mm": True, "tau_s": True}
+    elif eid == "level_jump":
+        names = {"size_mm": True}
+    elif eid == "amplitude_modulation":
+        names = {"relative_rate_per_s": True} if kind == "linear" else {"depth": False, "freq_hz": True}
+    elif eid == "frequency_modulation":
+        names = {"drift_hz_per_s": True} if kind == "linear" else {"depth_rad": False, "freq_hz": True}
+    elif eid == "extra_periodic":
+        names = {"freq_hz": True, "amplitude_mm": False}
+    elif eid == "outliers":
+        names = {"fraction": True, "scale_mm": True}
+    elif eid == "heteroscedastic_noise":
+        names = {"modulation": False}
+    elif eid == "quantization":
+        names = {"step_mm": True}
+    else:
+        raise ValueError(f"unknown effect id {eid!r}")
+    return {k: (float(p[k]), sign) for k, sign in names.items()}
+
+
+# ---------------------------------------------------------------------------------------------
+# public entry points
+
+
+def _truth_entry(base: _Base, t_tab: np.ndarray, e: Mapping, extras: Mapping) -> dict:
+    eid, p = e["id"], dict(e["parameters"])
+    t0, t1 = float(t_tab[0]), float(t_tab[-1])
+    out: dict[str, Any] = {
+        "id": eid,
+        "kind": e.get("kind", ""),
+        "parameters": {},
+        "plates": [int(v) for v in e["plates"]],
+        "axes": list(e["axes"]),
+        "t_start": t0,
+        "t_end": t1,
+    }
+    if eid == "harmonic_distortion":
+        p["order"] = int(p["order"])
+    if eid == "drift":
+        out["t_end"] = min(t1, t0 + 3.0 * float(p["tau_s"]))
+    if eid == "level_jump":
+        out["t_start"] = out["t_end"] = t0 + float(p["t_jump_s"])
+    if eid == "extra_periodic":
+        amps = _plate_amplitudes(e)
+        out["plate_amplitudes_mm"] = {k: [round(float(v), 6) for v in a] for k, a in amps.items()}
+        p["amplitude_mm"] = float(np.median(amps["z"]))
+    if eid == "outliers":
+        n_aff = t_tab.size * len(e["plates"])
+        p["fraction_nominal"] = float(p["fraction"])
+        p["fraction"] = float(extras.get("outlier_count", 0)) / n_aff
+    if eid in NEEDS_REFERENCE:
+        out["detectable_plates"] = [int(v) for v in base.spec.lds_plates]
+    if eid == "frequency_modulation" or eid == "amplitude_modulation":
+        out["band_hz"] = [base.f0 - 0.1, base.f0 + 0.1]
+    out["parameters"] = {k: (int(v) if isinstance(v, (int, np.integer)) else float(v)) for k, v in p.items()}
+    r, s = effect_strength(base, e)
+    out["rms_ratio"], out["signal"] = round(r, 4), round(s, 1)
+    return out
+
+
+def make_recording(
+    spec: RecordingSpec, effects: Sequence[Mapping], seed: int, base: _Base | None = None
+) -> tuple[pd.DataFrame, pd.DataFrame | None, dict]:
+    """A recording with the given effects injected.
+
+    Args:
+        spec: the recording (decoys).
+        effects: fully specified effects (`draw_effect`'s output, or hand-made: ``id``, ``kind``,
+            ``parameters``, ``plates``, ``axes``; extra_periodic optionally ``plate_factors``).
+        seed: drop-outs, LDS noise, camera noise and outliers; the same seed gives the same noise
+            whatever the effects, so a control and an effect case differ by the effect alone.
+        base: a `_Base` already built for (spec, seed) (saves the kinematics).
+
+    Returns:
+        traj: [segment, t, plate, x, y, z] (mm, epoch s) at the delivered frames.
+        lds: [segment, t, plate, z] or None without a reference.
+        truth: {"recording": {...}, "effects": [...]} with the labels (kept away from the tables).
+    """
+    base = base if base is not None else _Base(spec, seed)
+    ids = [e["id"] for e in effects]
+    if len(set(ids)) != len(ids):
+        raise ValueError(f"effects: each id at most once, got {ids}")
+    for e in effects:
+        if e["id"] not in EFFECT_IDS:
+            raise ValueError(f"effects: unknown id {e['id']!r}; expected one of {', '.join(EFFECT_IDS)}")
+    t_tab, pos, extras = _render(base, effects)
+    traj = _table(base, t_tab, pos)
+    lds = _lds(base, effects)
+    truth = {
+        "recording": {
+            "sensor": spec.sensor,
+            "frame_rate_hz": spec.frame_rate_hz,
+            "duration_s": spec.duration_s,
+            "n_plates": spec.n_plates,
+            "dropout_prob": spec.dropout_prob,
+            "reference": spec.reference,
+            "lds_plates": list(spec.lds_plates),
+            "session": spec.session,
+            "seed": int(seed),
+            "f0_hz": base.f0,
+            "amplitude_mm": base.amp0,
+            "motion_phase_rad": base.phase,
+            "noisy_plate": spec.noisy_plate,
+            "noise_mm": {a: base.sigma[:, i].round(4).tolist() for i, a in enumerate(_AXES)},
+            "t_first": float(t_tab[0]),
+            "t_last": float(t_tab[-1]),
+            "n_frames": int(t_tab.size),
+        },
+        "effects": [_truth_entry(base, t_tab, e, extras) for e in effects],
+    }
+    return traj, lds, truth
+
+
+def make_case(
+    seed: int,
+    effect_ids: Sequence[str] = (),
+    minutes: float | None = None,
+    sensor: str | None = None,
+) -> tuple[pd.DataFrame, pd.DataFrame | None, dict]:
+    """A random recording (decoys from `random_spec`) with ``effect_ids`` drawn and injected.
+
+    Effects that need the reference force an LDS; quantization forces a structured-light recording.
+    """
+    rng = np.random.default_rng([int(seed), 7000])
+    ids = list(effect_ids)
+    if any(i in STRUCTURED_LIGHT_ONLY for i in ids):
+        sensor = "structured_light"
+    reference = True if any(i in NEEDS_REFERENCE for i in ids) else None
+    spec = random_spec(rng, minutes=minutes, sensor=sensor, reference=reference)
+    base = _Base(spec, seed)
+    effects = [draw_effect(i, base, rng) for i in ids]
+    return make_recording(spec, effects, seed, base=base)
