@@ -131,3 +131,34 @@ def test_harmonic_distortion_clean():
     for seed in range(3):
         ctx, states = make_case(seed=10 + seed, n_plates=5)
         assert passing(ctx, states, EFFECT.propose(ctx, states)) == []
+
+
+# ---------------------------------------------------------------------------------------------
+# drift
+
+
+@pytest.mark.parametrize("amp, tau", [(0.25, 120.0), (-0.4, 300.0)])
+def test_drift_exponential(amp, tau):
+    from jaxdefl.diagnose.effects.drift import EFFECT
+
+    def inject(t, p, axis, clean, eps, sig):
+        y = clean + sig * eps
+        return y + amp * np.exp(-t / tau) if axis == "z" else y
+
+    ctx, states = make_case(inject, seed=2, n_plates=5)
+    props = EFFECT.propose(ctx, states)
+    good = passing(ctx, states, props)
+    assert good
+    best = min(good, key=lambda p: delta_bic(ctx, states, p))
+    assert value(best, "kind") == "exponential"
+    assert keys(ctx, best) == [f"{p}z" for p in range(1, 6)]
+    assert close(value(best, "amplitude_mm"), amp)
+    assert close(value(best, "tau_s"), tau)
+
+
+def test_drift_clean():
+    from jaxdefl.diagnose.effects.drift import EFFECT
+
+    for seed in range(3):
+        ctx, states = make_case(seed=20 + seed, n_plates=5)
+        assert passing(ctx, states, EFFECT.propose(ctx, states)) == []

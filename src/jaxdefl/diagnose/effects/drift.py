@@ -1,0 +1,247 @@
+"""Drift: a slow change of the measured position, mostly the camera's warm-up.
+
+Physical meaning: a ToF camera's range offset changes while its sensor and illumination warm up
+(an exponential approach to equilibrium with a time constant of minutes; SR4000: a few mm over
+the first 10-40 min), a structured-light camera's projector-sensor geometry creeps as the housing
+warms, and a slow settling of the camera mount or the beam's supports adds to it.
+
+Signature test: per plate and axis, the residual is regressed on exp(−t/τ) (t since the record's
+first timestamp) with the free nuisance (offset; C and D on untied series), over a log grid of τ
+from a few loading cycles to twice the record; each series' statistic is χ²_1 at a fixed τ. The
+p-value is the largest single-series statistic Bonferroni-corrected over series × grid, or the
+statistic summed over all series (χ²_S) corrected over the grid, whichever is smaller (doubled).
+The polynomial alternative (Legendre polynomials of degree 1..3 in the centred time, the degree
+chosen by BIC over the series) is proposed beside it; BIC decides between them and a level jump.
+
+Model term: y += a_s exp(−t/τ), τ shared by the series it touches (refined by variable
+projection on log τ, optimistix Levenberg-Marquardt), a_s per series (signed): 1 + S parameters.
+Polynomial: y += Σ_d c_sd P_d(u), u = (t − t_mid)/(duration/2): degree × S parameters.
+
+Plausible magnitudes: 0.1-5 mm over τ = 1-30 min for ToF warm-up (more when the camera starts
+cold), well below 1 mm once warm; structured light 0.5-3 mm.
+"""
+
+from __future__ import annotations
+
+import math
+
+import jax.numpy as jnp
+import numpy as np
+
+from .._base import Context, Effect, Proposal, State, keep_series, lstsq
+from .._varpro import fit_shared
+from ._common_a import chi2_sf, combined_p, gain, param, residual, screen_columns, touched, updated, weights
+
+__all__ = ["Drift", "EFFECT"]
+
+N_GRID = 24
+MAX_DEGREE = 3
+
+
+def _columns(theta, t, aux):
+    return jnp.exp(-t * jnp.exp(-theta[0]))[:, None]
+
+
+def _nuisance3(ctx: Context, i: int) -> np.ndarray:
+    """The free nuisance padded with zero columns to three (variable projection wants one q)."""
+    nu = ctx.nuisance(i)
+    if nu.shape[1] < 3:
+        nu = np.concatenate([nu, np.zeros((nu.shape[0], 3 - nu.shape[1]))], axis=1)
+    return nu
+
+
+def _legendre(u: np.ndarray, degree: int) -> np.ndarray:
+    cols = [u]
+    if degree >= 2:
+        cols.append(0.5 * (3 * u * u - 1))
+    if degree >= 3:
+        cols.append(0.5 * (5 * u**3 - 3 * u))
+    return np.stack(cols, axis=1)
+
+
+def _median_signed(values: np.ndarray) -> float:
+    """The median of signed per-series amplitudes; of their sizes when the signs disagree."""
+    pos = np.mean(values > 0)
+    if 0.2 < pos < 0.8:
+        return float(np.median(np.abs(values)))
+    return float(np.median(values))
+
+
+class Drift(Effect):
+    id = "drift"
+    meaning = "slow drift of the measured position (camera warm-up, settling): exponential or polynomial"
+    min_cycles = 60.0
+
+    def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
+        idx = [i for i in range(len(ctx.series)) if not touched(states[i], self.id) and ctx.series[i].n >= 64]
+        if not idx:
+            return []
+        out = []
+        exp_prop = self._exponential(ctx, states, idx)
+        if exp_prop is not None:
+            out.append(exp_prop)
+        poly_prop = self._polynomial(ctx, states, idx)
+        if poly_prop is not None:
+            out.append(poly_prop)
+        return out
+
+    # -- exponential -------------------------------------------------------------------------
+    def _exponential(self, ctx: Context, states: list[State], idx: list[int]) -> Proposal | None:
+        dur = float(ctx.duration_s)
+        tau_lo = max(5.0 / max(ctx.f0_hz, 1e-9), 10 * ctx.dt_s, 0.01 * dur)
+        grid = np.geomspace(tau_lo, 2.0 * dur, N_GRID)
+        stat = np.zeros((len(idx), N_GRID))
+        logn = np.array([math.log(ctx.series[i].n) for i in idx])
+        # the columns on the frame clock once (exp is the cost), then each series' frames
+        e_grid = np.exp(-(np.arange(ctx.n_frames) * ctx.dt_s)[:, None] / grid[None, :])
+        for j, i in enumerate(idx):
+            s, st = ctx.series[i], states[i]
+            cols = e_grid[s.k]
+            stat[j] = screen_columns(ctx.nuisance(i), weights(st), residual(ctx, i, st), cols)[0]
+        crit = np.maximum(stat - logn[:, None], 0.0).sum(axis=0)
+        g = int(np.argmax(crit))
+        if crit[g] <= 0:
+            return None
+        p_value = combined_p(
+            stat.ravel(),
+            1,
+            N_GRID,
+            total=float(stat.sum(axis=0).max()),
+            dof_total=len(idx),
+            n_scan_total=N_GRID,
+        )
+        sel = [i for j, i in enumerate(idx) if stat[j, g] > logn[j]]
+        tau0 = float(grid[g])
+        fit, sel = self._fit(ctx, states, sel, tau0)
+        if fit is None:
+            return None
+        # keep the series whose own evidence pays for their amplitude; refit once if some left
+        new = self._states(ctx, states, sel, fit)
+        kept = [i for i in sel if keep_series(gain(ctx, i, states[i], new[i]), 1, ctx.series[i].n)]
+        if not kept:
+            return None
+        if len(kept) < len(sel):
+            fit, kept = self._fit(ctx, states, kept, float(math.exp(fit.theta[0])))
+            if fit is None:
+                return None
+            new = self._states(ctx, states, kept, fit)
+        tau = float(math.exp(fit.theta[0]))
+        if not (grid[0] / 2 <= tau <= 4 * grid[-1]):
+            return None
+        sig_tau = tau * math.sqrt(max(float(fit.theta_cov[0, 0]), 0.0))
+        a = fit.beta[:, 0]
+        sa = np.sqrt(np.maximum(fit.beta_cov[:, 0, 0], 0.0))
+        amp = _median_signed(a)
+        amp_sigma = 1.2533 * math.sqrt(float(np.mean(sa**2)) / a.size)
+        where = ", ".join(ctx.series[i].key for i in kept)
+        return Proposal(
+            effect=self.id,
+            series=kept,
+            states={i: new[i] for i in kept},
+            n_params=1 + len(kept),
+            p_value=p_value,
+            parameters={
+                "amplitude_mm": param(amp, amp_sigma),
+                "tau_s": param(tau, sig_tau),
+                "kind": param("exponential"),
+            },
+            t_start=0.0,
+            t_end=float(min(ctx.duration_s, 3.0 * tau)),
+            band_hz=[0.0, float(1.0 / (2 * math.pi * tau))],
+            explanation=(
+                f"The measured positions of {where} drift by {amp:+.3f} mm at the start of the record, "
+                f"decaying with a time constant of {tau / 60:.1f} min: the camera warming up "
+                "(or its mount settling) adds a slowly vanishing offset."
+            ),
+            detail={"amplitudes_mm": {ctx.series[i].key: float(v) for i, v in zip(kept, a, strict=True)}},
+        )
+
+    @staticmethod
+    def _fit(ctx, states, sel, tau0):
+        if not sel:
+            return None, sel
+        ts = [ctx.series[i].t for i in sel]
+        rs = [residual(ctx, i, states[i]) for i in sel]
+        ws = [weights(states[i]) for i in sel]
+        nus = [_nuisance3(ctx, i) for i in sel]
+        fit = fit_shared(_columns, np.array([math.log(tau0)]), ts, rs, ws, nus)
+        if not fit.converged or not np.isfinite(fit.theta[0]):
+            return None, sel
+        return fit, sel
+
+    def _states(self, ctx, states, sel, fit) -> dict[int, State]:
+        return {
+            i: updated(states[i], self.id, 1, mean=states[i].mean + fit.fitted[j]) for j, i in enumerate(sel)
+        }
+
+    # -- polynomial --------------------------------------------------------------------------
+    def _polynomial(self, ctx: Context, states: list[State], idx: list[int]) -> Proposal | None:
+        dur = float(ctx.duration_s)
+        t_mid = 0.5 * dur
+        stat = np.zeros((len(idx), MAX_DEGREE))
+        fits = {}
+        for j, i in enumerate(idx):
+            s, st = ctx.series[i], states[i]
+            u = (s.t - t_mid) / (0.5 * dur)
+            cols_all = _legendre(u, MAX_DEGREE)
+            nu = ctx.nuisance(i)
+            w = weights(st)
+            r = residual(ctx, i, st)
+            for d in range(1, MAX_DEGREE + 1):
+                beta, cov, fitted = lstsq(np.concatenate([cols_all[:, :d], nu], axis=1), r, w)
+                b, c = beta[:d], cov[:d, :d]
+                try:
+                    stat[j, d - 1] = float(b @ np.linalg.solve(c, b))
+                except np.linalg.LinAlgError:
+                    stat[j, d - 1] = 0.0
+                fits[(i, d)] = (fitted, cols_all[:, :d] @ b)
+        logn = np.array([math.log(ctx.series[i].n) for i in idx])
+        degrees = np.arange(1, MAX_DEGREE + 1)
+        crit = np.maximum(stat - degrees[None, :] * logn[:, None], 0.0).sum(axis=0)
+        dj = int(np.argmax(crit))
+        if crit[dj] <= 0:
+            return None
+        d = int(degrees[dj])
+        p_single = min(1.0, float(chi2_sf(stat[:, dj].max(), d)) * len(idx) * MAX_DEGREE)
+        p_total = min(1.0, float(chi2_sf(stat[:, dj].sum(), d * len(idx))) * MAX_DEGREE)
+        p_value = min(1.0, 2 * min(p_single, p_total))
+        new = {}
+        amps = []
+        for j, i in enumerate(idx):
+            if stat[j, dj] <= d * logn[j]:
+                continue
+            fitted, drift = fits[(i, d)]
+            st = updated(states[i], self.id, d, mean=states[i].mean + fitted)
+            if keep_series(gain(ctx, i, states[i], st), d, ctx.series[i].n):
+                new[i] = st
+                amps.append(float(drift[0] - drift.mean()))
+        if not new:
+            return None
+        kept = sorted(new)
+        amp = _median_signed(np.array(amps))
+        where = ", ".join(ctx.series[i].key for i in kept)
+        return Proposal(
+            effect=self.id,
+            series=kept,
+            states=new,
+            n_params=d * len(kept),
+            p_value=p_value,
+            parameters={
+                "amplitude_mm": param(amp, None),
+                "tau_s": param(None),
+                "kind": param("polynomial"),
+                "degree": param(d),
+            },
+            t_start=0.0,
+            t_end=dur,
+            band_hz=[0.0, float(d / (2 * dur))],
+            explanation=(
+                f"The measured positions of {where} drift slowly over the record (a degree-{d} "
+                f"polynomial; {amp:+.3f} mm at the start against the record's mean): camera warm-up "
+                "or a settling mount."
+            ),
+            detail={"amplitudes_mm": {ctx.series[i].key: a for i, a in zip(kept, amps, strict=True)}},
+        )
+
+
+EFFECT = Drift()
