@@ -438,7 +438,8 @@ def effect_strength(base: _Base, e: Mapping) -> tuple[float, float]:
         return float(p["modulation"]), float(s)
     if eid == "outliers":
         rms = math.sqrt(float(p["fraction"])) * float(p["scale_mm"])
-        ratio = rms / sig
+        with np.errstate(divide="ignore"):
+            ratio = rms / sig
         return float(np.sqrt(np.mean(ratio**2))), float(n * np.sum(ratio**2))
     if eid in NEEDS_REFERENCE:  # visible against the LDS only: on its plates, z
         idx, axes = np.asarray(base.spec.lds_plates, int) - 1, [2]
@@ -452,7 +453,8 @@ def effect_strength(base: _Base, e: Mapping) -> tuple[float, float]:
         pos[:, idx, 2] = q * np.round((pos[:, idx, 2] - o) / q) + o
     delta = (pos - clean)[:, idx][:, :, axes].reshape(n, -1)
     rms = _absorbed_rms(base, t_tab, delta, tied=eid in NEEDS_REFERENCE)
-    ratio = (rms / sig.ravel()) ** 2
+    with np.errstate(divide="ignore", invalid="ignore"):  # a noise-free recording: infinite ratio
+        ratio = (rms / sig.ravel()) ** 2
     return float(np.sqrt(np.mean(ratio))), float(n * np.sum(ratio))
 
 

@@ -1,0 +1,449 @@
+"""The concealed-effect benchmark of ``jaxdefl diagnose`` (issue 7).
+
+    python experiments/concealed_effects.py [--out DIR] [--cases N] [--controls N] [--minutes M]
+                                            [--seed S] [--workers K]
+
+Generates recordings with the simulator (`jaxdefl.simulate.effects`): every effect several times
+alone, random pairs of effects, and effect-free controls, with decoys the nominal model handles
+(3-30 % drop-outs, 9-13 plates of different amplitudes, a plate with a larger noise, 20 and
+30 Hz, 15-20 minutes, with and without an LDS). The labels stay here: the diagnosing call gets the
+tables and the hints a user has (``sensor``, ``frame_rate_hz``) and nothing else. Then scores:
+
+- confusion matrix: rows the injected id ("none" for a control), columns the reported ids ("none"
+  when an injected effect is not reported and nothing else is). A reported id that matches no
+  injected effect counts in the row of every effect of the case.
+- detection: the injected id reported with at least half of its plates right (for the effects
+  seen only against the reference, half of the LDS plates also counts).
+- false positives: controls with any reported effect.
+- location: plates Jaccard of the detected effects; level jumps: the jump-time error.
+- parameter recovery: |estimate − truth| / |truth| of each primary parameter
+  (`jaxdefl.simulate.effects.primary_parameters`), within 25 % counts as recovered.
+- quality: share of reported effects with ΔBIC < −10 and rms_after < rms_before.
+- seconds per recording (the diagnose call only).
+
+Writes DIR/cases.csv (one row per case and injected effect; one row per control), DIR/confusion.csv,
+DIR/summary.md, DIR/truth/*.json and DIR/diag/*.json, and prints the summary.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import math
+import sys
+import time
+from collections.abc import Callable, Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from jaxdefl.simulate.effects import EFFECT_IDS, make_case, primary_parameters
+
+TARGETS = {"detected": 0.90, "false_positive": 0.05, "quality": 1.0, "recovered": 1.0}
+RECOVERY_TOL = 0.25
+DELTA_BIC_MAX = -10.0
+INCOMPATIBLE = {frozenset({"motion_artefact", "timing_error"})}  # same signature against the LDS
+DIAGNOSE = "jaxdefl.diagnose:diagnose"
+
+
+# ---------------------------------------------------------------------------------------------
+# the plan
+
+
+def plan_cases(n_cases: int, n_controls: int, seed: int) -> list[dict]:
+    """Cases: the first ceil(3N/4) are single effects, round-robin over `EFFECT_IDS` (so every effect
+    appears several times alone), the rest random compatible pairs; then the controls."""
+    rng = np.random.default_rng([seed, 1])
+    n_single = min(n_cases, math.ceil(0.75 * n_cases))
+    plan = []
+    for i in range(n_single):
+        plan.append({"kind": "single", "effects": [EFFECT_IDS[i % len(EFFECT_IDS)]]})
+    while len(plan) < n_cases:
+        pair = sorted(rng.choice(EFFECT_IDS, size=2, replace=False).tolist())
+        if frozenset(pair) not in INCOMPATIBLE:
+            plan.append({"kind": "pair", "effects": pair})
+    plan += [{"kind": "control", "effects": []} for _ in range(n_controls)]
+    for i, p in enumerate(plan):
+        p["case"] = i
+        p["seed"] = int(seed) * 100_000 + i
+    return plan
+
+
+# ---------------------------------------------------------------------------------------------
+# running
+
+
+def _resolve(diagnose: str | Callable) -> Callable:
+    if callable(diagnose):
+        return diagnose
+    module, name = diagnose.split(":")
+    return getattr(importlib.import_module(module), name)
+
+
+def _blind_call(diagnose: Callable, traj: pd.DataFrame, lds: pd.DataFrame | None, hints: Mapping) -> dict:
+    """The diagnosing call: the tables and a user's hints, nothing from the truth."""
+    return diagnose(
+        traj,
+        reference=lds,
+        sensor=hints["sensor"],
+        frame_rate_hz=hints["frame_rate_hz"],
+        modulation_mhz=None,
+    )
+
+
+def run_case(plan: Mapping, minutes: float | None, diagnose: str | Callable = DIAGNOSE) -> dict:
+    """Generate one case, run the blind diagnosis, return {plan, truth, diag, seconds, error}."""
+    traj, lds, truth = make_case(plan["seed"], plan["effects"], minutes=minutes)
+    rec = truth["recording"]
+    hints = {"sensor": rec["sensor"], "frame_rate_hz": rec["frame_rate_hz"]}
+    fn = _resolve(diagnose)
+    t0 = time.perf_counter()
+    try:
+        diag, error = _blind_call(fn, traj, lds, hints), ""
+    except Exception as err:  # a failure is a result of the benchmark, not its end
+        diag, error = None, f"{type(err).__name__}: {err}"
+    seconds = time.perf_counter() - t0
+    return {"plan": dict(plan), "truth": truth, "diag": _jsonable(diag), "seconds": seconds, "error": error}
+
+
+def _jsonable(obj: Any) -> Any:
+    if isinstance(obj, Mapping):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return _jsonable(obj.tolist())
+    if isinstance(obj, (np.floating, float)):
+        return float(obj)
+    if isinstance(obj, (np.integer, int)) and not isinstance(obj, bool):
+        return int(obj)
+    return obj
+
+
+def run_benchmark(
+    plan: Sequence[Mapping],
+    minutes: float | None = None,
+    workers: int = 1,
+    diagnose: str | Callable = DIAGNOSE,
+    log: Callable[[str], None] | None = print,
+) -> list[dict]:
+    """Every case of the plan (in ``workers`` processes when > 1; ``diagnose`` must then be a
+    "module:function" name)."""
+    results = []
+
+    def note(r: dict) -> None:
+        if log is None:
+            return
+        ids = ",".join(r["plan"]["effects"]) or "control"
+        rep = ",".join(e.get("id", "?") for e in (r["diag"] or {}).get("effects", [])) or "-"
+        err = f"  ERROR {r['error'][:80]}" if r["error"] else ""
+        log(f"case {r['plan']['case']:3d} {ids:45s} -> {rep:45s} {r['seconds']:6.1f} s{err}")
+
+    if workers <= 1:
+        for p in plan:
+            results.append(run_case(p, minutes, diagnose))
+            note(results[-1])
+    else:
+        if callable(diagnose):
+            raise ValueError("diagnose: with workers > 1 give a 'module:function' name")
+        import multiprocessing as mp
+
+        with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as pool:
+            futures = [pool.submit(run_case, p, minutes, diagnose) for p in plan]
+            for f in futures:
+                results.append(f.result())
+                note(results[-1])
+    return results
+
+
+# ---------------------------------------------------------------------------------------------
+# scoring
+
+
+def _value(par: Any) -> float:
+    if isinstance(par, Mapping):
+        par = par.get("value", float("nan"))
+    try:
+        return float(par)
+    except (TypeError, ValueError):
+        return float("nan")
+
+
+def relative_error(estimate: float, truth: float, sign_matters: bool = True) -> float:
+    """|estimate − truth| / |truth| (on magnitudes when the sign is a phase convention)."""
+    if not sign_matters:
+        estimate, truth = abs(estimate), abs(truth)
+    if not math.isfinite(estimate) or truth == 0:
+        return float("nan")
+    return abs(estimate - truth) / abs(truth)
+
+
+def score_effect(injected: Mapping, reported: Sequence[Mapping], t_first: float) -> dict:
+    """Detection, location and parameter recovery of one injected effect among the reports."""
+    same = [r for r in reported if r.get("id") == injected["id"]]
+    true = set(int(p) for p in injected["plates"])
+    det = set(int(p) for p in injected.get("detectable_plates") or [])
+    rep = set(int(p) for r in same for p in (r.get("plates") or []))
+    named = bool(same)
+    hits = len(rep & true)
+    located = named and (hits >= len(true) / 2 or (bool(det) and len(rep & det) >= len(det) / 2))
+    out: dict[str, Any] = {
+        "named": named,
+        "located": located,
+        "detected": named and located,
+        "jaccard": len(rep & true) / len(rep | true) if named and (rep | true) else float("nan"),
+        "jump_error_s": float("nan"),
+    }
+    # the report that overlaps the true plates most gives the parameters
+    best = max(same, key=lambda r: len(set(r.get("plates") or []) & true), default=None)
+    errors = {}
+    for name, (value, sign) in primary_parameters(injected).items():
+        est = _value((best or {}).get("parameters", {}).get(name, float("nan")))
+        errors[name] = relative_error(est, value, sign)
+    if injected["id"] == "level_jump" and best is not None:
+        pars = best.get("parameters", {})
+        est = _value(pars["t_jump_s"]) if "t_jump_s" in pars else _value(best.get("t_start")) - t_first
+        out["jump_error_s"] = abs(est - float(injected["parameters"]["t_jump_s"]))
+    out["param_errors"] = errors
+    out["recovered"] = named and all(math.isfinite(v) and v <= RECOVERY_TOL for v in errors.values())
+    return out
+
+
+def good_report(r: Mapping) -> bool:
+    """ΔBIC < −10 and a lower RMS after than before."""
+    try:
+        return float(r["delta_bic"]) < DELTA_BIC_MAX and float(r["rms_after_mm"]) < float(r["rms_before_mm"])
+    except (KeyError, TypeError, ValueError):
+        return False
+
+
+def score(results: Sequence[Mapping]) -> tuple[pd.DataFrame, pd.DataFrame, dict]:
+    """(cases table, confusion matrix, summary figures) of the benchmark results."""
+    rows = []
+    labels = ["none", *EFFECT_IDS]
+    conf = pd.DataFrame(0, index=labels, columns=labels, dtype=int)
+    reports_total = reports_good = 0
+    for res in results:
+        plan, truth, diag = res["plan"], res["truth"], res["diag"] or {}
+        rec = truth["recording"]
+        reported = list(diag.get("effects", []) or [])
+        rep_ids = sorted({str(r.get("id")) for r in reported})
+        reports_total += len(reported)
+        reports_good += sum(good_report(r) for r in reported)
+        injected = truth["effects"]
+        inj_ids = {e["id"] for e in injected}
+        extras = [i for i in rep_ids if i not in inj_ids]
+        common = {
+            "case": plan["case"],
+            "kind": plan["kind"],
+            "seed": plan["seed"],
+            "sensor": rec["sensor"],
+            "frame_rate_hz": rec["frame_rate_hz"],
+            "minutes": round(rec["duration_s"] / 60.0, 2),
+            "n_plates": rec["n_plates"],
+            "dropout_prob": rec["dropout_prob"],
+            "reference": rec["reference"],
+            "reported_ids": ";".join(rep_ids),
+            "extra_ids": ";".join(extras),
+            "n_reported": len(reported),
+            "n_good_reports": sum(good_report(r) for r in reported),
+            "n_unexplained": len(diag.get("unexplained", []) or []),
+            "cannot_tell": ";".join(str(c.get("id")) for c in diag.get("cannot_tell", []) or []),
+            "seconds": round(float(res["seconds"]), 3),
+            "error": res.get("error", ""),
+        }
+        if not injected:
+            for x in extras:
+                conf.loc["none", x] += 1
+            if not extras:
+                conf.loc["none", "none"] += 1
+            rows.append(common | {"injected": "none", "any_reported": bool(reported)})
+            continue
+        for e in injected:
+            s = score_effect(e, reported, rec["t_first"])
+            if s["named"]:
+                conf.loc[e["id"], e["id"]] += 1
+            for x in extras:
+                conf.loc[e["id"], x] += 1
+            if not s["named"] and not extras:
+                conf.loc[e["id"], "none"] += 1
+            rows.append(
+                common
+                | {
+                    "injected": e["id"],
+                    "effect_kind": e.get("kind", ""),
+                    "true_plates": ";".join(map(str, e["plates"])),
+                    "rms_ratio": e.get("rms_ratio"),
+                    "signal": e.get("signal"),
+                    "named": s["named"],
+                    "located": s["located"],
+                    "detected": s["detected"],
+                    "jaccard": s["jaccard"],
+                    "jump_error_s": s["jump_error_s"],
+                    "recovered": s["recovered"],
+                    "param_errors": json.dumps({k: round(v, 4) for k, v in s["param_errors"].items()}),
+                    "max_param_error": max(s["param_errors"].values(), default=float("nan")),
+                    "any_reported": bool(reported),
+                }
+            )
+    cases = pd.DataFrame(rows)
+    summary = _summary(cases, reports_total, reports_good)
+    return cases, conf, summary
+
+
+def _summary(cases: pd.DataFrame, reports_total: int, reports_good: int) -> dict:
+    eff = cases[cases.injected != "none"] if len(cases) else cases
+    ctl = cases[cases.injected == "none"] if len(cases) else cases
+    mean = lambda s: float(s.astype(float).mean()) if len(s) else float("nan")  # noqa: E731
+    detected = eff[eff.detected.astype(bool)] if len(eff) else eff
+    out = {
+        "n_cases": int(cases.case.nunique()) if len(cases) else 0,
+        "n_effects": len(eff),
+        "n_controls": len(ctl),
+        "detected": mean(eff.detected) if len(eff) else float("nan"),
+        "named": mean(eff.named) if len(eff) else float("nan"),
+        "false_positive": mean(ctl.any_reported) if len(ctl) else float("nan"),
+        "spurious_in_effect_cases": mean(eff.extra_ids.astype(str).str.len() > 0)
+        if len(eff)
+        else float("nan"),
+        "jaccard": mean(detected.jaccard) if len(detected) else float("nan"),
+        "jump_error_s_median": _nanmedian(eff.jump_error_s) if len(eff) else float("nan"),
+        "recovered": mean(eff.recovered) if len(eff) else float("nan"),
+        "recovered_of_detected": mean(detected.recovered) if len(detected) else float("nan"),
+        "reports": reports_total,
+        "quality": reports_good / reports_total if reports_total else float("nan"),
+        "seconds_mean": float(cases.drop_duplicates("case").seconds.mean()) if len(cases) else float("nan"),
+        "seconds_max": float(cases.drop_duplicates("case").seconds.max()) if len(cases) else float("nan"),
+        "errors": int((cases.drop_duplicates("case").error.astype(str).str.len() > 0).sum())
+        if len(cases)
+        else 0,
+    }
+    out["targets"] = {
+        "detected >= 90 %": bool(out["detected"] >= TARGETS["detected"]),
+        "false positives <= 5 %": bool(out["false_positive"] <= TARGETS["false_positive"]),
+        "every report dBIC < -10 and lower RMS": bool(reports_total == 0 or reports_good == reports_total),
+        "parameters within 25 %": bool(out["recovered_of_detected"] >= TARGETS["recovered"]),
+    }
+    return out
+
+
+def _nanmedian(s: pd.Series) -> float:
+    v = s.astype(float).dropna()
+    return float(v.median()) if len(v) else float("nan")
+
+
+def per_effect_table(cases: pd.DataFrame) -> pd.DataFrame:
+    eff = cases[cases.injected != "none"]
+    if not len(eff):
+        return pd.DataFrame()
+    g = eff.groupby("injected")
+    return pd.DataFrame(
+        {
+            "n": g.size(),
+            "named": g.named.mean(),
+            "detected": g.detected.mean(),
+            "jaccard": g.jaccard.mean(),
+            "recovered": g.recovered.mean(),
+            "median_param_error": g.max_param_error.median(),
+            "median_rms_ratio": g.rms_ratio.median(),
+        }
+    ).round(3)
+
+
+def summary_markdown(cases: pd.DataFrame, conf: pd.DataFrame, summary: Mapping, args: Mapping) -> str:
+    pct = lambda v: "n/a" if not math.isfinite(v) else f"{100 * v:.1f} %"  # noqa: E731
+    s = summary
+    lines = [
+        "# Concealed-effect benchmark of `jaxdefl diagnose`",
+        "",
+        "Run: " + " ".join(f"--{k} {v}" for k, v in args.items()),
+        "",
+        f"{s['n_cases']} recordings: {s['n_effects']} injected effects, {s['n_controls']} controls; "
+        f"{s['errors']} diagnose failures.",
+        "",
+        "| figure | value | target |",
+        "|---|---|---|",
+        f"| injected effects named and located | {pct(s['detected'])} | >= 90 % |",
+        f"| injected effects named (any plates) | {pct(s['named'])} | |",
+        f"| controls with any reported effect | {pct(s['false_positive'])} | <= 5 % |",
+        f"| effect cases with a spurious extra id | {pct(s['spurious_in_effect_cases'])} | |",
+        f"| plates Jaccard (detected) | {s['jaccard']:.3f} | |",
+        f"| level-jump time error, median | {s['jump_error_s_median']:.2f} s | |",
+        f"| parameters within 25 % (of detected) | {pct(s['recovered_of_detected'])} | 100 % |",
+        f"| parameters within 25 % (of injected) | {pct(s['recovered'])} | |",
+        f"| reports with dBIC < -10 and lower RMS | {pct(s['quality'])} of {s['reports']} | 100 % |",
+        f"| seconds per recording (mean / max) | {s['seconds_mean']:.1f} / {s['seconds_max']:.1f} | < 60 |",
+        "",
+        "Targets: " + "; ".join(f"{k}: {'PASS' if v else 'FAIL'}" for k, v in s["targets"].items()),
+        "",
+        "## Per effect",
+        "",
+        _md(per_effect_table(cases)),
+        "",
+        "## Confusion matrix (rows injected, columns reported)",
+        "",
+        _md(conf.loc[(conf.sum(axis=1) > 0), (conf.sum(axis=0) > 0)]),
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def _md(df: pd.DataFrame) -> str:
+    if not len(df):
+        return "(none)"
+    cols = [df.index.name or ""] + [str(c) for c in df.columns]
+    out = ["| " + " | ".join(cols) + " |", "|" + "---|" * len(cols)]
+    for idx, row in df.iterrows():
+        out.append(
+            "| "
+            + " | ".join([str(idx)] + [f"{v:.3g}" if isinstance(v, float) else str(v) for v in row])
+            + " |"
+        )
+    return "\n".join(out)
+
+
+def write_outputs(
+    out: Path, results: Sequence[Mapping], args: Mapping
+) -> tuple[pd.DataFrame, pd.DataFrame, dict, str]:
+    cases, conf, summary = score(results)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "truth").mkdir(exist_ok=True)
+    (out / "diag").mkdir(exist_ok=True)
+    for r in results:
+        c = r["plan"]["case"]
+        (out / "truth" / f"case_{c:03d}.json").write_text(json.dumps(r["truth"], indent=1))
+        (out / "diag" / f"case_{c:03d}.json").write_text(json.dumps(r["diag"], indent=1, default=str))
+    cases.to_csv(out / "cases.csv", index=False)
+    conf.to_csv(out / "confusion.csv", index_label="injected")
+    md = summary_markdown(cases, conf, summary, args)
+    (out / "summary.md").write_text(md)
+    return cases, conf, summary, md
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", type=Path, default=Path("concealed_out"), help="output folder")
+    ap.add_argument("--cases", type=int, default=44, help="effect cases (3/4 single effects, 1/4 pairs)")
+    ap.add_argument("--controls", type=int, default=20, help="effect-free controls")
+    ap.add_argument("--minutes", type=float, default=None, help="record length (default 15-20 min, random)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--workers", type=int, default=1, help="processes")
+    ap.add_argument("--diagnose", default=DIAGNOSE, help="module:function of the diagnosis")
+    args = ap.parse_args(argv)
+    if args.cases < 0 or args.controls < 0 or args.workers < 1:
+        print("concealed_effects: --cases and --controls must be >= 0, --workers >= 1", file=sys.stderr)
+        return 2
+    plan = plan_cases(args.cases, args.controls, args.seed)
+    results = run_benchmark(plan, args.minutes, args.workers, args.diagnose)
+    shown = {k: v for k, v in vars(args).items() if k != "diagnose" and v is not None}
+    *_, md = write_outputs(args.out, results, shown)
+    print(md)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
