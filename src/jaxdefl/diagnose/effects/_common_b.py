@@ -1,0 +1,487 @@
+"""Helpers shared by motion_artefact, timing_error, amplitude_modulation and frequency_modulation.
+
+- `Block`: the weighted projection of one series out of its free nuisance columns.
+- `lm_shared`: Levenberg-Marquardt over a few parameters shared by many series, each series'
+  nuisance profiled out (variable projection with the nuisance as the linear part). Unlike
+  `_varpro.fit_shared` the effect term may carry no per-series amplitude at all (the modulation
+  depth, the tap spread and the clock offset are shared; each series' scale is its known
+  amplitude), so the whole model is nonlinear in θ and solved here in numpy with analytic
+  Jacobians accumulated series by series (no padding, no compilation).
+- `TiedModel`: the camera's view of the reference's harmonic on the tied series,
+  offset + Re[H(ω; T) Z e^{iω(t/(1+ε) − δ − t_ref)}], with the tap spread T of the four-phase
+  sampling and the camera clock's offset δ and rate ε; the two reference effects each fit their
+  own parameters and re-estimate the other's when it is already in the model (the two commute
+  and trade phase, so they are only told apart jointly).
+- `Carriers`: per-series in-phase and quadrature carriers of the nominal harmonic, the demodulated
+  residual combined across series on the frame clock and its low-frequency spectrum (the
+  amplitude and phase modulation scans).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import stats
+
+from .._base import Context, State, keep_series, loglik
+
+__all__ = [
+    "weights",
+    "param",
+    "updated",
+    "Block",
+    "lm_shared",
+    "scan_p_value",
+    "chi2_p_value",
+    "tap_response",
+    "TiedModel",
+    "Carriers",
+    "select_series",
+]
+
+_RIDGE = 1e-12
+
+
+def weights(st: State) -> np.ndarray:
+    """(sample,) least-squares weights of a state: 1/scale² on inliers, 0 on outliers."""
+    return np.where(st.inlier, 1.0 / st.scale**2, 0.0)
+
+
+def param(value, sigma=None) -> dict:
+    """A contract parameter {"value": v, "sigma": s} with JSON-able floats (None for NaN)."""
+
+    def clean(x):
+        if x is None:
+            return None
+        x = float(x)
+        return x if math.isfinite(x) else None
+
+    return {"value": clean(value), "sigma": clean(sigma)}
+
+
+def updated(st: State, effect: str, k_own: int, **kw) -> State:
+    """The state with the effect's changes, its own parameter count and the effect id added."""
+    return st.with_(n_params=st.n_params + int(k_own), effects=st.effects + (effect,), **kw)
+
+
+def chi2_p_value(delta_chi2: float, dof: int) -> float:
+    return float(stats.chi2.sf(max(float(delta_chi2), 0.0), dof))
+
+
+def scan_p_value(power_max: float, n_independent: float) -> float:
+    """P(max of n independent Exp(1) powers >= power_max): the scan-corrected p-value."""
+    p1 = math.exp(-max(float(power_max), 0.0))
+    return float(-math.expm1(max(n_independent, 1.0) * math.log1p(-min(p1, 1 - 1e-16))))
+
+
+class Block:
+    """One series' weighted projection out of its nuisance columns ``nu`` (sample, q).
+
+    ``proj(x)`` returns x minus its weighted LS fit by the nuisance (x: (sample,) or (sample, k));
+    ``fit(x)`` the fit itself. ``s2`` is σ̂² of the projected current residual.
+    """
+
+    def __init__(self, nu: np.ndarray, w: np.ndarray, r: np.ndarray):
+        self.nu, self.w = nu, w
+        self.nw = nu * w[:, None]
+        g = self.nw.T @ nu
+        self.ginv = np.linalg.inv(g + _RIDGE * (np.trace(g) + 1e-300) * np.eye(g.shape[0]))
+        self.n_used = int((w > 0).sum())
+        rp = self.proj(r)
+        self.s2 = float(np.sum(w * rp * rp) / max(self.n_used - nu.shape[1], 1)) or 1e-300
+
+    def fit(self, x: np.ndarray) -> np.ndarray:
+        return self.nu @ (self.ginv @ (self.nw.T @ x))
+
+    def proj(self, x: np.ndarray) -> np.ndarray:
+        return x - self.fit(x)
+
+    def chi2(self, x: np.ndarray) -> float:
+        """Σ w (proj x)² / σ̂²."""
+        xp = self.proj(x)
+        return float(np.sum(self.w * xp * xp) / self.s2)
+
+    def normal(self, res: np.ndarray, jac: np.ndarray):
+        """(chi2, JᵀJ, Jᵀres) of the projected residual and Jacobian (σ̂²-scaled)."""
+        rp = self.proj(res)
+        jp = self.proj(jac)
+        jw = jp * (self.w / self.s2)[:, None]
+        return float(np.sum(self.w * rp * rp) / self.s2), jw.T @ jp, jw.T @ rp
+
+
+@dataclass
+class LMResult:
+    theta: np.ndarray
+    cov: np.ndarray
+    chi2: float
+    chi2_start: float
+    converged: bool
+
+
+def lm_shared(
+    evaluate: Callable[[np.ndarray, bool], tuple],
+    theta0: np.ndarray,
+    max_iter: int = 40,
+    rtol: float = 1e-9,
+    bounds: Sequence[tuple[float, float]] | None = None,
+) -> LMResult:
+    """Levenberg-Marquardt on χ²(θ) = Σ_series |P_s (r_s − term_s(θ))|² / σ̂_s².
+
+    Args:
+        evaluate: ``evaluate(theta, jac)`` -> χ² if not jac, else (χ², JᵀJ, Jᵀres) with J the
+            Jacobian of the (projected, σ̂-scaled) term and res the residual after the term.
+        theta0: (param,) start.
+        bounds: optional (lo, hi) per parameter; steps are clipped into them.
+    Returns:
+        LMResult with cov = (JᵀJ)⁻¹ at the optimum (χ² already in units of σ̂²).
+    """
+    theta = np.asarray(theta0, dtype=np.float64).copy()
+    lo = np.array([b[0] for b in bounds]) if bounds else None
+    hi = np.array([b[1] for b in bounds]) if bounds else None
+    chi2, jtj, jtr = evaluate(theta, True)
+    chi2_start = chi2
+    lam = 1e-3
+    converged = False
+    for _ in range(max_iter):
+        d = np.sqrt(np.maximum(np.diag(jtj), 1e-300))
+        a = jtj / np.outer(d, d)
+        try:
+            step = np.linalg.solve(a + lam * np.eye(theta.size), jtr / d) / d
+        except np.linalg.LinAlgError:
+            break
+        trial = theta + step
+        if lo is not None:
+            trial = np.clip(trial, lo, hi)
+        c_trial = evaluate(trial, False)
+        if np.isfinite(c_trial) and c_trial <= chi2:
+            small = chi2 - c_trial <= rtol * max(chi2, 1.0)
+            theta = trial
+            chi2, jtj, jtr = evaluate(theta, True)
+            lam = max(lam / 10, 1e-12)
+            if small:
+                converged = True
+                break
+        else:
+            lam *= 10
+            if lam > 1e10:
+                converged = True  # no step improves: at a minimum (or a bound)
+                break
+    cov = np.linalg.pinv(jtj)
+    return LMResult(
+        theta, cov, float(chi2), float(chi2_start), converged and bool(np.all(np.isfinite(theta)))
+    )
+
+
+def select_series(gains: dict[int, float], n: dict[int, int], k_own: int = 1) -> list[int]:
+    """Series where a shared term is individually significant (its gain would pay for ``k_own``
+    parameters of its own); if none is, those that gain at all."""
+    kept = [i for i, g in gains.items() if keep_series(g, k_own, n[i])]
+    if not kept:
+        kept = [i for i, g in gains.items() if g > 0]
+    return sorted(kept)
+
+
+# ---------------------------------------------------------------------------------------------
+# the camera against the reference (tied series)
+
+
+def tap_response(omega, tap_spread_s: float, offsets=(0.0, 0.25, 0.5, 0.75), derivative: bool = False):
+    """H(ω; T) of four taps at offsets·T after the frame time (`fit.motion`, vectorised over ω);
+    with ``derivative`` also dH/dT."""
+    w = np.asarray(omega, dtype=np.float64)
+    o = np.asarray(offsets, dtype=np.float64)
+    al, be = (o[0] + o[2]) / 2, (o[2] - o[0]) / 2
+    ga, ka = (o[1] + o[3]) / 2, (o[3] - o[1]) / 2
+    T = float(tap_spread_s)
+    e1, e2 = np.exp(1j * w * al * T), np.exp(1j * w * ga * T)
+    c1, c2 = np.cos(w * be * T), np.cos(w * ka * T)
+    h = 0.5 * (e1 * c1 + e2 * c2)
+    if not derivative:
+        return h
+    s1, s2 = np.sin(w * be * T), np.sin(w * ka * T)
+    dh = 0.5 * w * (e1 * (1j * al * c1 - be * s1) + e2 * (1j * ga * c2 - ka * s2))
+    return h, dh
+
+
+PPM = 1e-6
+TIED_EFFECTS = ("motion_artefact", "timing_error")
+NAMES = ("tap_spread_s", "offset_s", "rate_ppm")
+
+
+class TiedModel:
+    """offset + Re[H(ω; T) Z e^{iω(t/(1+ε) − δ − t_ref)}] on the tied series, θ = (T, δ, ε ppm).
+
+    ``other[s]`` is the rest of the current model of series s (its accepted effects other than
+    the two reference ones, and the offset), so that a new mean is other + term(θ) + offset fit.
+    ``current`` holds θ of the current model: 0 for what is not accepted, else re-fitted to the
+    current means (noise-free), so no bookkeeping outside the states is needed.
+    """
+
+    def __init__(self, ctx: Context, states: list[State], idx: list[int]):
+        self.ctx, self.idx = ctx, idx
+        self.t = [ctx.series[i].t for i in idx]
+        self.y = [ctx.series[i].y for i in idx]
+        self.w = [weights(states[i]) for i in idx]
+        self.blocks = [
+            Block(ctx.nuisance(i), w, ctx.series[i].y - states[i].mean)
+            for i, w in zip(idx, self.w, strict=True)
+        ]
+        h = [ctx.nominal[i] for i in idx]
+        self.omega = np.array([x.omega for x in h])
+        self.Z = np.array([x.C - 1j * x.D for x in h])
+        self.t_ref = np.array([x.t_ref for x in h])
+        self.offsets = ctx.tap_offsets
+        self.accepted = {e for i in idx for e in states[i].effects if e in TIED_EFFECTS}
+        means = [states[i].mean for i in idx]
+        cur = np.zeros(3)
+        free = []
+        if "motion_artefact" in self.accepted:
+            free.append(0)
+            cur[0] = 0.5 / ctx.frame_rate_hz if ctx.frame_rate_hz else ctx.dt_s / 2
+        if "timing_error" in self.accepted:
+            free += [1, 2]
+        if free:  # the accepted reference effects' parameters, from the current means
+            cur = self.fit(cur, free, data=means).theta
+        self.current = cur
+        self.other = [m - self.term(k, cur) for k, m in enumerate(means)]
+
+    def term(self, k: int, theta: np.ndarray, jac: Sequence[int] = ()):
+        """The motion of tied series k at θ (and its derivatives for the parameters in ``jac``)."""
+        T, d, e = theta
+        om = self.omega[k]
+        h, dh = tap_response(om, T, self.offsets, derivative=True)
+        tt = self.t[k] / (1.0 + e * PPM)
+        ph = np.exp(1j * om * (tt - d - self.t_ref[k]))
+        z = self.Z[k] * ph
+        m = (h * z).real
+        if not jac:
+            return m
+        cols = []
+        for j in jac:
+            if j == 0:
+                cols.append((dh * z).real)
+            elif j == 1:
+                cols.append((h * z * (-1j * om)).real)
+            else:
+                cols.append((h * z * (1j * om) * tt * (-PPM / (1.0 + e * PPM))).real)
+        return m, np.stack(cols, axis=1)
+
+    def fit(self, theta0: np.ndarray, free: Sequence[int], data: list[np.ndarray] | None = None, **kw):
+        """Fit the ``free`` components of θ (the others fixed at theta0) to y − other (or to
+        ``data``, e.g. the current means)."""
+        free = list(free)
+        base = np.asarray(theta0, float).copy()
+        targets = data if data is not None else [y - o for y, o in zip(self.y, self.other, strict=True)]
+
+        def full(p):
+            th = base.copy()
+            th[free] = p
+            return th
+
+        def evaluate(p, jac):
+            th = full(p)
+            if not jac:
+                return sum(
+                    b.chi2(y - self.term(k, th))
+                    for k, (b, y) in enumerate(zip(self.blocks, targets, strict=True))
+                )
+            c, a, g = 0.0, 0.0, 0.0
+            for k, (b, y) in enumerate(zip(self.blocks, targets, strict=True)):
+                m, j = self.term(k, th, free)
+                ck, ak, gk = b.normal(y - m, j)
+                c, a, g = c + ck, a + ak, g + gk
+            return c, a, g
+
+        res = lm_shared(evaluate, base[free], **kw)
+        res.theta = full(res.theta)
+        cov = np.zeros((3, 3))
+        cov[np.ix_(free, free)] = res.cov
+        res.cov = cov
+        return res
+
+    def chi2_at(self, theta: np.ndarray) -> float:
+        return sum(
+            b.chi2(y - o - self.term(k, theta))
+            for k, (b, y, o) in enumerate(zip(self.blocks, self.y, self.other, strict=True))
+        )
+
+    def means(self, theta: np.ndarray) -> list[np.ndarray]:
+        """New means: other + term(θ) + the offset refitted."""
+        out = []
+        for k, (b, y, o) in enumerate(zip(self.blocks, self.y, self.other, strict=True)):
+            m = o + self.term(k, theta)
+            out.append(m + b.fit(y - m))
+        return out
+
+    def observed_ratio(self) -> tuple[np.ndarray, np.ndarray]:
+        """Per tied series: the camera's own harmonic over the reference's at mid-record, as
+        (gain, phase lead rad): what H e^{-iωδ} must explain."""
+        mid = 0.5 * self.ctx.duration_s
+        g, ph = [], []
+        for i in self.idx:
+            f, n = self.ctx.free[i], self.ctx.nominal[i]
+            zf = (f.C - 1j * f.D) * np.exp(1j * f.omega * (mid - f.t_ref))
+            zn = (n.C - 1j * n.D) * np.exp(1j * n.omega * (mid - n.t_ref))
+            r = zf / zn if abs(zn) > 0 else np.nan
+            g.append(abs(r))
+            ph.append(np.angle(r))
+        return np.array(g), np.array(ph)
+
+
+def tied_proposal_states(
+    ctx: Context, states: list[State], model: TiedModel, theta: np.ndarray, effect: str, n_shared: int
+):
+    """(kept indices, {index: State}, gains) of the tied series whose likelihood the new θ raises."""
+    means = model.means(theta)
+    gains, new = {}, {}
+    for k, i in enumerate(model.idx):
+        st = states[i]
+        y = ctx.series[i].y
+        gains[i] = loglik(y, st, means[k]) - loglik(y, st)
+    kept = sorted(i for i, g in gains.items() if keep_series(g, 0, ctx.series[i].n))
+    for j, i in enumerate(kept):
+        k = model.idx.index(i)
+        new[i] = updated(states[i], effect, n_shared if j == 0 else 0, mean=means[k])
+    return kept, new, gains
+
+
+# ---------------------------------------------------------------------------------------------
+# carriers of the nominal harmonic (amplitude and phase modulation)
+
+
+@dataclass
+class _Carrier:
+    i: int
+    a: float  # the nominal amplitude (mm)
+    cos: np.ndarray  # cos(arg)
+    sin: np.ndarray  # sin(arg)
+    arg: np.ndarray
+    r: np.ndarray  # current residual
+    w: np.ndarray
+    scan: Block  # nuisance of the scan: offset, cos, sin at ω (also on tied series)
+    block: Block  # the free nuisance of the series (`Context.nuisance`)
+
+
+class Carriers:
+    """The series with a real motion (amplitude ≥ ``min_snr`` σ_A) and their carriers.
+
+    In-phase column a cos(arg) (amplitude modulation: y += a u(t) cos arg) and quadrature column
+    −a sin(arg) (phase modulation: y += −a δφ(t) sin arg), arg from the nominal harmonic.
+    """
+
+    def __init__(self, ctx: Context, states: list[State], min_snr: float = 10.0):
+        self.ctx = ctx
+        self.items: list[_Carrier] = []
+        for i, s in enumerate(ctx.series):
+            st, h = states[i], ctx.nominal[i]
+            a = h.amplitude
+            w = weights(st)
+            r = s.y - st.mean
+            arg = h.argument(s.t)
+            c, sn = np.cos(arg), np.sin(arg)
+            one = np.ones_like(s.t)
+            scan = Block(np.stack([one, c, sn], axis=1), w, r)
+            # σ_A ≈ σ̂ sqrt(2 / Σw): the amplitude must stand well above it
+            if not a * math.sqrt(0.5 * float(w.sum()) / scan.s2) >= min_snr:
+                continue
+            block = Block(ctx.nuisance(i), w, r)
+            self.items.append(_Carrier(i, a, c, sn, arg, r, w, scan, block))
+
+    def column(self, it: _Carrier, kind: str) -> np.ndarray:
+        return it.a * it.cos if kind == "in_phase" else -it.a * it.sin
+
+    def scan(self, kind: str, f_lo: float, f_hi: float, oversample: int = 4):
+        """Spectrum of the demodulated residual combined across series, weighted by a²/σ̂².
+
+        Returns (freq_hz, power, n_independent, grid): power is |N(f)|²/Q with
+        N(f) = Σ_s Σ_t w r̃ x e^{-2πi f t}/σ̂², Q = Σ w x²/σ̂² (Exp(1) under white noise, f away
+        from 0 and 2 f0); grid is the (frame,) combined demodulated series for refinement.
+        """
+        ctx = self.ctx
+        n = ctx.n_frames
+        grid = np.zeros(n)
+        q = 0.0
+        for it in self.items:
+            s = ctx.series[it.i]
+            x = self.column(it, kind)
+            rp = it.scan.proj(it.r)
+            grid += np.bincount(s.k, weights=it.w * rp * x / it.scan.s2, minlength=n)[:n]
+            q += float(np.sum(it.w * x * x) / it.scan.s2)
+        m = int(oversample * n)
+        spec = np.fft.rfft(grid, m)
+        freq = np.arange(spec.size) / (m * ctx.dt_s)
+        band = (freq >= f_lo) & (freq <= f_hi)
+        power = np.abs(spec[band]) ** 2 / max(q, 1e-300)
+        n_ind = max((f_hi - f_lo) * n * ctx.dt_s, 1.0)
+        return freq[band], power, n_ind, grid, q
+
+    def refine_peak(self, grid: np.ndarray, q: float, f_peak: float, half_width: float, n_fine: int = 41):
+        """The combined power on a fine grid around ``f_peak`` (direct DFT of the nonzero frames):
+        (frequency of the maximum, its power, N(f) there)."""
+        k = np.nonzero(grid)[0]
+        g = grid[k]
+        t = k * self.ctx.dt_s
+        f = np.linspace(f_peak - half_width, f_peak + half_width, n_fine)
+        spec = np.exp(-2j * np.pi * np.outer(f, t)) @ g
+        p = np.abs(spec) ** 2 / max(q, 1e-300)
+        j = int(np.argmax(p))
+        fj = float(f[j])
+        if 0 < j < n_fine - 1:  # parabola through the three best
+            y0, y1, y2 = p[j - 1], p[j], p[j + 1]
+            den = y0 - 2 * y1 + y2
+            fj += float(0.5 * (y0 - y2) / den * (f[1] - f[0])) if den < 0 else 0.0
+        n_peak = complex(np.exp(-2j * np.pi * fj * t) @ g)
+        return fj, abs(n_peak) ** 2 / max(q, 1e-300), n_peak
+
+    def linear_stat(self, kind: str, u: Callable[[np.ndarray], np.ndarray]):
+        """χ²₁ statistic and estimate of a shared coefficient b in y += b u(t) x(t)."""
+        num = den = 0.0
+        for it in self.items:
+            x = self.column(it, kind) * u(self.ctx.series[it.i].t)
+            xp = it.scan.proj(x)
+            rp = it.scan.proj(it.r)
+            num += float(np.sum(it.w * xp * rp) / it.scan.s2)
+            den += float(np.sum(it.w * xp * xp) / it.scan.s2)
+        den = max(den, 1e-300)
+        return num * num / den, num / den, 1.0 / math.sqrt(den)
+
+    def fit(self, term: Callable, theta0: np.ndarray, **kw) -> LMResult:
+        """Fit shared θ of ``term(it, theta, jac) -> m or (m, J)`` over all carriers, with each
+        series' free nuisance profiled out."""
+
+        def evaluate(p, jac):
+            if not jac:
+                return sum(it.block.chi2(it.r - term(it, p, False)) for it in self.items)
+            c, a, g = 0.0, 0.0, 0.0
+            for it in self.items:
+                m, j = term(it, p, True)
+                ck, ak, gk = it.block.normal(it.r - m, j)
+                c, a, g = c + ck, a + ak, g + gk
+            return c, a, g
+
+        return lm_shared(evaluate, theta0, **kw)
+
+    def proposal_states(
+        self, states: list[State], term: Callable, theta: np.ndarray, effect: str, n_shared: int
+    ):
+        """(kept, {index: State}, gains): the new means, kept where the term is individually
+        significant (`select_series`)."""
+        ctx = self.ctx
+        gains, means, ns = {}, {}, {}
+        for it in self.items:
+            st = states[it.i]
+            y = ctx.series[it.i].y
+            m = term(it, theta, False)
+            mean = st.mean + m + it.block.fit(it.r - m)
+            means[it.i] = mean
+            gains[it.i] = loglik(y, st, mean) - loglik(y, st)
+            ns[it.i] = ctx.series[it.i].n
+        kept = select_series(gains, ns)
+        new = {
+            i: updated(states[i], effect, n_shared if j == 0 else 0, mean=means[i])
+            for j, i in enumerate(kept)
+        }
+        return kept, new, gains
