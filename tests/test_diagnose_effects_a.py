@@ -162,3 +162,74 @@ def test_drift_clean():
     for seed in range(3):
         ctx, states = make_case(seed=20 + seed, n_plates=5)
         assert passing(ctx, states, EFFECT.propose(ctx, states)) == []
+
+
+# ---------------------------------------------------------------------------------------------
+# level_jump
+
+
+@pytest.mark.parametrize("plates, size, t_j", [((1, 2, 3, 4, 5), 0.15, 250.0), ((3,), -0.3, 420.0)])
+def test_level_jump(plates, size, t_j):
+    from jaxdefl.diagnose.effects.level_jump import EFFECT
+
+    def inject(t, p, axis, clean, eps, sig):
+        y = clean + sig * eps
+        return y + size * (t >= t_j) if axis == "z" and p in plates else y
+
+    ctx, states = make_case(inject, seed=3, n_plates=5)
+    props = EFFECT.propose(ctx, states)
+    assert len(passing(ctx, states, props)) == 1
+    (prop,) = props
+    assert keys(ctx, prop) == [f"{p}z" for p in plates]
+    assert abs(value(prop, "t_jump_s") - t_j) < 2.0
+    assert close(value(prop, "size_mm"), size)
+    assert prop.n_params == 1 + len(plates)
+
+
+def test_level_jump_clean():
+    from jaxdefl.diagnose.effects.level_jump import EFFECT
+
+    for seed in range(3):
+        ctx, states = make_case(seed=30 + seed, n_plates=5)
+        assert passing(ctx, states, EFFECT.propose(ctx, states)) == []
+
+
+# ---------------------------------------------------------------------------------------------
+# outliers
+
+
+@pytest.mark.parametrize("kind", ["gaussian", "sign"])
+def test_outliers(kind):
+    from jaxdefl.diagnose.effects.outliers import EFFECT
+
+    frac, scale = 0.005, 5.0 * 0.76
+    hit = {}
+
+    def inject(t, p, axis, clean, eps, sig):
+        y = clean + sig * eps
+        if axis == "z" and p in (2, 4):
+            rng = np.random.default_rng(p)
+            rows = rng.choice(t.size, size=int(round(frac * t.size)), replace=False)
+            err = scale * (
+                rng.standard_normal(rows.size) if kind == "gaussian" else rng.choice([-1.0, 1.0], rows.size)
+            )
+            y[rows] += err
+            hit[p] = rows
+        return y
+
+    ctx, states = make_case(inject, seed=4, n_plates=5)
+    props = EFFECT.propose(ctx, states)
+    assert len(passing(ctx, states, props)) == 1
+    (prop,) = props
+    assert keys(ctx, prop) == ["2z", "4z"]
+    assert close(value(prop, "fraction"), frac)
+    assert close(value(prop, "scale_mm"), scale)
+    assert prop.n_params == 4
+
+
+def test_outliers_clean():
+    from jaxdefl.diagnose.effects.outliers import EFFECT
+
+    for seed in range(3):
+        ctx, states = make_case(seed=40 + seed, n_plates=5)
+        assert passing(ctx, states, EFFECT.propose(ctx, states)) == []

@@ -24,6 +24,7 @@ __all__ = [
     "project_out",
     "screen_columns",
     "touched",
+    "median_signed",
 ]
 
 
@@ -128,3 +129,13 @@ def screen_columns(nu: np.ndarray, w: np.ndarray, r: np.ndarray, cols: np.ndarra
     ctc = np.maximum(ctc, 1e-300)
     beta = ctr / ctc
     return ctr * ctr / ctc / s2, beta
+
+
+def median_signed(values: np.ndarray) -> float:
+    """The median of signed per-series amplitudes; of their sizes when the signs disagree
+    (between 20 and 80 % positive)."""
+    values = np.asarray(values, dtype=float)
+    pos = float(np.mean(values > 0))
+    if 0.2 < pos < 0.8:
+        return float(np.median(np.abs(values)))
+    return float(np.median(values))

@@ -30,7 +30,18 @@ import numpy as np
 
 from .._base import Context, Effect, Proposal, State, keep_series, lstsq
 from .._varpro import fit_shared
-from ._common_a import chi2_sf, combined_p, gain, param, residual, screen_columns, touched, updated, weights
+from ._common_a import (
+    chi2_sf,
+    combined_p,
+    gain,
+    median_signed,
+    param,
+    residual,
+    screen_columns,
+    touched,
+    updated,
+    weights,
+)
 
 __all__ = ["Drift", "EFFECT"]
 
@@ -57,14 +68,6 @@ def _legendre(u: np.ndarray, degree: int) -> np.ndarray:
     if degree >= 3:
         cols.append(0.5 * (5 * u**3 - 3 * u))
     return np.stack(cols, axis=1)
-
-
-def _median_signed(values: np.ndarray) -> float:
-    """The median of signed per-series amplitudes; of their sizes when the signs disagree."""
-    pos = np.mean(values > 0)
-    if 0.2 < pos < 0.8:
-        return float(np.median(np.abs(values)))
-    return float(np.median(values))
 
 
 class Drift(Effect):
@@ -131,7 +134,7 @@ class Drift(Effect):
         sig_tau = tau * math.sqrt(max(float(fit.theta_cov[0, 0]), 0.0))
         a = fit.beta[:, 0]
         sa = np.sqrt(np.maximum(fit.beta_cov[:, 0, 0], 0.0))
-        amp = _median_signed(a)
+        amp = median_signed(a)
         amp_sigma = 1.2533 * math.sqrt(float(np.mean(sa**2)) / a.size)
         where = ", ".join(ctx.series[i].key for i in kept)
         return Proposal(
@@ -218,7 +221,7 @@ class Drift(Effect):
         if not new:
             return None
         kept = sorted(new)
-        amp = _median_signed(np.array(amps))
+        amp = median_signed(np.array(amps))
         where = ", ".join(ctx.series[i].key for i in kept)
         return Proposal(
             effect=self.id,

@@ -1,0 +1,161 @@
+"""Level jump: the measured position steps at one instant and stays there.
+
+Physical meaning: a structured-light camera re-calibrates or its projector pattern shifts (the
+"session jumps" of a Kinect), a ToF camera changes its integration time (its range offset depends
+on it), the camera or a plate is knocked, or the segmentation switches to another pixel set.
+When the cause is the camera, every plate jumps at the same instant; a segmentation change moves
+one plate.
+
+Signature test: a CUSUM scan of the residuals (after the free nuisance) on the frame clock: for a
+split at every frame, the weighted likelihood-ratio statistic of a mean change (χ²_1 per series at
+a fixed split), summed over the series (χ²_S) for a common jump, and its sparse version
+(Σ max(T_s − log n, 0)) for a jump on a few series. The p-value is the largest single-series
+statistic Bonferroni-corrected over series × candidate splits, or the summed statistic corrected
+over the candidate splits, whichever is smaller (doubled): conservative, since neighbouring splits
+are strongly correlated. The jump time is refined to the frame on the series that keep it.
+
+Model term: y += δ_s H(t − t_j), t_j shared by the series it touches, δ_s per series: 1 + S
+parameters. One jump per proposal: the search calls again after accepting one.
+
+Plausible magnitudes: 0.1-2 mm for ToF integration-time changes; 1-10 mm for structured-light
+session jumps (thesis Table 6.21), less on the centroids of large plates.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .._base import Context, Effect, Proposal, State, keep_series
+from ._common_a import combined_p, gain, median_signed, param, project_out, updated, weights
+
+__all__ = ["LevelJump", "EFFECT"]
+
+EDGE = 0.01  # fraction of the record at each end where no split is tried (drift and outliers' ground)
+
+
+def _cusum(ctx: Context, i: int, st: State) -> tuple[np.ndarray, float]:
+    """(frame − 1,) χ²_1 statistic of a mean change after each frame, and σ̂² of the series."""
+    s = ctx.series[i]
+    w = weights(st)
+    r = s.y - st.mean
+    nu = ctx.nuisance(i)
+    r0 = project_out(nu, w, r[:, None])[:, 0]
+    n_used = max(int((w > 0).sum()) - nu.shape[1], 1)
+    s2 = float(np.sum(w * r0 * r0) / n_used) or 1e-300
+    wk = np.zeros(ctx.n_frames)
+    rk = np.zeros(ctx.n_frames)
+    wk[s.k] = w
+    rk[s.k] = w * r0
+    cw = np.cumsum(wk)[:-1]
+    cr = np.cumsum(rk)[:-1]
+    wt = float(wk.sum())
+    rbar = float(rk.sum()) / max(wt, 1e-300)
+    den = s2 * cw * (wt - cw) / max(wt, 1e-300)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        stat = np.where(den > 0, (cr - cw * rbar) ** 2 / den, 0.0)
+    return stat, s2
+
+
+class LevelJump(Effect):
+    id = "level_jump"
+    meaning = "a step of the measured position (structured-light instability, integration-time change)"
+    min_cycles = 20.0
+
+    def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
+        idx = [i for i in range(len(ctx.series)) if ctx.series[i].n >= 64]
+        if not idx or ctx.n_frames < 20:
+            return []
+        nf = ctx.n_frames
+        lo = max(int(math.ceil(EDGE * nf)), 2)
+        hi = nf - 1 - lo  # splits m in [lo, hi): the jump falls between frames m and m + 1
+        if hi <= lo:
+            return []
+        stat = np.zeros((len(idx), hi - lo))
+        s2 = np.zeros(len(idx))
+        for j, i in enumerate(idx):
+            full, s2[j] = _cusum(ctx, i, states[i])
+            stat[j] = full[lo:hi]
+        logn = np.array([math.log(ctx.series[i].n) for i in idx])
+        n_cand = hi - lo
+        total = stat.sum(axis=0)
+        sparse = np.maximum(stat - logn[:, None], 0.0).sum(axis=0)
+        p_value = combined_p(
+            stat.max(axis=1), 1, n_cand, total=float(total.max()), dof_total=len(idx), n_scan_total=n_cand
+        )
+        best = None
+        for m in {int(np.argmax(total)), int(np.argmax(sparse))}:
+            cand = self._at(ctx, states, idx, lo + m)
+            if cand is not None and (best is None or cand[0] > best[0]):
+                best = cand
+        if best is None:
+            return []
+        _, m, kept, _ = best
+        # refine the split on the series that keep the jump, then rebuild
+        rows = [idx.index(i) for i in kept]
+        m_ref = lo + int(np.argmax(stat[rows].sum(axis=0)))
+        if m_ref != m:
+            again = self._at(ctx, states, kept, m_ref)
+            if again is not None and again[0] >= best[0]:
+                best = again
+        score, m, kept, fits = best
+        new = {i: fits[i][0] for i in kept}
+        deltas = np.array([fits[i][1] for i in kept])
+        sig_d = np.array([fits[i][2] for i in kept])
+        size = median_signed(deltas)
+        size_sigma = 1.2533 * math.sqrt(float(np.mean(sig_d**2)) / deltas.size)
+        snr = float(sum(fits[i][1] ** 2 / s2[idx.index(i)] for i in kept))
+        t_j = (m + 0.5) * ctx.dt_s
+        sig_t = ctx.dt_s * max(0.5, math.sqrt(26.0) / max(snr, 1e-300))
+        where = ", ".join(ctx.series[i].key for i in kept)
+        return [
+            Proposal(
+                effect=self.id,
+                series=kept,
+                states=new,
+                n_params=1 + len(kept),
+                p_value=p_value,
+                parameters={"t_jump_s": param(t_j, sig_t), "size_mm": param(size, size_sigma)},
+                t_start=float(t_j),
+                t_end=float(ctx.duration_s),
+                band_hz=None,
+                explanation=(
+                    f"The measured position of {where} steps by {size:+.3f} mm at t = {t_j:.2f} s "
+                    f"and stays there: {'the camera (all these plates at once)' if len(kept) > 1 else 'one plate'}"
+                    " changed its level — a structured-light re-calibration, an integration-time change or "
+                    "a knock."
+                ),
+                detail={"sizes_mm": {ctx.series[i].key: float(d) for i, d in zip(kept, deltas, strict=True)}},
+            )
+        ]
+
+    def _at(self, ctx: Context, states: list[State], idx: list[int], m: int):
+        """Fit a jump after frame m on each series; keep those that pay. (score, m, kept, fits)."""
+        fits = {}
+        score = 0.0
+        for i in idx:
+            s, st = ctx.series[i], states[i]
+            col = (s.k > m).astype(float)[:, None]
+            if col.sum() == 0 or col.sum() == s.n:
+                continue
+            nu = ctx.nuisance(i)
+            w = weights(st)
+            g = np.concatenate([col, nu], axis=1)
+            gw = g * w[:, None]
+            gtg = gw.T @ g
+            beta = np.linalg.solve(gtg, gw.T @ (s.y - st.mean))
+            new = updated(st, self.id, 1, mean=st.mean + g @ beta)
+            d_ll = gain(ctx, i, st, new)
+            if keep_series(d_ll, 1, s.n):
+                r = s.y - new.mean
+                s2 = float(np.sum(w * r * r) / max(int((w > 0).sum()) - g.shape[1], 1))
+                sd = math.sqrt(max(s2 * float(np.linalg.pinv(gtg)[0, 0]), 0.0))
+                fits[i] = (new, float(beta[0]), sd)
+                score += 2 * d_ll - math.log(s.n)
+        if not fits:
+            return None
+        return score, m, sorted(fits), fits
+
+
+EFFECT = LevelJump()
