@@ -109,6 +109,7 @@ class LevelJump(Effect):
         t_j = (m + 0.5) * ctx.dt_s
         sig_t = ctx.dt_s * max(0.5, math.sqrt(26.0) / max(snr, 1e-300))
         where = ", ".join(ctx.series[i].key for i in kept)
+        who = "the camera (all these plates at once)" if len(kept) > 1 else "one plate"
         return [
             Proposal(
                 effect=self.id,
@@ -122,7 +123,7 @@ class LevelJump(Effect):
                 band_hz=None,
                 explanation=(
                     f"The measured position of {where} steps by {size:+.3f} mm at t = {t_j:.2f} s "
-                    f"and stays there: {'the camera (all these plates at once)' if len(kept) > 1 else 'one plate'}"
+                    f"and stays there: {who}"
                     " changed its level — a structured-light re-calibration, an integration-time change or "
                     "a knock."
                 ),
