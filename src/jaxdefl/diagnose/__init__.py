@@ -1,2 +1,15 @@
 """Missing-physics diagnosis: where a recording departs from the nominal model, which physics
-was left out, its model and how much the fit improves (``jaxdefl diagnose``)."""
+was left out, its model and how much the fit improves (``jaxdefl diagnose``).
+
+Public surface:
+
+- `diagnose(traj, reference=None, sensor=None, frame_rate_hz=None, modulation_mhz=None)` -> the
+  DIAG.json dict (DESIGN.md contract).
+- `run_diagnosis(...)` -> `Diagnosis` (states before and after, for figures and reports).
+- `EFFECT_IDS`, `load_effects()`: the library of candidate effects.
+"""
+
+from ._search import ALPHA, DELTA_BIC_MAX, Diagnosis, diagnose, run_diagnosis
+from .effects import EFFECT_IDS, load_effects
+
+__all__ = ["ALPHA", "DELTA_BIC_MAX", "Diagnosis", "EFFECT_IDS", "diagnose", "load_effects", "run_diagnosis"]

@@ -30,6 +30,7 @@ parameters (see `keep_series`).
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -45,8 +46,10 @@ __all__ = [
     "rms_equivalent",
     "lstsq",
     "regress",
+    "regress_offset",
     "keep_series",
     "masked_periodogram",
+    "peak_offset",
     "LOG_2PI",
 ]
 
@@ -187,6 +190,10 @@ class Proposal:
         t_start, t_end: the located span in s since `Context.t0`.
         band_hz: [lo, hi] of the frequencies involved, or None.
         explanation: one or two sentences for a structural engineer.
+        refine: optional callable returning the proposal refitted in full (e.g. the shared
+            nonlinear parameters by `_varpro.fit_shared`), or None when the refit fails. Effects
+            screen cheaply (grids, FFTs, linear fits at the grid optimum); the search calls
+            ``refine`` only on the proposal it is about to accept, then scores it again.
     """
 
     effect: str
@@ -200,6 +207,7 @@ class Proposal:
     band_hz: list[float] | None
     explanation: str
     detail: dict = field(default_factory=dict)
+    refine: Callable[[], Proposal | None] | None = None
 
 
 @dataclass(frozen=True)
@@ -327,9 +335,27 @@ def regress(ctx: Context, i: int, st: State, y: np.ndarray, cols: np.ndarray):
     return beta[:k], cov[:k, :k], st.mean + fitted
 
 
+def regress_offset(ctx: Context, i: int, st: State, y: np.ndarray, cols: np.ndarray):
+    """As `regress`, with the offset as the only nuisance (for terms far from the loading
+    frequency, where re-estimating the harmonic would only cost time)."""
+    r = y - st.mean
+    g = np.concatenate([cols, np.ones((r.size, 1))], axis=1)
+    w = np.where(st.inlier, 1.0 / st.scale**2, 0.0)
+    beta, cov, fitted = lstsq(g, r, w)
+    k = cols.shape[1]
+    return beta[:k], cov[:k, :k], st.mean + fitted
+
+
 def keep_series(delta_loglik: float, k_own: int, n: int, margin: float = 0.0) -> bool:
     """A series stays in a proposal when its own evidence pays for its own parameters (BIC)."""
     return 2.0 * delta_loglik > k_own * math.log(max(n, 2)) + margin
+
+
+def peak_offset(p_left: float, p_mid: float, p_right: float) -> float:
+    """Offset (in grid steps, within ±0.5) of a peak from a parabola through log powers."""
+    a, b, c = (math.log(max(v, 1e-300)) for v in (p_left, p_mid, p_right))
+    den = a - 2 * b + c
+    return float(np.clip(0.5 * (a - c) / den, -0.5, 0.5)) if den < 0 else 0.0
 
 
 def masked_periodogram(ctx: Context, i: int, r: np.ndarray, oversample: int = 1):

@@ -21,7 +21,7 @@ import numpy as np
 import optimistix as optx
 
 from .. import _jax  # noqa: F401
-from .._shapes import bucket
+from .._shapes import bucket, pow2_at_least
 
 __all__ = ["SharedFit", "fit_shared", "pad_series"]
 
@@ -64,7 +64,7 @@ def _project(g, r, w):
     gw = g * sw[:, None]
     k = g.shape[1]
     gtg = gw.T @ gw
-    gtg = gtg + _RIDGE * (jnp.trace(gtg) / k + 1e-300) * jnp.eye(k)
+    gtg = gtg + (_RIDGE * jnp.trace(gtg) / k + 1e-30) * jnp.eye(k)
     beta = jnp.linalg.solve(gtg, gw.T @ (r * sw))
     return beta, sw * r - gw @ beta
 
@@ -77,8 +77,9 @@ def _solver(columns_fn: Callable, max_steps: int):
     if key in _SOLVERS:
         return _SOLVERS[key]
 
-    def residual(theta, args):
-        t, r, w, nu, aux = args
+    def residual(u, args):
+        theta0, scale, t, r, w, nu, aux = args
+        theta = theta0 + u * scale
 
         def one(t, r, w, nu, aux):
             g = jnp.concatenate([columns_fn(theta, t, aux), nu], axis=1)
@@ -87,12 +88,17 @@ def _solver(columns_fn: Callable, max_steps: int):
         return jax.vmap(one)(t, r, w, nu, aux)
 
     @jax.jit
-    def solve(theta0, t, r, w, nu, aux):
-        args = (t, r, w, nu, aux)
-        solver = optx.LevenbergMarquardt(rtol=1e-8, atol=1e-10)
-        sol = optx.least_squares(residual, solver, theta0, args=args, max_steps=max_steps, throw=False)
-        theta = sol.value
-        jac = jax.jacfwd(lambda th: residual(th, args).reshape(-1))(theta)
+    def solve(theta0, scale, t, r, w, nu, aux):
+        args = (theta0, scale, t, r, w, nu, aux)
+        # θ in units of ``scale`` (about one σ or one resolution step): tolerances mean the same
+        # for every parameter, and a start from the signature's grid converges in a few steps.
+        solver = optx.LevenbergMarquardt(rtol=1e-6, atol=1e-3)
+        sol = optx.least_squares(
+            residual, solver, jnp.zeros_like(theta0), args=args, max_steps=max_steps, throw=False
+        )
+        u = sol.value
+        theta = theta0 + u * scale
+        jac = jax.jacfwd(lambda v: residual(v, args).reshape(-1))(u) / scale[None, :]
 
         def one(t, r, w, nu, aux):
             g = jnp.concatenate([columns_fn(theta, t, aux), nu], axis=1)
@@ -116,7 +122,8 @@ def fit_shared(
     w: list[np.ndarray],
     nuisance: list[np.ndarray],
     aux: dict | None = None,
-    max_steps: int = 60,
+    scale: np.ndarray | None = None,
+    max_steps: int = 40,
 ) -> SharedFit:
     """Fit shared θ and per-series amplitudes by variable projection (Levenberg-Marquardt).
 
@@ -128,21 +135,29 @@ def fit_shared(
         nuisance: per series (sample, q) free columns (`Context.nuisance`), same q for all.
         aux: {name: per-series list of (sample,) arrays or (series,) scalars} passed to
             ``columns_fn`` as a dict for the one series (e.g. the harmonic's phase angle).
+        scale: (p,) typical size of a step in θ (one σ or one grid step); default |θ0| or 1.
     """
+    n_series = len(t)
+    theta0 = np.asarray(theta0, np.float64)
+    scale = np.where(theta0 != 0, np.abs(theta0), 1.0) if scale is None else np.asarray(scale, np.float64)
     width = bucket(max(a.size for a in t))
-    tp, rp, wp = (pad_series(x, width) for x in (t, r, w))
-    nup = pad_series(nuisance, width)
+    # Pad the series axis to a power of two with weightless series: few shapes to compile.
+    extra = pow2_at_least(n_series) - n_series
+    pad = [np.zeros(1)] * extra
+    tp, rp, wp = (pad_series(list(x) + pad, width) for x in (t, r, w))
+    nup = pad_series(list(nuisance) + [np.zeros((1, nuisance[0].shape[1]))] * extra, width)
     auxp = {}
     for name, vals in (aux or {}).items():
         if np.ndim(vals[0]) == 0:
-            auxp[name] = np.asarray(vals, np.float64)
+            auxp[name] = np.asarray(list(vals) + [0.0] * extra, np.float64)
         else:
-            auxp[name] = pad_series([np.asarray(v, np.float64) for v in vals], width)
+            auxp[name] = pad_series([np.asarray(v, np.float64) for v in vals] + pad, width)
     solve = _solver(columns_fn, max_steps)
     theta, jtj, beta, rss, ginv, fitted, ok = solve(
-        jnp.asarray(np.asarray(theta0, np.float64)), tp, rp, wp, nup, auxp
+        jnp.asarray(theta0), jnp.asarray(scale), tp, rp, wp, nup, auxp
     )
     theta, jtj, beta, rss, ginv, fitted = (np.asarray(a) for a in (theta, jtj, beta, rss, ginv, fitted))
+    beta, rss, ginv, fitted = beta[:n_series], rss[:n_series], ginv[:n_series], fitted[:n_series]
     k = beta.shape[1] - nup.shape[2]
     n_used = sum(int((x > 0).sum()) for x in w)
     dof = max(n_used - theta.size - beta.size, 1)

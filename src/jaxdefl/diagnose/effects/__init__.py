@@ -6,7 +6,7 @@ import importlib
 
 from .._base import Effect
 
-__all__ = ["EFFECTS", "EFFECT_IDS"]
+__all__ = ["EFFECT_IDS", "load_effects"]
 
 EFFECT_IDS = (
     "motion_artefact",
@@ -23,7 +23,8 @@ EFFECT_IDS = (
 )
 
 
-def _load() -> dict[str, Effect]:
+def load_effects() -> dict[str, Effect]:
+    """{id: effect} of the library, in the order of `EFFECT_IDS`."""
     out = {}
     for name in EFFECT_IDS:
         try:
@@ -34,6 +35,3 @@ def _load() -> dict[str, Effect]:
             continue
         out[name] = mod.EFFECT
     return out
-
-
-EFFECTS: dict[str, Effect] = _load()

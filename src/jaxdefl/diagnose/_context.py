@@ -1,0 +1,205 @@
+"""Build the diagnosis context: series on the frame clock, nominal harmonics (the engine's
+Gauss-Newton fits), the reference's harmonics and the tied nominal of plates with an LDS."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pandas as pd
+
+from .._errors import ConfigError, InputError
+from ..fit import estimate_windows
+from ..io import validate_trajectory
+from ..series import make_windows
+from ..series.windows import frame_clock, windows_like
+from ._base import Context, Harmonic, Series, State, lstsq
+
+__all__ = ["build_context", "SENSORS"]
+
+SENSORS = ("tof", "structured_light")
+MIN_SAMPLES = 64
+
+
+def _harmonic_rows(est: pd.DataFrame, t0: float) -> dict[tuple[int, str], Harmonic]:
+    out = {}
+    for row in est.itertuples():
+        if row.status != "converged":
+            continue
+        om = 2 * math.pi * row.f0_hz
+        out[(int(row.plate), row.axis)] = Harmonic(
+            omega=om,
+            C=row.amplitude_mm * math.cos(row.phase_rad),
+            D=row.amplitude_mm * math.sin(row.phase_rad),
+            offset=row.offset_mm,
+            t_ref=0.5 * (row.t_start + row.t_end) - t0,
+            sigma_omega=2 * math.pi * row.sigma_f0_hz,
+            sigma_amplitude=row.sigma_amplitude_mm,
+        )
+    return out
+
+
+def _linear_harmonic(t: np.ndarray, y: np.ndarray, omega: float, t_ref: float) -> Harmonic:
+    """Offset, C, D at a given frequency (a series whose own peak was not significant)."""
+    a = omega * (t - t_ref)
+    beta, cov, _ = lstsq(np.stack([np.cos(a), np.sin(a), np.ones_like(t)], axis=1), y)
+    return Harmonic(omega, float(beta[0]), float(beta[1]), float(beta[2]), t_ref)
+
+
+def _tied_offset(s: Series, h: Harmonic) -> Harmonic:
+    return Harmonic(h.omega, h.C, h.D, float(np.mean(s.y - h.motion(s.t))), h.t_ref, h.sigma_omega)
+
+
+def build_context(
+    traj: pd.DataFrame,
+    reference: pd.DataFrame | None = None,
+    sensor: str | None = None,
+    frame_rate_hz: float | None = None,
+    modulation_mhz: float | None = None,
+    tap_offsets: tuple[float, ...] | None = None,
+    segment: str | None = None,
+    axes: tuple[str, ...] | None = None,
+    source: str = "<table>",
+) -> tuple[Context, list[State], list[str]]:
+    """Validate the tables, fit the nominal model and return (context, nominal states, notes).
+
+    Raises:
+        ConfigError: an unknown sensor, a non-positive frame rate, several segments without
+            ``segment`` or an unknown one.
+        InputError: a table that breaks the trajectory contract (see `validate_trajectory`).
+    """
+    if sensor is not None and sensor not in SENSORS:
+        raise ConfigError(f"--sensor: expected one of {', '.join(SENSORS)}, got {sensor!r}")
+    if frame_rate_hz is not None and not frame_rate_hz > 0:
+        raise ConfigError(f"--frame-rate: expected a positive rate in Hz, got {frame_rate_hz}")
+    if modulation_mhz is not None and not modulation_mhz > 0:
+        raise ConfigError(f"--modulation-mhz: expected a positive frequency in MHz, got {modulation_mhz}")
+    df = validate_trajectory(traj, source)
+    segs = list(dict.fromkeys(df["segment"]))
+    if segment is None and len(segs) > 1:
+        raise ConfigError(
+            f"{source}: the table has {len(segs)} segments ({', '.join(map(str, segs[:5]))}"
+            f"{', ...' if len(segs) > 5 else ''}); choose one with --segment"
+        )
+    if segment is not None:
+        if segment not in segs:
+            raise ConfigError(
+                f"--segment: {segment!r} is not in {source} (it has {', '.join(map(str, segs))})"
+            )
+        df = df[df["segment"] == segment]
+    axes = tuple(a for a in ("z", "x", "y") if a in df.columns) if axes is None else axes
+    notes: list[str] = []
+    t0 = float(df["t"].min())
+    t_all = np.unique(df["t"].to_numpy() - t0)
+    if t_all.size < MIN_SAMPLES:
+        raise InputError(f"{source}: {t_all.size} timestamps, the diagnosis needs at least {MIN_SAMPLES}")
+    dt, k_all, on_clock = frame_clock(t_all)
+    if not on_clock:
+        notes.append("timestamps are not on a regular frame clock; spectra use the nearest frame")
+    duration = float(t_all[-1] - t_all[0])
+    n_frames = int(k_all.max()) + 1
+
+    w = make_windows(df, axes=axes, window_s=None)
+    est = estimate_windows(w).table
+    free = _harmonic_rows(est, t0)
+    if not free:
+        raise InputError(f"{source}: no plate and axis shows a significant periodic motion to diagnose")
+    f0 = float(
+        np.median([h.f0_hz for (p, a), h in free.items() if a == "z"] or [h.f0_hz for h in free.values()])
+    )
+
+    series: list[Series] = []
+    frees: list[Harmonic] = []
+    for plate, g in df.groupby("plate", sort=True):
+        t = g["t"].to_numpy() - t0
+        k = np.rint(t / dt).astype(np.int64)
+        for axis in axes:
+            y = g[axis].to_numpy()
+            ok = np.isfinite(y)
+            if ok.sum() < MIN_SAMPLES:
+                notes.append(f"plate {plate} {axis}: {int(ok.sum())} samples, left out")
+                continue
+            s = Series(int(plate), axis, t[ok], y[ok], k[ok])
+            h = free.get((int(plate), axis))
+            if h is None:
+                h = _linear_harmonic(s.t, s.y, 2 * math.pi * f0, 0.5 * duration)
+                notes.append(
+                    f"plate {plate} {axis}: no significant peak of its own; harmonic at f0 = {f0:.4f} Hz"
+                )
+            series.append(s)
+            frees.append(h)
+
+    ref_series: dict[int, Series] = {}
+    ref_harm: dict[int, Harmonic] = {}
+    if reference is not None:
+        ref = validate_trajectory(reference, "--reference", required=("t", "plate", "z"))
+        ref = ref[(ref["t"] >= t0 + t_all[0]) & (ref["t"] <= t0 + t_all[-1])]
+        cam_plates = {s.plate for s in series if s.axis == "z"}
+        ref = ref[ref["plate"].isin(cam_plates)]
+        # The LDS samples far faster than the camera (300 Hz, 2 µm): every m-th sample keeps
+        # ~8 samples per loading cycle at full precision and costs a fraction of the fit.
+        if len(ref) > 1:
+            dt_ref = float(np.median(np.diff(ref["t"].to_numpy()[: min(len(ref), 10000)])))
+            step = max(1, int(1.0 / (8 * f0 * dt_ref))) if dt_ref > 0 else 1
+            ref = ref[ref.groupby("plate").cumcount().to_numpy() % step == 0]
+        if ref.empty:
+            notes.append("the reference has no plate of the camera table within its time span")
+        else:
+            like = w.table[w.table["axis"] == "z"]
+            rw = windows_like(ref, like)
+            rest = estimate_windows(rw).table
+            for (plate, _), h in _harmonic_rows(rest, t0).items():
+                g = ref[ref["plate"] == plate]
+                tr = g["t"].to_numpy() - t0
+                ref_series[plate] = Series(
+                    plate, "z", tr, g["z"].to_numpy(), np.rint(tr / dt).astype(np.int64)
+                )
+                ref_harm[plate] = h
+            for plate in sorted(set(ref["plate"].unique()) - set(ref_harm)):
+                notes.append(f"reference plate {plate}: no significant motion in the LDS; not used")
+
+    nominal: list[Harmonic] = []
+    states: list[State] = []
+    for i, (s, h) in enumerate(zip(series, frees, strict=True)):
+        if s.axis == "z" and s.plate in ref_harm:
+            hr = ref_harm[s.plate]
+            if math.cos(hr.phase - h.phase - hr.omega * (h.t_ref - hr.t_ref)) < 0:
+                notes.append(
+                    f"reference plate {s.plate}: the LDS moves against the camera's z; its sign is flipped"
+                )
+                hr = Harmonic(
+                    hr.omega, -hr.C, -hr.D, -hr.offset, hr.t_ref, hr.sigma_omega, hr.sigma_amplitude
+                )
+                ref_harm[s.plate] = hr
+            series[i] = s = Series(s.plate, s.axis, s.t, s.y, s.k, tied=True)
+            h_nom = _tied_offset(s, hr)
+            n_params = 1
+        else:
+            h_nom = h
+            n_params = 4
+        nominal.append(h_nom)
+        states.append(
+            State(
+                mean=h_nom(s.t),
+                scale=np.ones(s.n),
+                inlier=np.ones(s.n, bool),
+                n_params=n_params,
+            )
+        )
+    ctx = Context(
+        series=series,
+        nominal=nominal,
+        free=frees,
+        reference=ref_series,
+        reference_harmonic=ref_harm,
+        t0=t0,
+        duration_s=duration,
+        dt_s=float(dt),
+        n_frames=n_frames,
+        f0_hz=f0,
+        sensor=sensor,
+        frame_rate_hz=float(frame_rate_hz) if frame_rate_hz else 1.0 / float(dt),
+        modulation_mhz=modulation_mhz,
+        tap_offsets=tuple(tap_offsets) if tap_offsets is not None else (0.0, 0.25, 0.5, 0.75),
+    )
+    return ctx, states, notes

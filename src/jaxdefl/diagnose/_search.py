@@ -1,0 +1,341 @@
+"""The search: nominal model → residual structure → candidate effects → selection → report.
+
+Forward selection, one effect per round. Every applicable effect screens the current residuals
+and proposes (cheaply: grids, FFTs, linear fits); proposals are scored by
+
+    ΔBIC = −2 Δlog L + k log N     (N: all samples of the record, k: parameters added)
+
+with log L from `_base.loglik` (so mean terms and noise models are scored alike). The best
+proposal is refitted in full (its ``refine``, optimistix), scored again, and accepted when
+ΔBIC < −10 (very strong evidence, Kass & Raftery), its signature's p-value survives Bonferroni
+over the effects tested in the round (α = 0.01), and the likelihood-equivalent RMS of the
+series it touches goes down. Rounds continue until nothing passes. Then the residuals of every
+series are tested for whiteness (`_whiteness`); what fails is reported as unexplained, located.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from .._errors import JaxdeflError
+from ._base import Context, Proposal, State, loglik, rms_equivalent
+from ._context import build_context
+from ._whiteness import combined_p, residual_tests
+from .effects import EFFECT_IDS, load_effects
+
+__all__ = ["Diagnosis", "run_diagnosis", "diagnose", "DELTA_BIC_MAX", "ALPHA", "MAX_EFFECTS"]
+
+DELTA_BIC_MAX = -10.0
+ALPHA = 0.01
+MAX_EFFECTS = 8
+
+
+@dataclass
+class Accepted:
+    proposal: Proposal
+    delta_bic: float
+    rms_before: float
+    rms_after: float
+    before: dict[int, State]
+
+
+@dataclass
+class Diagnosis:
+    """The outcome: context, nominal and final states, accepted effects, residual tests."""
+
+    ctx: Context
+    nominal: list[State]
+    final: list[State]
+    accepted: list[Accepted]
+    cannot_tell: list[dict]
+    notes: list[str]
+    tests_nominal: list[dict]
+    tests_final: list[dict]
+    seconds: float
+    rounds: list[list[dict]] = field(default_factory=list)
+
+    # --- summaries --------------------------------------------------------------------------
+    def _summary(self, states: list[State], tests: list[dict]) -> dict:
+        ll = [loglik(s.y, st) for s, st in zip(self.ctx.series, states, strict=True)]
+        n_tot = sum(s.n for s in self.ctx.series)
+        k_tot = sum(st.n_params for st in states)
+        p = [combined_p(t) for t in tests]
+        return {
+            "rms_mm": rms_equivalent(float(np.sum(ll)), n_tot),
+            "bic": float(-2 * np.sum(ll) + k_tot * math.log(n_tot)),
+            "whiteness_p": float(min(1.0, len(p) * min(p))) if p else 1.0,
+            "n_params": int(k_tot),
+            "n_samples": int(n_tot),
+        }
+
+    def unexplained(self) -> list[dict]:
+        """Residual structure left by the final model, grouped by test and location."""
+        ctx = self.ctx
+        m = len(ctx.series)
+        groups: dict[tuple, dict] = {}
+        for i, tests in enumerate(self.tests_final):
+            s = ctx.series[i]
+            for name, v in tests.items():
+                p = min(1.0, v["p"] * len(tests) * m)
+                if p >= ALPHA:
+                    continue
+                if v["band_hz"] is not None and name == "spectrum":
+                    centre = 0.5 * (v["band_hz"][0] + v["band_hz"][1])
+                    key = (name, round(centre * ctx.duration_s / 2))
+                else:
+                    key = (name,)
+                g = groups.setdefault(
+                    key,
+                    {
+                        "test": name,
+                        "plates": set(),
+                        "axes": set(),
+                        "p_value": 1.0,
+                        "band_hz": v["band_hz"],
+                        "times": [],
+                    },
+                )
+                g["plates"].add(s.plate)
+                g["axes"].add(s.axis)
+                g["p_value"] = min(g["p_value"], p)
+                if v["t"] is not None:
+                    g["times"].append(v["t"])
+        out = []
+        for g in groups.values():
+            times = g.pop("times")
+            t_lo = min(times) if times else 0.0
+            t_hi = max(times) if times else ctx.duration_s
+            out.append(
+                {
+                    "test": g["test"],
+                    "plates": sorted(g["plates"]),
+                    "axes": sorted(g["axes"]),
+                    "t_start": ctx.t0 + t_lo,
+                    "t_end": ctx.t0 + t_hi,
+                    "band_hz": g["band_hz"],
+                    "p_value": g["p_value"],
+                    "description": _UNEXPLAINED[g["test"]],
+                }
+            )
+        return sorted(out, key=lambda u: u["p_value"])
+
+    def to_json(self) -> dict:
+        """The DIAG.json contract of DESIGN.md (plus inputs, notes and what cannot be told)."""
+        ctx = self.ctx
+        effects = []
+        for a in self.accepted:
+            p = a.proposal
+            effects.append(
+                {
+                    "id": p.effect,
+                    "plates": sorted({ctx.series[i].plate for i in p.series}),
+                    "axes": sorted({ctx.series[i].axis for i in p.series}),
+                    "t_start": ctx.t0 + p.t_start,
+                    "t_end": ctx.t0 + p.t_end,
+                    "band_hz": p.band_hz,
+                    "parameters": _jsonable(p.parameters),
+                    "delta_bic": a.delta_bic,
+                    "rms_before_mm": a.rms_before,
+                    "rms_after_mm": a.rms_after,
+                    "p_value": p.p_value,
+                    "explanation": p.explanation,
+                    "series": [ctx.series[i].key for i in p.series],
+                    "detail": _jsonable(p.detail),
+                }
+            )
+        nominal = self._summary(self.nominal, self.tests_nominal)
+        nominal["series"] = [
+            {
+                "plate": s.plate,
+                "axis": s.axis,
+                "n": s.n,
+                "tied_to_reference": s.tied,
+                "f0_hz": h.f0_hz,
+                "amplitude_mm": h.amplitude,
+                "offset_mm": h.offset,
+                "rms_mm": float(np.sqrt(np.mean((s.y - st.mean) ** 2))),
+            }
+            for s, h, st in zip(ctx.series, ctx.nominal, self.nominal, strict=True)
+        ]
+        return _jsonable(
+            {
+                "input": {
+                    "plates": ctx.plates,
+                    "axes": sorted({s.axis for s in ctx.series}),
+                    "n_series": len(ctx.series),
+                    "t_start": ctx.t0,
+                    "duration_s": ctx.duration_s,
+                    "frame_interval_s": ctx.dt_s,
+                    "f0_hz": ctx.f0_hz,
+                    "sensor": ctx.sensor,
+                    "frame_rate_hz": ctx.frame_rate_hz,
+                    "modulation_mhz": ctx.modulation_mhz,
+                    "reference_plates": sorted(ctx.reference_harmonic),
+                },
+                "nominal": nominal,
+                "effects": effects,
+                "unexplained": self.unexplained(),
+                "final": self._summary(self.final, self.tests_final),
+                "cannot_tell": self.cannot_tell,
+                "notes": self.notes,
+                "seconds": self.seconds,
+            }
+        )
+
+
+_UNEXPLAINED = {
+    "spectrum": "a spectral line in the residual that no candidate effect explains",
+    "mean_shift": "a slow change of the residual's mean (drift, jump or modulation) that no candidate explains",
+    "variance_shift": "the noise level changes with time beyond what the model allows",
+    "tails": "heavier tails than Gaussian noise (outliers or a mixture) that no candidate explains",
+    "variance_vs_phase": "the noise depends on the motion phase beyond what the model allows",
+}
+
+
+def _jsonable(x):
+    if isinstance(x, dict):
+        return {str(k): _jsonable(v) for k, v in x.items()}
+    if isinstance(x, list | tuple):
+        return [_jsonable(v) for v in x]
+    if isinstance(x, np.generic):
+        x = x.item()
+    if isinstance(x, float) and not math.isfinite(x):
+        return None
+    if isinstance(x, np.ndarray):
+        return _jsonable(x.tolist())
+    return x
+
+
+def _score(ctx: Context, states: list[State], p: Proposal, n_total: int) -> tuple[float, float, float]:
+    """(ΔBIC, RMS before, RMS after) of a proposal; RMS likelihood-equivalent over its series."""
+    ll0 = ll1 = 0.0
+    n = 0
+    for i in p.series:
+        y = ctx.series[i].y
+        ll0 += loglik(y, states[i])
+        ll1 += loglik(y, p.states[i])
+        n += ctx.series[i].n
+    if not (math.isfinite(ll0) and math.isfinite(ll1)) or n == 0:
+        return math.inf, math.nan, math.nan
+    dbic = -2.0 * (ll1 - ll0) + p.n_params * math.log(n_total)
+    return dbic, rms_equivalent(ll0, n), rms_equivalent(ll1, n)
+
+
+def _passes(dbic: float, rms0: float, rms1: float, p_value: float, n_tests: int) -> bool:
+    return dbic < DELTA_BIC_MAX and rms1 < rms0 and p_value * n_tests < ALPHA
+
+
+def run_diagnosis(
+    traj: pd.DataFrame,
+    reference: pd.DataFrame | None = None,
+    sensor: str | None = None,
+    frame_rate_hz: float | None = None,
+    modulation_mhz: float | None = None,
+    tap_offsets: tuple[float, ...] | None = None,
+    segment: str | None = None,
+    effects: tuple[str, ...] | None = None,
+    source: str = "<table>",
+    on_round=None,
+) -> Diagnosis:
+    """Diagnose a trajectory table (DESIGN.md contract) against the nominal model.
+
+    Args:
+        traj: the camera's trajectory table; reference: an LDS table (t, plate, z) or None.
+        sensor, frame_rate_hz, modulation_mhz, tap_offsets: what the user knows of the camera.
+        segment: the segment to diagnose when the table has several.
+        effects: restrict the library to these ids (default: all).
+        on_round: optional callback(round number, accepted effect id or None).
+    """
+    start = time.perf_counter()
+    ctx, nominal, notes = build_context(
+        traj, reference, sensor, frame_rate_hz, modulation_mhz, tap_offsets, segment, source=source
+    )
+    library = load_effects()
+    if effects is not None:
+        unknown = [e for e in effects if e not in EFFECT_IDS]
+        if unknown:
+            raise JaxdeflError(
+                f"--effects: unknown effect {unknown[0]!r} (expected one of {', '.join(EFFECT_IDS)})"
+            )
+        library = {k: v for k, v in library.items() if k in effects}
+    cannot_tell = []
+    usable = {}
+    for eid, eff in library.items():
+        why = eff.cannot_tell(ctx)
+        if why is None:
+            usable[eid] = eff
+        else:
+            cannot_tell.append({"id": eid, "reason": why})
+    missing = [e for e in (effects or EFFECT_IDS) if e not in library]
+    for eid in missing:
+        cannot_tell.append({"id": eid, "reason": "not in this installation's effect library"})
+
+    n_total = sum(s.n for s in ctx.series)
+    states = list(nominal)
+    accepted: list[Accepted] = []
+    rounds: list[list[dict]] = []
+    for r in range(MAX_EFFECTS):
+        props: list[tuple[float, float, float, Proposal]] = []
+        for eff in usable.values():
+            for p in eff.propose(ctx, states):
+                if p.series:
+                    props.append((*_score(ctx, states, p, n_total), p))
+        n_tests = max(len(usable), 1)
+        rounds.append(
+            [
+                {"effect": p.effect, "delta_bic": d, "p_value": p.p_value, "series": len(p.series)}
+                for d, _, _, p in props
+            ]
+        )
+        props.sort(key=lambda x: x[0])
+        chosen = None
+        for dbic, rms0, rms1, p in props:
+            if not _passes(dbic, rms0, rms1, p.p_value, n_tests):
+                continue
+            if p.refine is not None:
+                q = p.refine()
+                if q is not None:
+                    d2, r0, r1 = _score(ctx, states, q, n_total)
+                    if _passes(d2, r0, r1, q.p_value, n_tests):
+                        dbic, rms0, rms1, p = d2, r0, r1, q
+            chosen = Accepted(p, dbic, rms0, rms1, {i: states[i] for i in p.series})
+            break
+        if on_round is not None:
+            on_round(r, chosen.proposal.effect if chosen else None)
+        if chosen is None:
+            break
+        accepted.append(chosen)
+        for i in chosen.proposal.series:
+            states[i] = chosen.proposal.states[i]
+
+    tests_nominal = [residual_tests(ctx, i, st) for i, st in enumerate(nominal)]
+    tests_final = [residual_tests(ctx, i, st) for i, st in enumerate(states)]
+    return Diagnosis(
+        ctx=ctx,
+        nominal=nominal,
+        final=states,
+        accepted=accepted,
+        cannot_tell=cannot_tell,
+        notes=notes,
+        tests_nominal=tests_nominal,
+        tests_final=tests_final,
+        seconds=time.perf_counter() - start,
+        rounds=rounds,
+    )
+
+
+def diagnose(
+    traj: pd.DataFrame,
+    reference: pd.DataFrame | None = None,
+    sensor: str | None = None,
+    frame_rate_hz: float | None = None,
+    modulation_mhz: float | None = None,
+    **kw,
+) -> dict:
+    """`run_diagnosis` returning the DIAG.json dict (DESIGN.md contract)."""
+    return run_diagnosis(traj, reference, sensor, frame_rate_hz, modulation_mhz, **kw).to_json()
