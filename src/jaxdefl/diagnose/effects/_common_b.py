@@ -372,7 +372,11 @@ class Carriers:
     −a sin(arg) (phase modulation: y += −a δφ(t) sin arg), arg from the nominal harmonic.
     """
 
-    def __init__(self, ctx: Context, states: list[State], min_snr: float = 10.0):
+    def __init__(
+        self, ctx: Context, states: list[State], min_snr: float = 10.0, tied_phase_trend: bool = False
+    ):
+        """``tied_phase_trend``: the scans also project a phase trend (a clock rate, which is
+        `timing_error`'s) out of the tied series."""
         self.ctx = ctx
         self.items: list[_Carrier] = []
         for i, s in enumerate(ctx.series):
@@ -383,7 +387,10 @@ class Carriers:
             arg = h.argument(s.t)
             c, sn = np.cos(arg), np.sin(arg)
             one = np.ones_like(s.t)
-            scan = Block(np.stack([one, c, sn], axis=1), w, r)
+            cols = [one, c, sn]
+            if tied_phase_trend and s.tied:
+                cols.append(sn * (s.t - 0.5 * ctx.duration_s))
+            scan = Block(np.stack(cols, axis=1), w, r)
             # σ_A ≈ σ̂ sqrt(2 / Σw): the amplitude must stand well above it
             if not a * math.sqrt(0.5 * float(w.sum()) / scan.s2) >= min_snr:
                 continue
