@@ -41,8 +41,12 @@ Magnitudes (`draw_effect`): "below the raw noise": the effect's RMS contribution
 what the nominal model absorbs (offset, the harmonic and a small change of its frequency; for the
 reference-tied effects only the offset), is 0.1-0.6 σ of the series it touches (log-uniform), and
 large enough for statistics: the likelihood signal S = Σ n·rms²/σ² over the affected series is at
-least `SIGNAL_MIN`. Noise-structure effects use m in 0.15-0.4; the timing effects use the physical
-ranges (offset 2-10 ms, late; rate 20-200 ppm, either sign).
+least `SIGNAL_MIN`. Whatever the RMS, nothing may show by eye: a drift or jump at most σ, an
+amplitude envelope within ±25 %, a phase wobble within 0.5 rad. Noise-structure effects use m in
+0.15-0.4; outliers 0.2-1 % of the samples at 4-12 σ. The reference-tied effects use the physical
+ranges: the taps spread over 0.4-1 frame period; timestamps late by 2-10 ms; a clock rate of
+20-200 ppm (either sign) but as small as the RMS target asks (20-40 ppm for 15-20 minutes: larger
+rates put the camera-LDS mismatch far above the raw noise).
 
 Public surface: `EFFECT_IDS`, `RecordingSpec`, `random_spec`, `draw_effect`, `make_recording`,
 `make_case`, `primary_parameters`.
@@ -412,9 +416,11 @@ def _absorbed_rms(base: _Base, t: np.ndarray, delta: np.ndarray, tied: bool) -> 
     if tied:
         return np.sqrt(np.mean((delta - delta.mean(axis=0)) ** 2, axis=0))
     tc = (t - 0.5 * (t[0] + t[-1])) / max(0.5 * (t[-1] - t[0]), 1e-9)
-    trel = t - t[0]
-    c, s = np.cos(base.omega * trel), np.sin(base.omega * trel)
-    x = np.stack([np.ones_like(t), c, s, tc * c, tc * s], axis=1)
+    arg = base.omega * (t - t[0]) - base.phase
+    c, s = np.cos(arg), np.sin(arg)
+    # offset, the harmonic, and a frequency change: d/dω of A cos(ω t − φ) is −A t sin(ω t − φ), in
+    # quadrature with the motion (an amplitude trend t cos(ω t − φ) is not absorbed)
+    x = np.stack([np.ones_like(t), c, s, tc * s], axis=1)
     coef, *_ = np.linalg.lstsq(x, delta, rcond=None)
     return np.sqrt(np.mean((delta - x @ coef) ** 2, axis=0))
 
@@ -471,16 +477,26 @@ def _adjacent(rng: np.random.Generator, n_plates: int, k: int) -> list[int]:
     return list(range(start, start + k))
 
 
-def _fit_magnitude(base: _Base, e: dict, key: str, target: float, signal_min: float) -> dict:
-    """Scale ``parameters[key]`` so that r = target (and S >= signal_min); secant on the log."""
+def _fit_magnitude(
+    base: _Base,
+    e: dict,
+    key: str,
+    target: float,
+    signal_min: float,
+    bounds: tuple[float, float] = (0.0, math.inf),
+) -> dict:
+    """Scale ``parameters[key]`` so that r = target (and S >= signal_min), its magnitude kept
+    within ``bounds`` (the bounds win); a few multiplicative secant steps."""
     p = e["parameters"]
-    for _ in range(6):
+    for _ in range(8):
         r, s = effect_strength(base, e)
-        want = max(target, r * math.sqrt(signal_min / s)) if s > 0 else target
         if r <= 0:
             break
-        factor = want / r
-        p[key] = p[key] * factor
+        want = max(target, r * math.sqrt(signal_min / s)) if s > 0 else target
+        mag = abs(p[key]) * want / r
+        mag = min(max(mag, bounds[0]), bounds[1])
+        factor = mag / abs(p[key])
+        p[key] = math.copysign(mag, p[key])
         if abs(factor - 1.0) < 1e-3:
             break
     return e
@@ -530,12 +546,13 @@ def draw_effect(
         )
         return e | {"id": effect_id}
     if effect_id == "timing_error":
-        if rng.random() < 0.5:
-            e = dict(kind="offset", parameters={"offset_s": float(rng.uniform(0.002, 0.010))})
-        else:
-            sign = float(rng.choice([-1.0, 1.0]))
-            e = dict(kind="rate", parameters={"rate_ppm": sign * _loguniform(rng, 20.0, 200.0)})
-        return e | {"id": effect_id, "plates": everyone, "axes": list(_AXES)}
+        e = {"id": effect_id, "plates": everyone, "axes": list(_AXES)}
+        if rng.random() < 0.5:  # late timestamps (stamped on delivery): 2-10 ms
+            return e | dict(kind="offset", parameters={"offset_s": float(rng.uniform(0.002, 0.010))})
+        # a clock rate of 20-200 ppm, as small in that range as the noise target asks: over 15-20
+        # minutes a rate above ~40 ppm puts the camera-LDS mismatch above the raw noise
+        e |= dict(kind="rate", parameters={"rate_ppm": float(rng.choice([-1.0, 1.0])) * 20.0})
+        return _fit_magnitude(base, e, "rate_ppm", target, signal_min, bounds=(20.0, 200.0))
     if effect_id == "harmonic_distortion":
         plates = _adjacent(rng, n_pl, int(rng.integers(1, 4))) if rng.random() < 0.6 else everyone
         e = dict(
@@ -645,7 +662,14 @@ def draw_effect(
         )
         key = "step_mm"
     e["id"] = effect_id
-    _fit_magnitude(base, e, key, target, signal_min)
+    bounds = (0.0, math.inf)
+    if effect_id in ("drift", "level_jump"):  # a step or warm-up larger than σ would show by eye
+        bounds = (0.0, float(np.median(base.sigma[np.asarray(e["plates"]) - 1, 2])))
+    elif key in ("depth", "relative_rate_per_s"):  # an envelope changing by more than ±25 % too
+        bounds = (0.0, 0.25 if key == "depth" else 0.25 / (0.5 * base.duration))
+    elif key == "depth_rad":
+        bounds = (0.0, 0.5)
+    _fit_magnitude(base, e, key, target, signal_min, bounds)
     if effect_id == "quantization":
         e["parameters"]["offset_mm"] = float(rng.uniform(0, e["parameters"]["step_mm"]))
     return e
