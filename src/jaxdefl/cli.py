@@ -129,6 +129,48 @@ def run(
 
 
 @app.command()
+def diagnose(
+    traj: Annotated[Path, typer.Argument(help="Trajectory table (CSV or Parquet).")],
+    out: Annotated[
+        Path, typer.Option("--out", help="Diagnosis to write (JSON; OUT.md and figures beside it).")
+    ],
+    reference: Annotated[Path | None, typer.Option(help="Reference (LDS) table t, plate, z.")] = None,
+    sensor: Annotated[str | None, typer.Option(help="tof or structured_light.")] = None,
+    frame_rate: Annotated[float | None, typer.Option("--frame-rate", help="Camera frame rate, Hz.")] = None,
+    modulation_mhz: Annotated[
+        float | None, typer.Option("--modulation-mhz", help="ToF modulation frequency, MHz.")
+    ] = None,
+    config: Annotated[
+        Path | None, typer.Option(help="The simulation config (TOML) the recording is compared with.")
+    ] = None,
+    segment: Annotated[
+        str | None, typer.Option(help="The segment to diagnose (tables with several).")
+    ] = None,
+    effects: Annotated[
+        str | None, typer.Option(help="Restrict the library to these effect ids, comma separated.")
+    ] = None,
+    figures: Annotated[
+        bool, typer.Option("--figures/--no-figures", help="Write a figure per effect.")
+    ] = True,
+) -> None:
+    """Locate where a recording departs from the nominal model and name the missing physics."""
+    from . import pipeline
+
+    pipeline.diagnose_file(
+        traj,
+        out,
+        reference=reference,
+        sensor=sensor,
+        frame_rate_hz=frame_rate,
+        modulation_mhz=modulation_mhz,
+        config=config,
+        segment=segment,
+        effects=None if effects is None else tuple(e.strip() for e in effects.split(",") if e.strip()),
+        figures=figures,
+    )
+
+
+@app.command()
 def demo(
     out: Annotated[Path, typer.Option("--out", help="Report directory.")] = Path("demo_out"),
     duration: Annotated[float, typer.Option(help="Simulated duration, s.")] = 120.0,

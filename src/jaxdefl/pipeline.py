@@ -322,3 +322,79 @@ def demo(out: Path, duration_s: float = 120.0, seed: int = 1) -> None:
         timings=dict(simulate_s=t_sim, extract_s=t_extract, fit_whole_s=t_whole, fit_windows_s=t_windowed),
     )
     console.print(f"[bold]jaxdefl demo[/]: report in {report} ({time.perf_counter() - t0:.1f} s)")
+
+
+def _camera_facts(config: Path | None) -> dict:
+    """Sensor, frame rate, modulation and tap offsets from a simulation config (TOML)."""
+    if config is None:
+        return {}
+    from .simulate import load_config
+
+    cam = load_config(config).camera
+    facts = {
+        "sensor": "tof" if cam.sensor == "sr4000" else "structured_light",
+        "frame_rate_hz": cam.frame_rate_hz,
+    }
+    if cam.sensor == "sr4000":
+        facts["modulation_mhz"] = cam.modulation_mhz
+        facts["tap_offsets"] = tuple(cam.tap_offsets)
+    return facts
+
+
+def diagnose_file(
+    traj: Path,
+    out: Path,
+    reference: Path | None = None,
+    sensor: str | None = None,
+    frame_rate_hz: float | None = None,
+    modulation_mhz: float | None = None,
+    config: Path | None = None,
+    segment: str | None = None,
+    effects: tuple[str, ...] | None = None,
+    figures: bool = True,
+) -> dict:
+    """`jaxdefl diagnose`: read, diagnose, write OUT.json, OUT.md and a figure per effect.
+
+    Flags override what a simulation ``config`` says of the camera.
+    """
+    from .diagnose import run_diagnosis
+    from .report.diagnosis import write_diagnosis_report
+
+    facts = _camera_facts(config)
+    for key, val in (
+        ("sensor", sensor),
+        ("frame_rate_hz", frame_rate_hz),
+        ("modulation_mhz", modulation_mhz),
+    ):
+        if val is not None:
+            facts[key] = val
+    df = read_trajectory(traj)
+    ref = read_reference(reference) if reference is not None else None
+
+    def on_round(r: int, eid: str | None) -> None:
+        console.print(f"round {r + 1}: " + (f"located [bold]{eid}[/bold]" if eid else "nothing more to add"))
+
+    with console.status("diagnosing ..."):
+        diag = run_diagnosis(
+            df, ref, segment=segment, effects=effects, source=str(traj), on_round=on_round, **facts
+        )
+    d = diag.to_json()
+    d["settings"] = {
+        "jaxdefl_version": __version__,
+        "trajectory": str(traj),
+        "reference": str(reference) if reference else None,
+        "config": str(config) if config else None,
+        **{k: v for k, v in facts.items()},
+        "segment": segment,
+        "effects": list(effects) if effects else None,
+    }
+    out = Path(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(d, indent=2, default=str) + "\n")
+    written = write_diagnosis_report(diag, d, out, figures=figures)
+    names = ", ".join(e["id"] for e in d["effects"]) or "none"
+    console.print(
+        f"effects: {names}; unexplained: {len(d['unexplained'])}; RMS {d['nominal']['rms_mm']:.4f} -> "
+        f"{d['final']['rms_mm']:.4f} mm; {diag.seconds:.1f} s -> {out}, {written[0]}"
+    )
+    return d
