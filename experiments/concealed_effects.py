@@ -46,7 +46,10 @@ from jaxdefl.simulate.effects import EFFECT_IDS, make_case, primary_parameters
 TARGETS = {"detected": 0.90, "false_positive": 0.05, "quality": 1.0, "recovered": 1.0}
 RECOVERY_TOL = 0.25
 DELTA_BIC_MAX = -10.0
-INCOMPATIBLE = {frozenset({"motion_artefact", "timing_error"})}  # same signature against the LDS
+INCOMPATIBLE = {
+    frozenset({"motion_artefact", "timing_error"}),  # nearly the same signature against the LDS
+    frozenset({"motion_artefact", "quantization"}),  # a ToF and a structured-light property
+}
 DIAGNOSE = "jaxdefl.diagnose:diagnose"
 
 

@@ -91,6 +91,17 @@ def test_tables_hide_the_labels():
     json.dumps(truth)  # the truth is plain JSON
 
 
+def test_sensor_follows_the_effects():
+    assert (
+        make_case(2, ["motion_artefact"], minutes=1, sensor="structured_light")[2]["recording"]["sensor"]
+        == "tof"
+    )
+    _, lds, truth = make_case(2, ["quantization", "timing_error"], minutes=1)
+    assert truth["recording"]["sensor"] == "structured_light" and lds is not None
+    with pytest.raises(ValueError, match="both a ToF and a structured-light"):
+        make_case(2, ["motion_artefact", "quantization"], minutes=1)
+
+
 def test_determinism_for_a_seed():
     a = make_case(3, ["drift"], minutes=2)
     b = make_case(3, ["drift"], minutes=2)
@@ -481,7 +492,7 @@ def test_plan_has_singles_pairs_and_controls():
     assert len(singles) == 23 and len(pairs) == 7 and sum(p["kind"] == "control" for p in plan) == 20
     assert {p["effects"][0] for p in singles} == set(EFFECT_IDS)
     for p in pairs:
-        assert len(set(p["effects"])) == 2 and set(p["effects"]) != {"motion_artefact", "timing_error"}
+        assert len(set(p["effects"])) == 2 and frozenset(p["effects"]) not in bench.INCOMPATIBLE
     assert len({p["seed"] for p in plan}) == len(plan)
 
 

@@ -72,6 +72,7 @@ __all__ = [
     "EFFECT_IDS",
     "NEEDS_REFERENCE",
     "STRUCTURED_LIGHT_ONLY",
+    "TOF_ONLY",
     "SIGNAL_MIN",
     "RMS_RATIO_RANGE",
     "RecordingSpec",
@@ -97,6 +98,7 @@ EFFECT_IDS = (
 )
 NEEDS_REFERENCE = frozenset({"motion_artefact", "timing_error"})
 STRUCTURED_LIGHT_ONLY = frozenset({"quantization"})
+TOF_ONLY = frozenset({"motion_artefact"})  # four-phase sampling is a ToF property
 SIGNAL_MIN = 200.0  # Σ n rms²/σ² over the affected series (aim: >= ~150, with a margin)
 RMS_RATIO_RANGE = (0.1, 0.6)  # effect RMS / raw noise σ of the touched series
 MODULATION_RANGE = (0.15, 0.4)  # heteroscedastic noise
@@ -540,6 +542,8 @@ def draw_effect(
     psi = round(float(rng.uniform(0, 2 * math.pi)), 4)
     e: dict[str, Any]
     if effect_id == "motion_artefact":
+        if spec.sensor != "tof":
+            raise ValueError("motion_artefact: only for ToF recordings (spec.sensor)")
         t_span = float(rng.uniform(0.4, 1.0)) / spec.frame_rate_hz
         e = dict(
             kind="sequential_taps", parameters={"tap_spread_s": t_span}, plates=everyone, axes=list(_AXES)
@@ -819,12 +823,17 @@ def make_case(
 ) -> tuple[pd.DataFrame, pd.DataFrame | None, dict]:
     """A random recording (decoys from `random_spec`) with ``effect_ids`` drawn and injected.
 
-    Effects that need the reference force an LDS; quantization forces a structured-light recording.
+    Effects that need the reference force an LDS; quantization forces a structured-light recording,
+    the motion artefact a ToF one.
     """
     rng = np.random.default_rng([int(seed), 7000])
     ids = list(effect_ids)
+    if any(i in STRUCTURED_LIGHT_ONLY for i in ids) and any(i in TOF_ONLY for i in ids):
+        raise ValueError(f"effect_ids: {ids} need both a ToF and a structured-light camera")
     if any(i in STRUCTURED_LIGHT_ONLY for i in ids):
         sensor = "structured_light"
+    if any(i in TOF_ONLY for i in ids):
+        sensor = "tof"
     reference = True if any(i in NEEDS_REFERENCE for i in ids) else None
     spec = random_spec(rng, minutes=minutes, sensor=sensor, reference=reference)
     base = _Base(spec, seed)
