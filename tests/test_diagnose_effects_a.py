@@ -13,6 +13,7 @@ from jaxdefl.diagnose._base import Context, Harmonic, Series, State, loglik, lst
 
 F0 = 3.0
 OMEGA = 2 * math.pi * F0
+PHASE = 1.1  # the motion's phase: clean = level + A cos(ω t − PHASE)
 ALPHA = 0.01 / 400  # the search's Bonferroni level over ~400 tests
 
 
@@ -27,6 +28,7 @@ def make_case(
     amplitude=3.0,
     base_z=2000.0,
     dropout=0.03,
+    phase=PHASE,
 ):
     """A hand-built context: harmonic + white noise per plate and axis, with ``inject(t, p, axis,
     clean, eps, sigma) -> y`` changing what it wants; the nominal harmonic is linear LS at f0."""
@@ -34,7 +36,6 @@ def make_case(
     dt = 1.0 / fs
     n_frames = int(minutes * 60 * fs)
     k_all = np.arange(n_frames)
-    phase = rng.uniform(0, 2 * math.pi)
     series, nominal, states = [], [], []
     duration = (n_frames - 1) * dt
     t_ref = 0.5 * duration
@@ -232,4 +233,42 @@ def test_outliers_clean():
 
     for seed in range(3):
         ctx, states = make_case(seed=40 + seed, n_plates=5)
+        assert passing(ctx, states, EFFECT.propose(ctx, states)) == []
+
+
+# ---------------------------------------------------------------------------------------------
+# heteroscedastic_noise
+
+
+@pytest.mark.parametrize("kind, m, plates", [("phase", 0.3, (2, 3)), ("time", -0.25, (1, 2, 3, 4, 5))])
+def test_heteroscedastic_noise(kind, m, plates):
+    from jaxdefl.diagnose.effects.heteroscedastic_noise import EFFECT
+
+    psi = 0.8
+
+    def inject(t, p, axis, clean, eps, sig):
+        if axis != "z" or p not in plates:
+            return clean + sig * eps
+        if kind == "phase":
+            u = np.cos(OMEGA * t - PHASE - psi)
+        else:
+            u = (t - 0.5 * t[-1]) / (0.5 * t[-1])
+        return clean + sig * (1 + m * u) * eps
+
+    ctx, states = make_case(inject, seed=5, n_plates=5)
+    props = EFFECT.propose(ctx, states)
+    good = passing(ctx, states, props)
+    best = min(good, key=lambda p: delta_bic(ctx, states, p))
+    assert value(best, "kind") == kind
+    assert keys(ctx, best) == [f"{p}z" for p in plates]
+    assert close(value(best, "modulation"), m)
+    if kind == "phase":
+        assert abs(math.remainder(value(best, "phase_rad") - psi, 2 * math.pi)) < 0.3
+
+
+def test_heteroscedastic_noise_clean():
+    from jaxdefl.diagnose.effects.heteroscedastic_noise import EFFECT
+
+    for seed in range(3):
+        ctx, states = make_case(seed=50 + seed, n_plates=5)
         assert passing(ctx, states, EFFECT.propose(ctx, states)) == []
