@@ -471,8 +471,10 @@ def test_score_signs_phases_and_fallbacks():
         "axes": ["z"],
         "parameters": {"order": 3, "amplitude_mm": 0.3, "phase_rad": 1.0},
     }
-    r = bench.score_effect(hd, [_eff("harmonic_distortion", [2, 3, 4], amplitude_mm=-0.31)], 0.0)
+    r = bench.score_effect(hd, [_eff("harmonic_distortion", [2, 3, 4], order=3, amplitude_mm=-0.31)], 0.0)
     assert r["recovered"] and r["jaccard"] == pytest.approx(2 / 3)  # amplitude sign is a phase
+    r = bench.score_effect(hd, [_eff("harmonic_distortion", [2, 3], order=2, amplitude_mm=0.3)], 0.0)
+    assert r["detected"] and not r["recovered"]  # the wrong order
     r = bench.score_effect(DRIFT, [_eff("drift", list(range(1, 14)), amplitude_mm=0.4, tau_s=100.0)], 0.0)
     assert r["detected"] and not r["recovered"]  # the drift's sign matters
     rep = _eff("level_jump", [4], size_mm=0.5)

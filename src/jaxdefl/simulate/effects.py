@@ -700,7 +700,7 @@ def primary_parameters(effect: Mapping) -> dict[str, tuple[float, bool]]:
     elif eid == "timing_error":
         names = {"offset_s": True} if kind == "offset" else {"rate_ppm": True}
     elif eid == "harmonic_distortion":
-        names = {"amplitude_mm": False}
+        names = {"order": True, "amplitude_mm": False}
     elif eid == "drift":
         names = {"amplitude_mm": True, "tau_s": True}
     elif eid == "level_jump":
@@ -714,7 +714,7 @@ def primary_parameters(effect: Mapping) -> dict[str, tuple[float, bool]]:
     elif eid == "outliers":
         names = {"fraction": True, "scale_mm": True}
     elif eid == "heteroscedastic_noise":
-        names = {"modulation": False}
+        names = {"modulation": kind == "time"}  # growing noise; with the motion phase, ψ holds the sign
     elif eid == "quantization":
         names = {"step_mm": True}
     else:
