@@ -272,3 +272,34 @@ def test_heteroscedastic_noise_clean():
     for seed in range(3):
         ctx, states = make_case(seed=50 + seed, n_plates=5)
         assert passing(ctx, states, EFFECT.propose(ctx, states)) == []
+
+
+# ---------------------------------------------------------------------------------------------
+# quantization
+
+
+@pytest.mark.parametrize("q, o", [(1.0, 0.37), (0.45, 0.1)])
+def test_quantization(q, o):
+    from jaxdefl.diagnose.effects.quantization import EFFECT
+
+    def inject(t, p, axis, clean, eps, sig):
+        if axis == "z":
+            clean = q * np.round((clean - o) / q) + o
+        return clean + sig * eps
+
+    ctx, states = make_case(inject, seed=6, n_plates=5)
+    props = EFFECT.propose(ctx, states)
+    assert len(passing(ctx, states, props)) == 1
+    (prop,) = props
+    assert keys(ctx, prop) == [f"{p}z" for p in range(1, 6)]
+    assert close(value(prop, "step_mm"), q, 0.05)
+    # the levels' absolute place needs q to ~1e-5 at 2 m: only its range is checked
+    assert 0.0 <= value(prop, "offset_mm") < value(prop, "step_mm")
+
+
+def test_quantization_clean():
+    from jaxdefl.diagnose.effects.quantization import EFFECT
+
+    for seed in range(3):
+        ctx, states = make_case(seed=60 + seed, n_plates=5)
+        assert passing(ctx, states, EFFECT.propose(ctx, states)) == []

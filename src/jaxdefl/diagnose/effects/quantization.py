@@ -1,0 +1,248 @@
+"""Quantization: the measured depth moves in steps (structured-light disparity quantisation).
+
+Physical meaning: a structured-light camera measures disparity in fractions of a pixel (1/8 px on
+a Kinect), so depth comes in steps that grow as z² (Δz = z² Δd / (b f): about 1 mm at 1 m and
+4-10 mm at 2-3 m for single pixels); a plate's centroid averages many pixels at different depths
+and keeps a residual step. The signal is quantised before the sensor noise is added, so the
+residual against a smooth model is a deterministic sawtooth of the position:
+y − h = −q·saw((h − o)/q), saw(x) = x − round(x).
+
+Signature test: the residual binned by the current model value h (z series; ToF recordings are
+skipped), then for every step q of a grid uniform in 1/q (the "frequency" along h, spaced a
+quarter of a cycle over the motion's span) the first harmonic of the sawtooth, cos and sin of
+2π h/q, is regressed on the binned residual with the offset and h itself free (the harmonic's
+cosine is a function of h): a χ²_2 statistic per series, summed over the series for a common
+step. The p-value is the largest single-series statistic Bonferroni-corrected over series × the
+grid, or the summed statistic (χ²_2S) corrected over the grid, whichever is smaller (doubled).
+Then q and the staircase's phase are refined on the exact staircase: the likelihood of y against
+q·round((h − φ_s)/q) + φ_s (no free amplitude). The phase is free per series because the
+nominal offset is itself biased by the quantisation; the camera's levels o_s = φ_s + c_s (c_s the
+refitted offset) come out alike on every plate when the levels are the camera's (reported:
+their circular mean).
+
+Model term: mean = q·round((h − φ_s)/q) + φ_s plus the free nuisance refitted; q shared, φ_s per
+series (1 + S parameters). Only where the motion spans more than a step (q < 2A).
+
+Plausible magnitudes: q of 0.3-20 mm for structured light; its residual RMS is q/√12.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .._base import Context, Effect, Proposal, State, keep_series, lstsq
+from ._common_a import bonferroni, chi2_sf, gain, param, residual, touched, updated, weights
+
+__all__ = ["Quantization", "EFFECT"]
+
+Q_MIN_MM = 0.1
+Q_MAX_MM = 20.0
+BINS_PER_STEP = 16
+N_OFFSET = 48
+N_REFINE = 17
+
+
+def saw(x: np.ndarray) -> np.ndarray:
+    return x - np.round(x)
+
+
+def staircase(h: np.ndarray, q: float, o: float) -> np.ndarray:
+    return q * np.round((h - o) / q) + o
+
+
+class _Binned:
+    """A series' weighted residual binned by the model value h (bin width ``width``)."""
+
+    def __init__(self, h: np.ndarray, r: np.ndarray, w: np.ndarray, width: float):
+        lo = float(h.min())
+        b = np.floor((h - lo) / width).astype(np.int64)
+        m = int(b.max()) + 1
+        self.W = np.bincount(b, w, minlength=m)
+        self.R = np.bincount(b, w * r, minlength=m)
+        hw = np.bincount(b, w * h, minlength=m)
+        ok = self.W > 0
+        self.H = hw[ok] / self.W[ok]
+        self.W, self.R = self.W[ok], self.R[ok]
+        nu = np.stack([np.ones_like(self.H), self.H - self.H.mean()], axis=1)
+        gram = (nu * self.W[:, None]).T @ nu
+        self._nu, self._ginv = nu, np.linalg.pinv(gram)
+        # the residual with offset and h removed (sums of w r per bin)
+        coef = self._ginv @ (nu.T @ self.R)
+        self.R0 = self.R - self.W * (nu @ coef)
+        n_used = max(int((w > 0).sum()) - 3, 1)
+        self.s2 = float(np.sum(w * r * r) - self.R @ (nu @ coef)) / n_used or 1e-300
+
+    def project(self, cols: np.ndarray) -> np.ndarray:
+        """(c, bin) columns W-orthogonal to offset and h."""
+        coef = (cols * self.W[None, :]) @ self._nu @ self._ginv
+        return cols - coef @ self._nu.T
+
+    def first_harmonic(self, nu_inv_mm: np.ndarray) -> np.ndarray:
+        """(freq,) χ²_2 statistic of cos, sin(2π ν h) against the binned residual."""
+        a = 2 * np.pi * nu_inv_mm[:, None] * self.H[None, :]
+        c = self.project(np.cos(a))
+        s = self.project(np.sin(a))
+        cw, sw = c * self.W, s * self.W
+        gcc = np.sum(cw * c, axis=1)
+        gss = np.sum(sw * s, axis=1)
+        gcs = np.sum(cw * s, axis=1)
+        bc = c @ self.R0
+        bs = s @ self.R0
+        det = np.maximum(gcc * gss - gcs * gcs, 1e-300)
+        quad = (gss * bc * bc - 2 * gcs * bc * bs + gcc * bs * bs) / det
+        return quad / self.s2
+
+    def staircase_gain(self, q: np.ndarray, o: np.ndarray) -> np.ndarray:
+        """(q, o) twice the log-likelihood gain (≈ −ΔRSS/σ̂²) of the exact staircase, binned."""
+        x = (self.H[None, None, :] - o[None, :, None]) / q[:, None, None]
+        d = -q[:, None, None] * saw(x)  # staircase − h
+        flat = d.reshape(-1, self.H.size)
+        dp = self.project(flat)
+        # RSS(r − d⊥) − RSS(r) = −2 d⊥·R0 + Σ W d⊥²
+        drss = -2 * dp @ self.R0 + np.sum(self.W * dp * dp, axis=1)
+        return (-drss / self.s2).reshape(q.size, o.size)
+
+
+class Quantization(Effect):
+    id = "quantization"
+    meaning = "depth measured in steps (structured-light disparity quantisation)"
+    min_cycles = 20.0
+
+    def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
+        if ctx.sensor == "tof":
+            return []
+        idx = []
+        for i in ctx.indices("z"):
+            if touched(states[i], self.id) or ctx.series[i].n < 64:
+                continue
+            idx.append(i)
+        if not idx:
+            return []
+        spans = {i: float(np.ptp(states[i].mean)) for i in idx}
+        s2 = {}
+        for i in idx:
+            st = states[i]
+            r = residual(ctx, i, st)
+            w = weights(st)
+            s2[i] = float(np.sum(w * r * r) / max(int((w > 0).sum()), 1))
+        n_tot = sum(ctx.series[i].n for i in idx)
+        sigma = math.sqrt(float(np.median(list(s2.values()))))
+        q_min = max(Q_MIN_MM, sigma * math.sqrt(360.0 / max(n_tot / len(idx), 1.0)))
+        q_max = min(Q_MAX_MM, max(spans.values()))
+        if q_max <= q_min:
+            return []
+        width = q_min / BINS_PER_STEP
+        bins = {}
+        for i in idx:
+            st = states[i]
+            bins[i] = _Binned(st.mean, residual(ctx, i, st), weights(st), width)
+        # the grid in ν = 1/q, a quarter cycle over the largest span
+        d_nu = 1.0 / (4.0 * q_max + 4.0 * max(spans.values()))
+        nus = np.arange(1.0 / q_max, 1.0 / q_min + d_nu, d_nu)
+        stat = np.zeros((len(idx), nus.size))
+        for j, i in enumerate(idx):
+            ok = 1.0 / nus < spans[i]  # the motion spans more than a step
+            if ok.any():
+                stat[j, ok] = bins[i].first_harmonic(nus[ok])
+        total = stat.sum(axis=0)
+        p_single = bonferroni(chi2_sf(stat.max(), 2), stat.size)
+        p_total = bonferroni(chi2_sf(total.max(), 2 * len(idx)), nus.size)
+        p_value = min(1.0, 2 * min(p_single, p_total))
+        logn = np.array([math.log(ctx.series[i].n) for i in idx])
+        crit = np.maximum(stat - 2 * logn[:, None], 0.0).sum(axis=0)
+        best = None
+        for g in {int(np.argmax(total)), int(np.argmax(crit))}:
+            cand = self._refine(ctx, states, idx, bins, spans, float(1.0 / nus[g]), d_nu)
+            if cand is not None and (best is None or cand["score"] > best["score"]):
+                best = cand
+        if best is None:
+            return []
+        return [self._proposal(ctx, best, p_value)]
+
+    def _refine(self, ctx, states, idx, bins, spans, q0, d_nu) -> dict | None:
+        """(q, φ_s) on the exact staircase near q0: q shared, the staircase's phase φ_s per series.
+
+        The nominal offset is itself biased by the quantisation, so the staircase's phase is free
+        per series; the camera's absolute levels o_s = φ_s + c_s (c_s the refitted offset) should
+        then agree between plates.
+        """
+        nu0 = 1.0 / q0
+        qs = 1.0 / (nu0 + np.linspace(-d_nu, d_nu, N_REFINE))
+        fr = np.arange(N_OFFSET) / N_OFFSET  # fractions of q
+        use = [i for i in idx if spans[i] > q0]
+        if not use:
+            return None
+        gains = np.zeros((len(use), qs.size, N_OFFSET))
+        for j, i in enumerate(use):
+            for a, q in enumerate(qs):
+                gains[j, a] = bins[i].staircase_gain(np.array([q]), fr * q)[0]
+        logn_all = math.log(sum(ctx.series[i].n for i in use))
+        per = gains.max(axis=2).sum(axis=0)
+        a = int(np.argmax(per))
+        q = float(qs[a])
+        sig_q = None
+        if 0 < a < qs.size - 1:
+            d2 = (per[a - 1] - 2 * per[a] + per[a + 1]) / ((qs[a + 1] - qs[a - 1]) / 2) ** 2
+            if d2 < 0:
+                sig_q = math.sqrt(2.0 / -d2)
+        new, kept_gain, levels = {}, {}, {}
+        for j, i in enumerate(use):
+            st = states[i]
+            s = ctx.series[i]
+            phi = float(fr[int(np.argmax(gains[j, a]))] * q)
+            stair = staircase(st.mean, q, phi)
+            beta, _, fitted = lstsq(ctx.nuisance(i), s.y - stair, weights(st))
+            cand = updated(st, self.id, 1, mean=stair + fitted)
+            g = gain(ctx, i, st, cand)
+            if keep_series(g, 1, s.n):
+                new[i], kept_gain[i] = cand, g
+                levels[i] = float((phi + beta[0]) % q)
+        if not new:
+            return None
+        kept = sorted(new)
+        n_params = 1 + len(kept)
+        score = 2 * sum(kept_gain.values()) - n_params * logn_all
+        return dict(score=score, q=q, sig_q=sig_q, offsets=levels, new=new, kept=kept, n_params=n_params)
+
+    def _proposal(self, ctx: Context, best: dict, p_value: float) -> Proposal:
+        kept, q = best["kept"], best["q"]
+        offs = np.array([best["offsets"][i] for i in kept])
+        # a circular median of the offsets on the step's circle
+        ang = 2 * np.pi * offs / q
+        o = float(
+            (math.atan2(np.mean(np.sin(ang)), np.mean(np.cos(ang))) % (2 * math.pi)) * q / (2 * math.pi)
+        )
+        # the levels sit ~h/q steps from 0 mm: an error of q moves them by h·σ_q/q, so o is only
+        # determined (below a uniform's q/√12) when q is known that well
+        level = float(np.median([np.median(np.abs(best["new"][i].mean)) for i in kept]))
+        sig_o = q / math.sqrt(12.0)
+        if best["sig_q"] is not None:
+            sig_o = min(sig_o, math.hypot(level * best["sig_q"] / q, q / (2 * N_OFFSET)))
+        where = ", ".join(ctx.series[i].key for i in kept)
+        return Proposal(
+            effect=self.id,
+            series=kept,
+            states=best["new"],
+            n_params=best["n_params"],
+            p_value=p_value,
+            parameters={
+                "step_mm": param(q, best["sig_q"]),
+                "offset_mm": param(o, sig_o),
+            },
+            t_start=0.0,
+            t_end=float(ctx.duration_s),
+            band_hz=None,
+            explanation=(
+                f"The depth of {where} moves in steps of {q:.3f} mm (levels at {o:.3f} mm + k·{q:.3f} mm): "
+                "the structured-light camera measures disparity in fractions of a pixel, so a smooth "
+                "motion is recorded as a staircase."
+            ),
+            detail={
+                "offsets_mm": {ctx.series[i].key: best["offsets"][i] for i in kept},
+            },
+        )
+
+
+EFFECT = Quantization()
