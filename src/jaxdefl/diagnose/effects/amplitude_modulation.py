@@ -31,7 +31,7 @@ from ._common_b import Carriers, chi2_p_value, param, scan_p_value
 
 __all__ = ["AmplitudeModulation", "EFFECT"]
 
-P_MAX = 0.01
+P_MAX = 1e-3  # weaker signatures cannot pass the search's Bonferroni (α = 0.01 over ~10 effects)
 F_MAX_HZ = 0.2
 KINDS = 2
 
@@ -69,7 +69,7 @@ class AmplitudeModulation(Effect):
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
         if self.cannot_tell(ctx) is not None:
             return []
-        car = Carriers(ctx, states)
+        car = Carriers.cached(ctx, states)
         if not car.items:
             return []
         out = []

@@ -35,7 +35,7 @@ from .amplitude_modulation import modulation_band
 
 __all__ = ["FrequencyModulation", "EFFECT"]
 
-P_MAX = 0.01
+P_MAX = 1e-3  # weaker signatures cannot pass the search's Bonferroni (α = 0.01 over ~10 effects)
 KINDS = 2
 
 
@@ -73,11 +73,11 @@ class FrequencyModulation(Effect):
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
         if self.cannot_tell(ctx) is not None:
             return []
-        car = Carriers(ctx, states, tied_phase_trend=True)
+        car = Carriers.cached(ctx, states)
         if not car.items:
             return []
         out = []
-        stat, d0, _ = car.linear_stat("quadrature", lambda t: _quadratic(ctx, t))
+        stat, d0, _ = car.linear_stat("quadrature", lambda t: _quadratic(ctx, t), trend=True)
         p_lin = min(1.0, KINDS * chi2_p_value(stat, 1))
         if p_lin < P_MAX:
             prop = self._linear(ctx, states, car, d0, p_lin)
@@ -85,7 +85,7 @@ class FrequencyModulation(Effect):
                 out.append(prop)
         f_lo, f_hi = modulation_band(ctx)
         if f_hi > f_lo:
-            freq, power, n_ind, grid, q = car.scan("quadrature", f_lo, f_hi)
+            freq, power, n_ind, grid, q = car.scan("quadrature", f_lo, f_hi, trend=True)
             if power.size:
                 j = int(np.argmax(power))
                 p_sin = min(1.0, KINDS * scan_p_value(power[j], n_ind))

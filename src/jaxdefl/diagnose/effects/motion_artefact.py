@@ -33,7 +33,7 @@ from ._common_b import TiedModel, chi2_p_value, param, tap_response, tied_propos
 
 __all__ = ["MotionArtefact", "EFFECT"]
 
-P_MAX = 0.01  # proposals whose signature is weaker than this are not worth the search's time
+P_MAX = 1e-3  # weaker signatures cannot pass the search's Bonferroni (α = 0.01 over ~10 effects)
 
 
 class MotionArtefact(Effect):
