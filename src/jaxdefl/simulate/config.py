@@ -77,7 +77,11 @@ class PlatesConfig:
     spacing_mm: float = 250.0
     length_mm: float = 220.0
     width_mm: float = 50.0
-    height_above_top_mm: float = 20.0  # plate top face above the beam top surface
+    # Plates are bonded to the beam's side at its bottom (thesis 4.1, 6.2.1: "attached to the
+    # bottom side"), sticking out horizontally; the depth classification of 5.1.1 keeps what lies
+    # between the beam top (second threshold) and the floor (first): the plates are deeper than the
+    # top surface. Their top face sits this far below the beam top (beam height less a thin plate).
+    depth_below_top_mm: float = 295.0
     reflectivity: float = 0.9  # white-washed aluminium
 
 
@@ -126,6 +130,12 @@ class CameraConfig:
     tap_offsets: tuple[float, float, float, float] = (0.0, 0.25, 0.5, 0.75)  # x frame period
     integration_time_ms: float = 0.0  # 0: from the frame rate (Section 4.3.2)
     noise_scale: float = 1.0
+    # ToF: per-frame range error correlated across pixels (a modulation-phase offset common to the
+    # frame plus a smooth part across the image), sized so that a plate centroid's residual about
+    # the true motion matches the thesis (Tables 6.2/6.7 for cam3/cam4, 6.12/6.17 for cam2)
+    calibration: str = ""  # cam2, cam3 or cam4; "": camera.name if it is one of them, else cam2
+    centroid_residual_mm: float = -1.0  # -1: from the calibration unit's table; 0: no such error
+    correlated_spatial_fraction: float = 0.2  # share of its variance that varies across the image
     dropout_prob: float = 0.03
     scattering: float = 0.003
     supersample: int = 4
@@ -358,6 +368,19 @@ def validate(cfg: SimConfig) -> None:
         )
     if not 0.0 <= cam.dropout_prob < 1.0:
         raise _err(src, "camera.dropout_prob", "a probability in [0, 1)", cam.dropout_prob)
+    if cam.calibration not in ("", "cam2", "cam3", "cam4"):
+        raise _err(src, "camera.calibration", "one of cam2, cam3, cam4 (or empty)", cam.calibration)
+    if cam.centroid_residual_mm < 0 and cam.centroid_residual_mm != -1.0:
+        raise _err(
+            src,
+            "camera.centroid_residual_mm",
+            "a value >= 0 mm (or -1: calibrated)",
+            cam.centroid_residual_mm,
+        )
+    if not 0.0 <= cam.correlated_spatial_fraction <= 1.0:
+        raise _err(
+            src, "camera.correlated_spatial_fraction", "a fraction in [0, 1]", cam.correlated_spatial_fraction
+        )
     if cam.noise_scale < 0:
         raise _err(src, "camera.noise_scale", "a value >= 0", cam.noise_scale)
     if cam.supersample < 1:
@@ -370,6 +393,13 @@ def validate(cfg: SimConfig) -> None:
         raise _err(src, "fatigue.cycles", "two cycle counts > 0", list(cfg.fatigue.cycles))
     if cfg.lds.rate_hz <= 0:
         raise _err(src, "lds.rate_hz", "a rate > 0 Hz", cfg.lds.rate_hz)
+    if not -cfg.camera.standoff_mm < cfg.plates.depth_below_top_mm < cfg.scene.floor_below_top_mm:
+        raise _err(
+            src,
+            "plates.depth_below_top_mm",
+            f"a depth between the camera and the floor ({cfg.scene.floor_below_top_mm:g} mm below the top)",
+            cfg.plates.depth_below_top_mm,
+        )
     n = cfg.plates.count
     for key, plates in (("lds.plates", cfg.lds.plates), ("camera.plates", cam.plates)):
         bad = [p for p in plates if not 1 <= p <= n]

@@ -1,5 +1,8 @@
 """The scene: beam, plates, occluders and floor; beam kinematics; static per-pixel ray casting.
 
+The plates are bonded to the beam's side at its bottom (thesis 4.1), horizontal, sticking out
+50 mm from the side face: the nadir camera sees them between the beam top and the floor.
+
 The beam deflects with the elastic two-point-load shape (peak 1 at mid-span) scaled by the
 mid-span deflection ``defl(t) = mean + A(N(t)) sin(2 pi f0 (t - t0) + phase)``; the amplitude A
 grows with the number of cycles N (fatigue law). Plates move rigidly with the deflection at their
@@ -81,7 +84,7 @@ def plate_centres_world(cfg: SimConfig) -> np.ndarray:
     p = cfg.plates
     x = np.asarray(cfg.plate_x_mm())
     y = np.full_like(x, cfg.beam.width_mm / 2 + p.width_mm / 2)
-    z = np.full_like(x, -p.height_above_top_mm)
+    z = np.full_like(x, p.depth_below_top_mm)
     return np.stack([x, y, z], axis=1)
 
 
@@ -206,7 +209,18 @@ def pixel_model(cfg: SimConfig, supersample: int | None = None) -> PixelModel:
     origin = np.array([cam.x_mm, cam.y_mm, -cam.standoff_mm])
     boxes = _boxes(cfg)
     shape_spreader = float(beam_shape(b.load_a_mm, b.span_mm, b.load_a_mm))
-    outs = {k: [] for k in ("range", "depth", "kind", "gain", "gdepth", "bright", "occz")}
+    centres = plate_centres_world(cfg)
+    depth_p = float(cam.standoff_mm + pl.depth_below_top_mm)  # camera Z of the plates' top faces
+    edges = np.stack(
+        [
+            centres[:, 0] - pl.length_mm / 2,
+            centres[:, 0] + pl.length_mm / 2,
+            centres[:, 1] - pl.width_mm / 2,
+            centres[:, 1] + pl.width_mm / 2,
+        ],
+        axis=1,
+    )
+    outs = {k: [] for k in ("range", "depth", "kind", "gain", "gdepth", "bright", "occ")}
     rows_per = max(1, 2_000_000 // (intr.width * s * s * 8))
     for r0 in range(0, intr.height, rows_per):
         d = _ray_grid(intr, s, slice(r0, r0 + rows_per))  # (p, s2, 3), z component 1
@@ -220,6 +234,7 @@ def pixel_model(cfg: SimConfig, supersample: int | None = None) -> PixelModel:
         refl = np.where(on_target, sc.target_reflectivity, sc.floor_reflectivity)
         kind = np.full(t_best.shape, KIND_STATIC, np.int8)
         gain_z = np.zeros_like(t_best)
+        cos_inc = d[..., 2] / norm  # Lambert: cosine between the ray and the face normal
         with np.errstate(divide="ignore", invalid="ignore"):
             for lo, hi, rf, role in boxes:
                 t1 = (lo - origin) / d
@@ -244,6 +259,8 @@ def pixel_model(cfg: SimConfig, supersample: int | None = None) -> PixelModel:
                     k_new, g_new = KIND_STATIC, 0.0
                 kind = np.where(ok, k_new, kind).astype(np.int8)
                 gain_z = np.where(ok, g_new, gain_z)
+                c_new = np.abs(np.take_along_axis(d, entry_axis[..., None], axis=-1)[..., 0]) / norm
+                cos_inc = np.where(ok, c_new, cos_inc)
         depth = t_best * d[..., 2] + 0.0  # camera-frame Z (origin at the camera)
         rng = t_best * norm
         cosz = d[..., 2] / norm
@@ -252,13 +269,19 @@ def pixel_model(cfg: SimConfig, supersample: int | None = None) -> PixelModel:
         outs["kind"].append(kind)
         outs["gain"].append(gain_z / cosz)  # vertical move dz of a horizontal face: d range = dz/cos
         outs["gdepth"].append(gain_z)
-        outs["bright"].append(refl * cosz**3 / (rng / 1000.0) ** 2)
-        outs["occz"].append(depth)
+        # Lambertian face (cos of incidence) seen through the optics (cos^2 off axis): the top
+        # faces and the floor get cos^3, the vertical sides of the beam and spreader much less
+        outs["bright"].append(refl * cos_inc * cosz**2 / (rng / 1000.0) ** 2)
+        # sub-rays that would meet a plate (at rest) but hit something nearer first
+        hp = origin + depth_p * d  # the plates' plane (d has z = 1)
+        on_plate = np.zeros(t_best.shape, bool)
+        for xa, xb, ya, yb in edges:
+            on_plate |= (hp[..., 0] >= xa) & (hp[..., 0] <= xb) & (hp[..., 1] >= ya) & (hp[..., 1] <= yb)
+        hidden = on_plate & (depth < depth_p - 1e-6)
+        outs["occ"].append(hidden.sum(axis=1) / np.maximum(on_plate.sum(axis=1), 1))
     cat = {k: np.concatenate(v, axis=0) for k, v in outs.items()}
 
     # plates, analytically
-    centres = plate_centres_world(cfg)
-    depth_p = float(cam.standoff_mm - pl.height_above_top_mm)
     v, u = np.meshgrid(np.arange(intr.height, dtype=float), np.arange(intr.width, dtype=float), indexing="ij")
     u, v = u.ravel(), v.ravel()
     x0 = origin[0] + depth_p * (u - 0.5 - intr.cx) / intr.fx
@@ -267,15 +290,6 @@ def pixel_model(cfg: SimConfig, supersample: int | None = None) -> PixelModel:
     y1 = origin[1] + depth_p * (v + 0.5 - intr.cy) / intr.fy
     xc = (x0 + x1) / 2
     idx = np.argmin(np.abs(xc[:, None] - centres[None, :, 0]), axis=1)
-    edges = np.stack(
-        [
-            centres[:, 0] - pl.length_mm / 2,
-            centres[:, 0] + pl.length_mm / 2,
-            centres[:, 1] - pl.width_mm / 2,
-            centres[:, 1] + pl.width_mm / 2,
-        ],
-        axis=1,
-    )
     margin = 5.0  # mm: pixels farther than this from any plate never see one
     near = (
         (x1 > edges[idx, 0] - margin)
@@ -289,7 +303,7 @@ def pixel_model(cfg: SimConfig, supersample: int | None = None) -> PixelModel:
     norm = np.sqrt(dx * dx + dy * dy + 1)
     cosz = 1 / norm
     rng_p = depth_p * norm
-    occ = (cat["occz"] < depth_p - 1e-6).mean(axis=1)
+    occ = cat["occ"]
     shape_p = beam_shape(centres[:, 0], b.span_mm, b.load_a_mm)
     return PixelModel(
         intr=intr,

@@ -8,10 +8,30 @@ at a different range by every sample. The samples follow eq. 3.5 (C_k = |P| / 2 
 D = c / (2 f_m) (eq. 3.1). Motion artefacts (eq. 5.47-5.52) therefore come out of the sampling
 itself; nothing is added on top.
 
-Noise is white Gaussian on each correlation sample, sized so that the range noise on the beam top
-surface matches Table 6.1 for the integration time (frame rate) and modulation frequency; pixels
-darker than the top surface are noisier in proportion (sigma_range ∝ 1 / amplitude). Scattering
-adds a small fraction of the frame-mean phasor to every pixel (a scene-dependent range bias).
+Noise has two parts.
+
+- White Gaussian noise on each correlation sample, sized so that the range noise on the beam top
+  surface matches Table 6.1 for the integration time (frame rate) and modulation frequency; pixels
+  darker than the top surface are noisier in proportion (sigma_range ∝ 1 / amplitude). Table 6.1 is
+  read as the scatter of the top surface about its own (per-frame) surface: the thesis' plate
+  centroids, means of tens of pixels, scatter about the fitted motion as much as or more than a
+  single pixel does (Table 6.2: 3.32 mm at 20 Hz for Cam 3 against 2.56 mm per pixel), so most of
+  their noise cannot be independent from pixel to pixel.
+- A per-frame range error shared by the pixels: the phase of the modulation reference against
+  which all pixels demodulate wanders from frame to frame (clock jitter and temperature of the
+  illumination driver), a common phase offset delta, i.e. a common range error delta / k that is
+  larger at short integration times (less averaging) and, for the same phase jitter, smaller at
+  higher modulation frequency. A share (``camera.correlated_spatial_fraction``) varies smoothly
+  across the image (the LED array's phase is not uniform over the field), so plates far apart are
+  only partly correlated. Its size is calibrated, per camera unit, so that a plate centroid's
+  residual about the true motion (what `jaxdefl fit` reports as sigma_residual_mm) matches the
+  thesis: Table 6.2 for Cam 3 (29 MHz) and Cam 4 (31 MHz) at 10-40 Hz, Tables 6.12/6.17 for Cam 2
+  (0.76 mm at 20 Hz, 29 MHz); the per-pixel part's contribution to the centroid is subtracted.
+  Other frame rates are interpolated in log(integration time), other modulation frequencies
+  scaled as Table 6.1.
+
+Scattering adds a small fraction of the frame-mean phasor to every pixel (a scene-dependent
+range bias).
 """
 
 from __future__ import annotations
@@ -32,6 +52,12 @@ __all__ = [
     "tof_model",
     "render_tof",
     "phase_from_samples",
+    "centroid_residual_mm",
+    "calibration_unit",
+    "TABLE_6_2_MM",
+    "TABLE_6_7_MM",
+    "TABLE_6_12_RESIDUAL_MM",
+    "TABLE_6_17_RESIDUAL_MM",
 ]
 
 # Section 4.3.2: integration times used for the frame rates of Experiment I.
@@ -41,6 +67,33 @@ TABLE_6_1_MM = {
     29.0: {10.0: 2.38, 20.0: 2.56, 30.0: 3.14, 40.0: 5.34},
     31.0: {10.0: 1.61, 20.0: 1.95, 30.0: 2.53, 40.0: 3.94},
 }
+# Plate-centroid residual sigma (mm) by frame rate: Table 6.2 (Experiment I, 1 Hz loading; Cam 3
+# at 29 MHz, Cam 4 at 31 MHz) and Table 6.7 (3 Hz loading, the same cameras).
+TABLE_6_2_MM = {
+    "cam3": {10.0: 2.37, 20.0: 3.32, 30.0: 6.05, 40.0: 13.08},
+    "cam4": {10.0: 1.18, 20.0: 1.78, 30.0: 2.73, 40.0: 4.83},
+}
+TABLE_6_7_MM = {
+    "cam3": {10.0: 2.51, 20.0: 3.72, 30.0: 5.34, 40.0: 12.09},
+    "cam4": {10.0: 1.24, 20.0: 1.71, 30.0: 2.67, 40.0: 4.52},
+}
+# Experiment II, Cam 2 (USB SR4000, 20 Hz, 29 MHz): residual sigma per day, Tables 6.12 (1 Hz) and
+# 6.17 (3 Hz). Day 1 of both (0.75, 0.76 mm; the mean of Table 6.12 is 0.76) calibrates Cam 2.
+TABLE_6_12_RESIDUAL_MM = {"day1": 0.75, "day2": 0.74, "day3": 0.80, "day6": 0.71, "day8": 0.79, "day9": 0.77}
+TABLE_6_17_RESIDUAL_MM = {
+    "day1": 0.76,
+    "day2": 0.79,
+    "day3": 0.71,
+    "day4": 0.62,
+    "day5": 0.82,
+    "day7": 0.73,
+    "day8": 0.77,
+    "day9": 0.77,
+    "day10": 0.57,
+    "day11": 0.56,
+}
+_CAM2_RESIDUAL_20HZ_MM = 0.76
+_UNIT_MODULATION_MHZ = {"cam2": 29.0, "cam3": 29.0, "cam4": 31.0}
 _AMPLITUDE_COUNTS = 20000.0  # amplitude units per unit brightness at 21 ms integration
 _KINDS = (KIND_STATIC, KIND_BEAM_TOP, KIND_SPREADER)
 
@@ -64,24 +117,63 @@ def integration_time_ms(frame_rate_hz: float) -> float:
     return float(math.exp(np.interp(x, f, t)))
 
 
+def _loglog(row: dict[float, float], integration_ms: float) -> float:
+    """A table by frame rate, interpolated in log(value) against log(integration time) (linear
+    extrapolation beyond the end points)."""
+    x = math.log(integration_ms)
+    ti = np.log([_INTEGRATION_MS[f] for f in row])[::-1]
+    s = np.log(list(row.values()))[::-1]
+    if x <= ti[0]:
+        val = s[0] + (s[1] - s[0]) / (ti[1] - ti[0]) * (x - ti[0])
+    elif x >= ti[-1]:
+        val = s[-1] + (s[-1] - s[-2]) / (ti[-1] - ti[-2]) * (x - ti[-1])
+    else:
+        val = np.interp(x, ti, s)
+    return math.exp(val)
+
+
 def range_noise_mm(integration_ms: float, modulation_mhz: float) -> float:
     """Range STD on the beam top surface (Table 6.1), interpolated in log(integration time) and
     linearly in the modulation frequency (extrapolated outside 29-31 MHz, floored at 10 %)."""
-    x = math.log(integration_ms)
-    per_f = {}
-    for fm, row in TABLE_6_1_MM.items():
-        ti = np.log([_INTEGRATION_MS[f] for f in row])[::-1]
-        s = np.log(list(row.values()))[::-1]
-        if x <= ti[0]:
-            val = s[0] + (s[1] - s[0]) / (ti[1] - ti[0]) * (x - ti[0])
-        elif x >= ti[-1]:
-            val = s[-1] + (s[-1] - s[-2]) / (ti[-1] - ti[-2]) * (x - ti[-1])
-        else:
-            val = np.interp(x, ti, s)
-        per_f[fm] = math.exp(val)
+    per_f = {fm: _loglog(row, integration_ms) for fm, row in TABLE_6_1_MM.items()}
     lo, hi = per_f[29.0], per_f[31.0]
     out = lo + (hi - lo) * (modulation_mhz - 29.0) / 2.0
     return float(max(out, 0.1 * min(lo, hi)))
+
+
+def calibration_unit(cfg: SimConfig) -> str:
+    """The thesis camera whose centroid residuals calibrate the correlated range error."""
+    cam = cfg.camera
+    return cam.calibration or (cam.name if cam.name in _UNIT_MODULATION_MHZ else "cam2")
+
+
+def centroid_residual_mm(unit: str, integration_ms: float, modulation_mhz: float) -> float:
+    """Plate-centroid residual sigma (mm) of a thesis camera unit at an integration time and
+    modulation frequency: Table 6.2 for cam3/cam4 (log-log in the integration time); cam2 is
+    0.76 mm at 20 Hz (Tables 6.12/6.17) with the geometric mean of cam3's and cam4's frame-rate
+    dependence. Another modulation frequency scales as the per-pixel noise of Table 6.1."""
+    if unit in TABLE_6_2_MM:
+        base = _loglog(TABLE_6_2_MM[unit], integration_ms)
+    else:
+        shape = math.sqrt(
+            _loglog(TABLE_6_2_MM["cam3"], integration_ms) * _loglog(TABLE_6_2_MM["cam4"], integration_ms)
+        )
+        ref = math.sqrt(TABLE_6_2_MM["cam3"][20.0] * TABLE_6_2_MM["cam4"][20.0])
+        base = _CAM2_RESIDUAL_20HZ_MM * shape / ref
+    fm0 = _UNIT_MODULATION_MHZ.get(unit, 29.0)
+    return base * range_noise_mm(integration_ms, modulation_mhz) / range_noise_mm(integration_ms, fm0)
+
+
+def _spatial_basis(h: int, w: int) -> np.ndarray:
+    """(4, h*w) smooth modes across the image: cosine and sine of one period over the image width
+    and over its height. With independent N(0, 1/4) weights their sum is a stationary field of unit
+    variance at every pixel whose correlation falls off over a quarter of the image."""
+    ku = 2 * np.pi * np.arange(w) / w
+    kv = 2 * np.pi * np.arange(h) / h
+    uu = np.broadcast_to(ku[None, :], (h, w)).ravel()
+    vv = np.broadcast_to(kv[:, None], (h, w)).ravel()
+    r2 = math.sqrt(2.0)
+    return np.stack([r2 * np.cos(uu), r2 * np.sin(uu), r2 * np.cos(vv), r2 * np.sin(vv)]).astype(np.float32)
 
 
 @dataclass(frozen=True)
@@ -103,6 +195,11 @@ class ToFModel:
     top_pixels: np.ndarray  # (n,) pixels that see only the beam top (for precision checks)
     nar_mm: float
     integration_ms: float
+    sigma_corr_mm: float = 0.0  # per-frame correlated range error (sigma, mm)
+    corr_spatial: float = 0.0  # share of its variance that varies across the image
+    corr_basis: np.ndarray | None = None  # (4, p) smooth modes
+    centroid_residual_mm: float = 0.0  # the centroid residual it is calibrated to
+    centroid_independent_mm: float = 0.0  # the per-pixel noise's share of a plate centroid
 
 
 def tof_model(cfg: SimConfig, pm: PixelModel) -> ToFModel:
@@ -134,6 +231,24 @@ def tof_model(cfg: SimConfig, pm: PixelModel) -> ToFModel:
     sigma_range = range_noise_mm(t_int, cam.modulation_mhz) * cam.noise_scale
     sigma_c = sigma_range * k * k_ref / math.sqrt(2.0)
     amp = np.abs(bg_base).sum(axis=1)
+    # correlated part: what the centroid residual needs beyond the per-pixel noise averaged over a
+    # plate's eroded pixels (median over the plates in view)
+    if cam.centroid_residual_mm >= 0:
+        target = cam.centroid_residual_mm * cam.noise_scale
+    else:
+        target = centroid_residual_mm(calibration_unit(cfg), t_int, cam.modulation_mhz) * cam.noise_scale
+    from .centroids import plate_pixel_masks
+
+    masks = plate_pixel_masks(cfg, pm)
+    inv_norm = 1.0 / pm.plate_gain
+    ind, gz = [], []
+    for idx in masks.values():
+        sig_r = sigma_c * math.sqrt(2.0) / (k * np.maximum(np.abs(plate_base[idx]), 1e-12))
+        ind.append(np.sqrt(np.sum((sig_r * inv_norm[idx]) ** 2)) / idx.size)
+        gz.append(float(np.mean(inv_norm[idx])))
+    sig_ind = float(np.median(ind)) if ind else 0.0
+    g = float(np.median(gz)) if gz else 1.0
+    sigma_corr = math.sqrt(max(target**2 - sig_ind**2, 0.0)) / g
     return ToFModel(
         k_rad_per_mm=k,
         bg_base=bg_base,
@@ -150,6 +265,11 @@ def tof_model(cfg: SimConfig, pm: PixelModel) -> ToFModel:
         top_pixels=top,
         nar_mm=non_ambiguity_range_m(cam.modulation_mhz) * 1000,
         integration_ms=t_int,
+        sigma_corr_mm=float(sigma_corr),
+        corr_spatial=float(cam.correlated_spatial_fraction),
+        corr_basis=_spatial_basis(pm.intr.height, pm.intr.width),
+        centroid_residual_mm=float(target),
+        centroid_independent_mm=sig_ind,
     )
 
 
@@ -167,15 +287,22 @@ def phase_from_samples(c):
 _KERNELS: dict = {}
 
 
-def _kernel():
-    """The jitted block renderer (built once; jax imported lazily)."""
-    if "tof" in _KERNELS:
-        return _KERNELS["tof"]
+def _kernel(correlated: bool = True):
+    """The jitted block renderer (built once per variant; jax imported lazily)."""
+    name = "tof_corr" if correlated else "tof"
+    if name in _KERNELS:
+        return _KERNELS[name]
     import jax
     import jax.numpy as jnp
 
     def one_frame(key, defl, dx, dy, m):
         # defl, dx, dy: (4,) at the four tap times
+        if correlated:
+            # the frame's modulation-phase offset: common part plus smooth modes across the image
+            a = jax.random.normal(jax.random.fold_in(key, 7), (5,), dtype=jnp.float32)
+            eps = m["corr_c0"] * a[0] + m["corr_c1"] * (a[1:] @ m["corr_basis"])
+            offset = jnp.exp(1j * (m["k"] * eps)).astype(jnp.complex64)
+
         def tap(i):
             d = defl[i]
             bg = jnp.sum(m["bg_base"] * jnp.exp(1j * (m["k"] * m["bg_gain"] * d)), axis=1)
@@ -194,6 +321,8 @@ def _kernel():
             f = (f * (1 - m["occ"])).astype(jnp.float32)
             plate = m["pbase"] * jnp.exp(1j * (m["k"] * m["pgain"] * d))
             p = (1 - f) * bg + f * plate
+            if correlated:
+                p = p * offset
             p = p + m["scatter"] * jnp.mean(p)
             rot = jnp.array([1, 1j, -1, -1j], dtype=jnp.complex64)[i]
             return jnp.real(p * rot) / 2 + m["B"]
@@ -207,7 +336,7 @@ def _kernel():
     def block(keys, defl, dx, dy, m):
         return jax.vmap(one_frame, in_axes=(0, 0, 0, 0, None))(keys, defl, dx, dy, m)
 
-    _KERNELS["tof"] = block
+    _KERNELS[name] = block
     return block
 
 
@@ -227,6 +356,11 @@ def _device_model(tm: ToFModel) -> dict:
         sigma_c=jnp.float32(tm.sigma_c),
         B=jnp.asarray(tm.offset_b),
         scatter=jnp.complex64(tm.scattering),
+        corr_c0=jnp.float32(tm.sigma_corr_mm * math.sqrt(1.0 - tm.corr_spatial)),
+        corr_c1=jnp.float32(tm.sigma_corr_mm * math.sqrt(tm.corr_spatial / 4.0)),
+        corr_basis=jnp.asarray(
+            tm.corr_basis if tm.corr_basis is not None else np.zeros((4, tm.bg_base.shape[0]), np.float32)
+        ),
     )
 
 
@@ -248,7 +382,7 @@ def render_tof(
     import jax
     import jax.numpy as jnp
 
-    kern = _kernel()
+    kern = _kernel(correlated=tm.sigma_corr_mm > 0)
     m = device_model if device_model is not None else _device_model(tm)
     base = jax.random.PRNGKey(seed)
     n = len(frame_index)

@@ -105,10 +105,15 @@ class _Renderer:
             camera_x_mm=float(cam.x_mm),
         )
         if cam.sensor == "sr4000":
+            from .tof import calibration_unit as _calibration_unit
+
             d.update(
                 modulation_mhz=cam.modulation_mhz,
                 nar_mm=self.tm.nar_mm,
                 integration_time_ms=self.tm.integration_ms,
+                correlated_range_noise_mm=self.tm.sigma_corr_mm,
+                centroid_residual_mm=self.tm.centroid_residual_mm,
+                noise_calibration=_calibration_unit(self.cfg),
                 tap_offsets=list(cam.tap_offsets),
             )
         else:
