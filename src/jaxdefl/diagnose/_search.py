@@ -15,6 +15,7 @@ series are tested for whiteness (`_whiteness`); what fails is reported as unexpl
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -190,7 +191,9 @@ class Diagnosis:
 
 _UNEXPLAINED = {
     "spectrum": "a spectral line in the residual that no candidate effect explains",
-    "mean_shift": "a slow change of the residual's mean (drift, jump or modulation) that no candidate explains",
+    "mean_shift": (
+        "a slow change of the residual's mean (drift, jump or modulation) that no candidate explains"
+    ),
     "variance_shift": "the noise level changes with time beyond what the model allows",
     "tails": "heavier tails than Gaussian noise (outliers or a mixture) that no candidate explains",
     "variance_vs_phase": "the noise depends on the motion phase beyond what the model allows",
@@ -224,6 +227,22 @@ def _score(ctx: Context, states: list[State], p: Proposal, n_total: int) -> tupl
         return math.inf, math.nan, math.nan
     dbic = -2.0 * (ll1 - ll0) + p.n_params * math.log(n_total)
     return dbic, rms_equivalent(ll0, n), rms_equivalent(ll1, n)
+
+
+def _rebase(p: Proposal, base: list[State], states: list[State]) -> Proposal:
+    """The proposal's change (mean increment, noise model, parameters) applied to ``states``."""
+    new = {}
+    for i in p.series:
+        b, q, st = base[i], p.states[i], states[i]
+        kw = {"mean": st.mean + (q.mean - b.mean), "n_params": st.n_params + (q.n_params - b.n_params)}
+        if q.scale is not b.scale:
+            kw["scale"] = q.scale
+        if q.inlier is not b.inlier:
+            kw.update(
+                inlier=q.inlier, outlier_fraction=q.outlier_fraction, outlier_scale_mm=q.outlier_scale_mm
+            )
+        new[i] = st.with_(**kw)
+    return dataclasses.replace(p, states=new)
 
 
 def _passes(dbic: float, rms0: float, rms1: float, p_value: float, n_tests: int) -> bool:
@@ -279,39 +298,70 @@ def run_diagnosis(
     states = list(nominal)
     accepted: list[Accepted] = []
     rounds: list[list[dict]] = []
-    for r in range(MAX_EFFECTS):
-        props: list[tuple[float, float, float, Proposal]] = []
-        for eff in usable.values():
-            for p in eff.propose(ctx, states):
-                if p.series:
-                    props.append((*_score(ctx, states, p, n_total), p))
-        n_tests = max(len(usable), 1)
-        rounds.append(
-            [
-                {"effect": p.effect, "delta_bic": d, "p_value": p.p_value, "series": len(p.series)}
-                for d, _, _, p in props
-            ]
-        )
-        props.sort(key=lambda x: x[0])
+    n_tests = max(len(usable), 1)
+    # Proposals of every effect, with the states they were made on. After an effect is accepted
+    # the others are re-scored on the new states by re-applying their change (`_rebase`), and
+    # only the best one is proposed afresh: a round costs one effect's screening, not eleven.
+    # When nothing passes, every effect screens the current states once more before stopping.
+    cache: dict[str, list[tuple[Proposal, list[State]]]] = {}
+
+    def screen(eid: str) -> None:
+        base = list(states)
+        cache[eid] = [(p, base) for p in usable[eid].propose(ctx, base) if p.series]
+
+    for eid in usable:
+        screen(eid)
+    fresh_round = True
+    while len(accepted) < MAX_EFFECTS:
+        scored = []
+        for eid, props in cache.items():
+            for p, base in props:
+                q = (
+                    p
+                    if base is states or all(base[i] is states[i] for i in p.series)
+                    else _rebase(p, base, states)
+                )
+                scored.append((*_score(ctx, states, q, n_total), eid))
+        rounds.append([{"effect": e, "delta_bic": d} for d, _, _, e in scored])
+        scored.sort(key=lambda x: x[0])
         chosen = None
-        for dbic, rms0, rms1, p in props:
-            if not _passes(dbic, rms0, rms1, p.p_value, n_tests):
+        tried = set()
+        for dbic, _, _, eid in scored:
+            if eid in tried or not dbic < DELTA_BIC_MAX:
                 continue
-            if p.refine is not None:
-                q = p.refine()
-                if q is not None:
-                    d2, r0, r1 = _score(ctx, states, q, n_total)
-                    if _passes(d2, r0, r1, q.p_value, n_tests):
-                        dbic, rms0, rms1, p = d2, r0, r1, q
-            chosen = Accepted(p, dbic, rms0, rms1, {i: states[i] for i in p.series})
-            break
+            tried.add(eid)
+            if not fresh_round:
+                screen(eid)  # propose again on the current states: the exact proposal
+            for p, _ in sorted(cache[eid], key=lambda x: _score(ctx, states, x[0], n_total)[0]):
+                d, r0, r1 = _score(ctx, states, p, n_total)
+                if not _passes(d, r0, r1, p.p_value, n_tests):
+                    continue
+                if p.refine is not None:
+                    q = p.refine()
+                    if q is not None:
+                        d2, q0, q1 = _score(ctx, states, q, n_total)
+                        if _passes(d2, q0, q1, q.p_value, n_tests):
+                            d, r0, r1, p = d2, q0, q1, q
+                chosen = Accepted(p, d, r0, r1, {i: states[i] for i in p.series})
+                break
+            if chosen is not None:
+                break
         if on_round is not None:
-            on_round(r, chosen.proposal.effect if chosen else None)
+            on_round(len(rounds) - 1, chosen.proposal.effect if chosen else None)
         if chosen is None:
-            break
+            if fresh_round:
+                break
+            for eid in usable:
+                screen(eid)
+            fresh_round = True
+            continue
         accepted.append(chosen)
+        states = list(states)
         for i in chosen.proposal.series:
             states[i] = chosen.proposal.states[i]
+        cache.pop(chosen.proposal.effect, None)
+        screen(chosen.proposal.effect)  # the same effect may be there twice (a second line, jump)
+        fresh_round = False
 
     tests_nominal = [residual_tests(ctx, i, st) for i, st in enumerate(nominal)]
     tests_final = [residual_tests(ctx, i, st) for i, st in enumerate(states)]
