@@ -38,6 +38,7 @@ __all__ = [
     "chi2_p_value",
     "tap_response",
     "TiedModel",
+    "motion_parameters",
     "Carriers",
     "select_series",
 ]
@@ -219,6 +220,20 @@ def tap_response(omega, tap_spread_s: float, offsets=(0.0, 0.25, 0.5, 0.75), der
     s1, s2 = np.sin(w * be * T), np.sin(w * ka * T)
     dh = 0.5 * w * (e1 * (1j * al * c1 - be * s1) + e2 * (1j * ga * c2 - ka * s2))
     return h, dh
+
+
+def motion_parameters(ctx: Context, T: float, sigma_T: float) -> dict:
+    """The contract parameters of `motion_artefact` for a tap spread T (gain and lag at f0)."""
+    w0 = 2 * math.pi * ctx.f0_hz
+    h, dh = tap_response(w0, T, ctx.tap_offsets, derivative=True)
+    gain, lag = float(abs(h)), float(np.angle(h))
+    dgain = float((np.conj(h) * dh).real / max(abs(h), 1e-300))
+    dlag = float((dh / h).imag)
+    return {
+        "tap_spread_s": param(T, sigma_T),
+        "gain": param(gain, abs(dgain) * sigma_T),
+        "lag_deg": param(math.degrees(lag), math.degrees(abs(dlag) * sigma_T)),
+    }
 
 
 PPM = 1e-6

@@ -29,7 +29,7 @@ import math
 import numpy as np
 
 from .._base import Context, Effect, Proposal, State
-from ._common_b import TiedModel, chi2_p_value, param, tap_response, tied_proposal_states
+from ._common_b import TiedModel, chi2_p_value, motion_parameters, param, tied_proposal_states
 
 __all__ = ["MotionArtefact", "EFFECT"]
 
@@ -81,11 +81,8 @@ class MotionArtefact(Effect):
             return []
 
         w0 = 2 * math.pi * ctx.f0_hz
-        h, dh = tap_response(w0, T, ctx.tap_offsets, derivative=True)
-        gain, lag = float(abs(h)), float(np.angle(h))
-        dgain = float((np.conj(h) * dh).real / max(abs(h), 1e-300))
-        dlag = float((dh / h).imag)
-        sigma_gain, sigma_lag = abs(dgain) * sigma_T, abs(dlag) * sigma_T
+        parameters = motion_parameters(ctx, T, sigma_T)
+        gain, lag = parameters["gain"]["value"], math.radians(parameters["lag_deg"]["value"])
         amp = float(np.median([ctx.nominal[i].amplitude for i in kept]))
         plates = sorted({ctx.series[i].plate for i in kept})
         frac = T / period
@@ -105,8 +102,13 @@ class MotionArtefact(Effect):
             "loglik_gain": {ctx.series[i].key: float(g) for i, g in gains.items()},
             "equivalent_clock_offset_s": lag / w0,
         }
-        if len(free) > 1:
-            detail["timing_offset_s_reestimated"] = float(best.theta[1])
+        if len(free) > 1:  # the accepted clock offset, refitted jointly (the report may update it)
+            detail["reestimated"] = {
+                "timing_error": {
+                    "offset_s": param(best.theta[1], math.sqrt(max(best.cov[1, 1], 0.0))),
+                    "rate_ppm": param(best.theta[2], None),
+                }
+            }
         lo, hi = ctx.f0_hz, ctx.f0_hz
         return [
             Proposal(
@@ -115,11 +117,7 @@ class MotionArtefact(Effect):
                 states=new_states,
                 n_params=1,
                 p_value=p_value,
-                parameters={
-                    "tap_spread_s": param(T, sigma_T),
-                    "gain": param(gain, sigma_gain),
-                    "lag_deg": param(math.degrees(lag), math.degrees(sigma_lag)),
-                },
+                parameters=parameters,
                 t_start=0.0,
                 t_end=ctx.duration_s,
                 band_hz=[lo, hi],

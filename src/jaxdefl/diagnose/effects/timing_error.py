@@ -27,7 +27,7 @@ import math
 import numpy as np
 
 from .._base import Context, Effect, Proposal, State
-from ._common_b import PPM, TiedModel, chi2_p_value, param, tied_proposal_states
+from ._common_b import PPM, TiedModel, chi2_p_value, motion_parameters, param, tied_proposal_states
 
 __all__ = ["TimingError", "EFFECT"]
 
@@ -104,8 +104,11 @@ class TimingError(Effect):
                 "loglik_gain": {ctx.series[i].key: float(g) for i, g in gains.items()},
                 "rate_from_frequencies_ppm": eps0,
             }
-            if extra:
-                detail["tap_spread_s_reestimated"] = float(res.theta[0])
+            if extra:  # the accepted tap spread, refitted jointly (the report may update it)
+                t_sig = math.sqrt(max(res.cov[0, 0], 0.0))
+                detail["reestimated"] = {
+                    "motion_artefact": motion_parameters(ctx, float(res.theta[0]), t_sig)
+                }
             out.append(
                 Proposal(
                     effect=self.id,
