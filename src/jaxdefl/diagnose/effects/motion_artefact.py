@@ -29,10 +29,11 @@ import math
 import numpy as np
 
 from .._base import Context, Effect, Proposal, State
-from ._common_b import TiedModel, chi2_p_value, motion_parameters, param, tied_proposal_states
+from ._common_b import TiedModel, chi2_p_value, motion_parameters, param, tap_response, tied_proposal_states
 
 __all__ = ["MotionArtefact", "EFFECT"]
 
+AMBIGUOUS_CHI2 = 10.0  # the gain loss must beat a pure phase shift by this much to be called resolved
 P_MAX = 1e-3  # weaker signatures cannot pass the search's Bonferroni (α = 0.01 over ~10 effects)
 
 
@@ -80,7 +81,14 @@ class MotionArtefact(Effect):
         if not kept:
             return []
 
+        # is the gain loss resolved? a pure clock offset (phase only) in place of T
         w0 = 2 * math.pi * ctx.f0_hz
+        theta_d = model.current.copy()
+        theta_d[1] -= float(np.angle(tap_response(w0, T, ctx.tap_offsets))) / w0
+        phase_only = model.fit(
+            theta_d, [1], bounds=[(theta_d[1] - 0.5 / ctx.f0_hz, theta_d[1] + 0.5 / ctx.f0_hz)]
+        )
+        gain_evidence = phase_only.chi2 - best.chi2
         parameters = motion_parameters(ctx, T, sigma_T)
         gain, lag = parameters["gain"]["value"], math.radians(parameters["lag_deg"]["value"])
         amp = float(np.median([ctx.nominal[i].amplitude for i in kept]))
@@ -92,6 +100,7 @@ class MotionArtefact(Effect):
             else f"the taps spread over {frac:.0%} of the {1e3 * period:.0f}-ms frame period"
         )
         detail = {
+            "gain_loss_evidence_chi2": float(gain_evidence),
             "frame_period_s": period,
             "tap_spread_over_frame_period": frac,
             "amplitude_loss_mm": (1 - gain) * amp,
@@ -127,6 +136,12 @@ class MotionArtefact(Effect):
                     f"lag at {ctx.f0_hz:.3f} Hz on plate(s) {', '.join(map(str, plates))}: the four "
                     f"correlation samples are taken one after the other over T = {1e3 * T:.1f} ± "
                     f"{1e3 * sigma_T:.1f} ms ({spread}) while the beam moves."
+                    + (
+                        ""
+                        if gain_evidence >= AMBIGUOUS_CHI2
+                        else f" The gain loss is not resolved: a camera clock {1e3 * lag / w0:.1f} ms early "
+                        "would explain the lag alike (timing_error)."
+                    )
                 ),
                 detail=detail,
             )
