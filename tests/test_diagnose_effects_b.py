@@ -52,6 +52,7 @@ def make_case(
     am=None,
     fm=None,
     dropout: float = 0.03,
+    extra=None,
 ):
     """A Context and its nominal states from synthetic series: harmonic (+ AM g(t), FM Δφ(t) of the
     load, seen by the LDS too) + white noise, the camera with taps over ``tap_spread`` after its
@@ -78,6 +79,8 @@ def make_case(
             a_ax = a if axis == "z" else 0.25 * a
             clean = np.mean([motion(t_true + j * tap_spread / 4, a_ax) for j in range(4)], axis=0)
             y = 100.0 + clean + SIGMA * rng.standard_normal(t.size)
+            if extra is not None:  # a vibration in the camera's data only
+                y = y + extra(t_true)
             series.append(Series(p, axis, t, y, k))
             frees.append(_fit_harmonic(t, y, F0, 0.5 * t[-1]))
     ref, ref_h = {}, {}
@@ -297,3 +300,13 @@ def test_clean_recordings_stay_clean(seed):
     ctx, states = make_case(seed=seed, axes=("z", "x"), lds_plates=(2, 4))
     for eff in (MOTION, TIMING, AM, FM):
         assert not passing(ctx, states, eff.propose(ctx, states)), eff.id
+
+
+def test_a_line_beside_the_loading_frequency_is_no_modulation():
+    """A vibration at f0 + 0.03 Hz sits in both demodulations alike: left to extra_periodic."""
+    from jaxdefl.diagnose.effects.amplitude_modulation import EFFECT as AM
+    from jaxdefl.diagnose.effects.frequency_modulation import EFFECT as FM
+
+    ctx, states = make_case(seed=9, extra=lambda t: 0.12 * np.cos(2 * np.pi * (F0 + 0.03) * t + 0.3))
+    assert not passing(ctx, states, AM.propose(ctx, states))
+    assert not passing(ctx, states, FM.propose(ctx, states))

@@ -41,6 +41,7 @@ __all__ = [
     "motion_parameters",
     "Carriers",
     "select_series",
+    "one_sided",
 ]
 
 _RIDGE = 1e-12
@@ -82,6 +83,13 @@ def scan_p_value(power_max: float, n_independent: float) -> float:
     """P(max of n independent Exp(1) powers >= power_max): the scan-corrected p-value."""
     p1 = math.exp(-max(float(power_max), 0.0))
     return float(-math.expm1(max(n_independent, 1.0) * math.log1p(-min(p1, 1 - 1e-16))))
+
+
+def one_sided(power: float, twin_power: float) -> bool:
+    """A modulation puts matched lines at f0 ± f_m: all its power in one demodulation (in phase
+    for amplitude, quadrature for phase). A single line at f0 + f_m (a vibration near the
+    loading frequency) splits evenly between the two."""
+    return twin_power > 20.0 and twin_power > 0.25 * power
 
 
 class Block:
@@ -409,6 +417,7 @@ class Carriers:
     def __init__(self, ctx: Context, states: list[State], min_snr: float = 10.0):
         self.ctx = ctx
         self.items: list[_Carrier] = []
+        self._grids: dict = {}
         t_mid = 0.5 * ctx.duration_s
         for i, s in enumerate(ctx.series):
             st, h = states[i], ctx.nominal[i]
@@ -445,6 +454,32 @@ class Carriers:
     def column(self, it: _Carrier, kind: str) -> np.ndarray:
         return it.a * it.cos if kind == "in_phase" else -it.a * it.sin
 
+    def grid(self, kind: str, trend: bool = False) -> tuple[np.ndarray, float]:
+        """(frame,) demodulated residual combined across series (Σ w r̃ x / σ̂² per frame), and
+        Q = Σ w x² / σ̂²."""
+        key = (kind, trend)
+        if key not in self._grids:
+            ctx = self.ctx
+            n = ctx.n_frames
+            grid = np.zeros(n)
+            q = 0.0
+            for it in self.items:
+                s = ctx.series[it.i]
+                x = self.column(it, kind)
+                b = it.trend if trend else it.scan
+                rp = b.proj(it.r)
+                grid += np.bincount(s.k, weights=it.w * rp * x / b.s2, minlength=n)[:n]
+                q += float(np.sum(it.w * x * x) / b.s2)
+            self._grids[key] = (grid, q)
+        return self._grids[key]
+
+    def power_at(self, kind: str, f_hz: float, trend: bool = False) -> float:
+        """Combined power (Exp(1) under white noise) of the ``kind`` demodulation at one frequency."""
+        grid, q = self.grid(kind, trend)
+        k = np.nonzero(grid)[0]
+        n_f = _dot(np.exp(-2j * np.pi * f_hz * k * self.ctx.dt_s), grid[k])
+        return float(abs(n_f) ** 2 / max(q, 1e-300))
+
     def scan(self, kind: str, f_lo: float, f_hi: float, oversample: int = 4, trend: bool = False):
         """Spectrum of the demodulated residual combined across series, weighted by a²/σ̂².
 
@@ -454,15 +489,7 @@ class Carriers:
         """
         ctx = self.ctx
         n = ctx.n_frames
-        grid = np.zeros(n)
-        q = 0.0
-        for it in self.items:
-            s = ctx.series[it.i]
-            x = self.column(it, kind)
-            b = it.trend if trend else it.scan
-            rp = b.proj(it.r)
-            grid += np.bincount(s.k, weights=it.w * rp * x / b.s2, minlength=n)[:n]
-            q += float(np.sum(it.w * x * x) / b.s2)
+        grid, q = self.grid(kind, trend)
         m = int(oversample * n)
         spec = np.fft.rfft(grid, m)
         freq = np.arange(spec.size) / (m * ctx.dt_s)

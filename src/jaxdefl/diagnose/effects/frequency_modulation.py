@@ -30,7 +30,7 @@ import math
 import numpy as np
 
 from .._base import Context, Effect, Proposal, State
-from ._common_b import Carriers, chi2_p_value, param, scan_p_value
+from ._common_b import Carriers, chi2_p_value, one_sided, param, scan_p_value
 from .amplitude_modulation import modulation_band
 
 __all__ = ["FrequencyModulation", "EFFECT"]
@@ -91,7 +91,9 @@ class FrequencyModulation(Effect):
                 p_sin = min(1.0, KINDS * scan_p_value(power[j], n_ind))
                 if p_sin < P_MAX:
                     df = freq[1] - freq[0] if freq.size > 1 else 1.0 / ctx.duration_s
-                    f_pk, _, n_pk = car.refine_peak(grid, q, float(freq[j]), df)
+                    f_pk, p_pk, n_pk = car.refine_peak(grid, q, float(freq[j]), df)
+                    if one_sided(p_pk, car.power_at("in_phase", f_pk)):
+                        return out  # a line on one side of f0 (extra_periodic), not a modulation
                     prop = self._sinusoidal(ctx, states, car, f_pk, n_pk, q, p_sin)
                     if prop is not None:
                         out.append(prop)
