@@ -279,6 +279,8 @@ class Effect:
         min_cycles: loading cycles the record needs before the effect can be told apart from
             the nominal model (e.g. a slow drift from the offset).
         min_plates: plates needed (an effect defined as common to all plates needs several).
+        min_duration_s: record length needed (slow processes cannot be told from each other, or
+            from the offset, in a few minutes).
     """
 
     id: str = ""
@@ -286,6 +288,7 @@ class Effect:
     needs_reference: bool = False
     min_cycles: float = 20.0
     min_plates: int = 1
+    min_duration_s: float = 0.0
 
     def cannot_tell(self, ctx: Context) -> str | None:
         """Why this effect cannot be told on this record, or None when it can."""
@@ -294,6 +297,11 @@ class Effect:
         cycles = ctx.f0_hz * ctx.duration_s
         if not cycles >= self.min_cycles:
             return f"record too short: {cycles:.0f} loading cycles, needs {self.min_cycles:.0f}"
+        if not ctx.duration_s >= self.min_duration_s:
+            return (
+                f"record too short: {ctx.duration_s / 60:.1f} min, a {self.id.replace('_', ' ')} "
+                f"needs {self.min_duration_s / 60:.0f} min to be told from the nominal model"
+            )
         if len(ctx.plates) < self.min_plates:
             return f"needs at least {self.min_plates} plates, the table has {len(ctx.plates)}"
         return None

@@ -74,7 +74,7 @@ def build_context(
         raise ConfigError(f"--frame-rate: expected a positive rate in Hz, got {frame_rate_hz}")
     if modulation_mhz is not None and not modulation_mhz > 0:
         raise ConfigError(f"--modulation-mhz: expected a positive frequency in MHz, got {modulation_mhz}")
-    df = validate_trajectory(traj, source)
+    df = validate_trajectory(traj.reset_index(drop=True), source)
     segs = [str(s) for s in pd.unique(df["segment"].to_numpy(dtype=object))]
     if segment is None and len(segs) > 1:
         raise ConfigError(
@@ -132,7 +132,9 @@ def build_context(
     ref_series: dict[int, Series] = {}
     ref_harm: dict[int, Harmonic] = {}
     if reference is not None:
-        ref = validate_trajectory(reference, "--reference", required=("t", "plate", "z"))
+        ref = validate_trajectory(
+            reference.reset_index(drop=True), "--reference", required=("t", "plate", "z")
+        )
         ref = ref[(ref["t"] >= t0 + t_all[0]) & (ref["t"] <= t0 + t_all[-1])]
         cam_plates = {s.plate for s in series if s.axis == "z"}
         ref = ref[ref["plate"].isin(cam_plates)]

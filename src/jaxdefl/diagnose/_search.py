@@ -23,7 +23,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from .._errors import JaxdeflError
+from .._errors import ConfigError
 from ._base import Context, Proposal, State, loglik, rms_equivalent
 from ._context import build_context
 from ._whiteness import combined_p, residual_tests
@@ -271,17 +271,17 @@ def run_diagnosis(
         on_round: optional callback(round number, accepted effect id or None).
     """
     start = time.perf_counter()
-    ctx, nominal, notes = build_context(
-        traj, reference, sensor, frame_rate_hz, modulation_mhz, tap_offsets, segment, source=source
-    )
     library = load_effects()
     if effects is not None:
         unknown = [e for e in effects if e not in EFFECT_IDS]
         if unknown:
-            raise JaxdeflError(
+            raise ConfigError(
                 f"--effects: unknown effect {unknown[0]!r} (expected one of {', '.join(EFFECT_IDS)})"
             )
         library = {k: v for k, v in library.items() if k in effects}
+    ctx, nominal, notes = build_context(
+        traj, reference, sensor, frame_rate_hz, modulation_mhz, tap_offsets, segment, source=source
+    )
     cannot_tell = []
     usable = {}
     for eid, eff in library.items():

@@ -50,6 +50,7 @@ class ExtraPeriodic(Effect):
     id = "extra_periodic"
     meaning = "a vibration at a frequency unrelated to the loading (pump, mount, floor), common to the plates"
     min_cycles = 20.0
+    min_plates = 2  # "common to the plates" cannot be told on one
 
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
         freq = None

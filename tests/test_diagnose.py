@@ -1,0 +1,275 @@
+"""The diagnosis core: likelihood, variable projection, residual tests, search, JSON, CLI, errors."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy import optimize, stats
+
+from jaxdefl._errors import ConfigError, InputError
+from jaxdefl.cli import main
+from jaxdefl.diagnose import EFFECT_IDS, diagnose, run_diagnosis
+from jaxdefl.diagnose._base import State, loglik, rms_equivalent
+from jaxdefl.diagnose._varpro import fit_shared
+from jaxdefl.diagnose.effects.extra_periodic import _columns as line_columns
+
+F0 = 3.0672
+
+
+def record(
+    minutes=10.0,
+    plates=5,
+    fs=20.0,
+    seed=0,
+    sigma=0.76,
+    dropout=0.03,
+    line=None,
+    t0=1.7e9,
+    with_lds=False,
+):
+    """Harmonic plates (+ white noise, drop-outs) and optionally a line (freq, amp) on z."""
+    rng = np.random.default_rng(seed)
+    n = int(minutes * 60 * fs)
+    t = np.arange(n) / fs
+    t = t[rng.random(n) >= dropout]
+    ph = rng.uniform(0, 2 * np.pi)
+    rows = []
+    for p in range(1, plates + 1):
+        amp = 2.4 * math.sin(math.pi * p / (plates + 1))
+        z = 1900 + amp * np.cos(2 * np.pi * F0 * t + ph) + sigma * rng.standard_normal(t.size)
+        x = 10 + 0.5 * np.cos(2 * np.pi * F0 * t + ph) + 0.3 * rng.standard_normal(t.size)
+        if line is not None:
+            z = z + line[1] * np.cos(2 * np.pi * line[0] * t + 0.4)
+        rows.append(pd.DataFrame({"t": t0 + t, "plate": p, "x": x, "z": z}))
+    traj = pd.concat(rows, ignore_index=True)
+    if not with_lds:
+        return traj
+    tl = np.arange(int(minutes * 60 * 300)) / 300.0
+    lds = pd.concat(
+        [
+            pd.DataFrame(
+                {
+                    "t": t0 + tl,
+                    "plate": p,
+                    "z": 2.4 * math.sin(math.pi * p / (plates + 1)) * np.cos(2 * np.pi * F0 * tl + ph)
+                    + 0.002 * rng.standard_normal(tl.size),
+                }
+            )
+            for p in (2, 4)
+        ],
+        ignore_index=True,
+    )
+    return traj, lds
+
+
+# --- kernels against independent references -------------------------------------------------
+
+
+def test_loglik_is_the_gaussian_likelihood_at_the_ml_sigma():
+    rng = np.random.default_rng(1)
+    y = rng.normal(0.3, 0.7, 5000)
+    mean = np.full(y.size, 0.3)
+    st = State(mean=mean, scale=np.ones(y.size), inlier=np.ones(y.size, bool))
+    sigma = np.sqrt(np.mean((y - mean) ** 2))
+    assert loglik(y, st) == pytest.approx(stats.norm.logpdf(y, mean, sigma).sum(), rel=1e-12)
+    assert rms_equivalent(loglik(y, st), y.size) == pytest.approx(sigma, rel=1e-12)
+    # a relative noise profile: the same as scipy with σ_i = σ̂ scale_i
+    scale = 1 + 0.3 * np.cos(np.arange(y.size) / 50)
+    st2 = st.with_(scale=scale)
+    s_hat = np.sqrt(np.mean(((y - mean) / scale) ** 2))
+    assert loglik(y, st2) == pytest.approx(stats.norm.logpdf(y, mean, s_hat * scale).sum(), rel=1e-12)
+
+
+def test_shared_frequency_fit_matches_scipy_least_squares():
+    rng = np.random.default_rng(2)
+    ts = [np.sort(rng.uniform(0, 300, 3000)) for _ in range(3)]
+    rs = [
+        0.2 * (k + 1) * np.cos(2 * np.pi * 1.37 * t + k) + 0.5 * rng.standard_normal(t.size)
+        for k, t in enumerate(ts)
+    ]
+    fit = fit_shared(
+        line_columns,
+        np.array([1.3702]),
+        ts,
+        rs,
+        [np.ones(t.size) for t in ts],
+        [np.ones((t.size, 1)) for t in ts],
+        scale=np.array([1 / 300]),
+    )
+
+    def resid(p):
+        f = p[0]
+        out = []
+        for k, (t, r) in enumerate(zip(ts, rs, strict=True)):
+            a, b, c = p[1 + 3 * k : 4 + 3 * k]
+            out.append(r - a * np.cos(2 * np.pi * f * t) - b * np.sin(2 * np.pi * f * t) - c)
+        return np.concatenate(out)
+
+    ref = optimize.least_squares(resid, np.r_[1.3702, np.zeros(9)], method="lm", xtol=1e-14, ftol=1e-14)
+    jac = ref.jac
+    s2 = np.sum(ref.fun**2) / (ref.fun.size - ref.x.size)
+    sigma_f = math.sqrt(s2 * np.linalg.inv(jac.T @ jac)[0, 0])
+    assert fit.converged
+    assert abs(fit.theta[0] - ref.x[0]) < 0.01 * sigma_f
+    assert math.sqrt(fit.theta_cov[0, 0]) == pytest.approx(sigma_f, rel=0.01)
+    assert np.allclose(fit.beta[:, :2].ravel(), ref.x[1:].reshape(3, 3)[:, :2].ravel(), atol=1e-3 * 0.5 / 30)
+
+
+def test_residual_tests_are_calibrated_on_white_noise():
+    from jaxdefl.diagnose._base import Context, Harmonic, Series
+    from jaxdefl.diagnose._whiteness import TESTS, residual_tests
+
+    rng = np.random.default_rng(3)
+    n = 2000
+    t = np.arange(n) * 0.05
+    series, nominal, states = [], [], []
+    for i in range(300):
+        y = rng.standard_normal(n)
+        series.append(Series(i, "z", t, y, np.arange(n)))
+        nominal.append(Harmonic(2 * np.pi * F0, 1.0, 0.0, 0.0, 50.0))
+        states.append(State(np.zeros(n), np.ones(n), np.ones(n, bool)))
+    ctx = Context(series, nominal, nominal, {}, {}, 0.0, t[-1], 0.05, n, F0)
+    p = {k: np.array([residual_tests(ctx, i, states[i])[k]["p"] for i in range(300)]) for k in TESTS}
+    for k, v in p.items():
+        # each test is a valid (at most slightly conservative) p-value under white noise
+        assert np.mean(v < 0.05) < 0.05 + 3 * math.sqrt(0.05 * 0.95 / 300), k
+        assert np.mean(v < 0.5) > 0.3, k
+
+
+# --- the search -----------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def clean():
+    return diagnose(record(seed=11))
+
+
+def test_clean_record_comes_back_clean(clean):
+    assert clean["effects"] == []
+    assert clean["unexplained"] == []
+    assert clean["final"] == {**clean["final"], "rms_mm": clean["nominal"]["rms_mm"]}
+    assert clean["nominal"]["whiteness_p"] > 0.01
+
+
+def test_json_contract(clean):
+    assert {"nominal", "effects", "unexplained", "final"} <= set(clean)
+    for part in ("nominal", "final"):
+        assert {"rms_mm", "bic", "whiteness_p"} <= set(clean[part])
+    json.dumps(clean)  # JSON-able all the way down
+    ids = {c["id"] for c in clean["cannot_tell"]}
+    assert {"motion_artefact", "timing_error"} <= ids  # no reference given
+    reasons = {c["id"]: c["reason"] for c in clean["cannot_tell"]}
+    assert "reference" in reasons["motion_artefact"]
+
+
+def test_extra_periodic_is_located_and_improves_the_fit():
+    traj = record(seed=12, line=(1.37, 0.15))
+    d = diagnose(traj)
+    assert [e["id"] for e in d["effects"]] == ["extra_periodic"]
+    e = d["effects"][0]
+    assert e["plates"] == [1, 2, 3, 4, 5] and e["axes"] == ["z"]
+    assert e["delta_bic"] < -10 and e["rms_after_mm"] < e["rms_before_mm"]
+    par = e["parameters"]
+    assert abs(par["freq_hz"]["value"] - 1.37) < 4 * par["freq_hz"]["sigma"]
+    assert par["amplitude_mm"]["value"] == pytest.approx(0.15, rel=0.25)
+    assert e["band_hz"][0] < 1.37 < e["band_hz"][1]
+    assert e["t_start"] == pytest.approx(traj["t"].min()) and e["t_end"] == pytest.approx(traj["t"].max())
+    assert d["final"]["bic"] < d["nominal"]["bic"]
+    assert d["unexplained"] == []
+
+
+def test_reference_ties_the_nominal_and_stays_clean():
+    traj, lds = record(seed=13, with_lds=True)
+    d = diagnose(traj, lds)
+    tied = {(s["plate"], s["axis"]) for s in d["nominal"]["series"] if s["tied_to_reference"]}
+    assert tied == {(2, "z"), (4, "z")}
+    assert d["effects"] == [] and d["unexplained"] == []
+    assert "motion_artefact" not in {c["id"] for c in d["cannot_tell"]}
+
+
+def test_degenerate_inputs_say_cannot_tell():
+    one = record(minutes=10, plates=1, seed=14)
+    d = diagnose(one)
+    assert d["input"]["plates"] == [1]
+    short = record(minutes=0.2, plates=3, seed=15)  # 12 s: 37 loading cycles
+    d = diagnose(short)
+    ids = {c["id"] for c in d["cannot_tell"]}
+    assert {"drift", "amplitude_modulation", "frequency_modulation"} <= ids
+    assert not any(e["id"] in ids for e in d["effects"])
+    for c in d["cannot_tell"]:
+        assert c["reason"]
+
+
+def test_only_named_effects_are_searched():
+    d = diagnose(record(seed=16, line=(1.37, 0.15)), effects=("drift",))
+    assert d["effects"] == []
+    assert any(u["test"] == "spectrum" for u in d["unexplained"])  # the line, unexplained, located
+    u = next(u for u in d["unexplained"] if u["test"] == "spectrum")
+    assert u["band_hz"][0] - 0.01 < 1.37 < u["band_hz"][1] + 0.01
+    assert set(u["plates"]) <= {1, 2, 3, 4, 5} and u["axes"] == ["z"]
+
+
+# --- errors and the CLI ---------------------------------------------------------------------
+
+
+def test_errors_name_the_argument():
+    traj = record(minutes=1, plates=2)
+    with pytest.raises(ConfigError, match="--sensor: expected one of tof, structured_light"):
+        run_diagnosis(traj, sensor="lidar")
+    with pytest.raises(ConfigError, match="--frame-rate: expected a positive rate"):
+        run_diagnosis(traj, frame_rate_hz=-1)
+    with pytest.raises(ConfigError, match="--modulation-mhz: expected a positive"):
+        run_diagnosis(traj, modulation_mhz=0)
+    two = pd.concat([traj.assign(segment="day1"), traj.assign(segment="day2", t=traj.t + 1e4)])
+    with pytest.raises(ConfigError, match="2 segments .*choose one with --segment"):
+        run_diagnosis(two)
+    with pytest.raises(ConfigError, match="--segment: 'day3' is not in"):
+        run_diagnosis(two, segment="day3")
+    with pytest.raises(ConfigError, match="--effects: unknown effect 'wobble'"):
+        run_diagnosis(traj, effects=("wobble",))
+    with pytest.raises(InputError, match="timestamps, the diagnosis needs at least 64"):
+        run_diagnosis(traj.groupby("plate").head(10))
+    flat = traj.assign(z=1900.0 + np.random.default_rng(0).standard_normal(len(traj)), x=0.0)
+    with pytest.raises(InputError, match="no plate and axis shows a significant periodic motion"):
+        run_diagnosis(flat)
+
+
+def test_cli_writes_json_report_and_figures(tmp_path):
+    traj = record(seed=17, line=(1.37, 0.15))
+    path = tmp_path / "traj.csv"
+    traj.to_csv(path, index=False)
+    out = tmp_path / "diag.json"
+    assert main(["diagnose", str(path), "--out", str(out), "--sensor", "tof", "--frame-rate", "20"]) == 0
+    d = json.loads(out.read_text())
+    assert [e["id"] for e in d["effects"]] == ["extra_periodic"]
+    assert d["settings"]["sensor"] == "tof" and d["input"]["frame_rate_hz"] == 20
+    md = (tmp_path / "diag.md").read_text()
+    assert "extra_periodic" in md and "ΔBIC" in md
+    assert (tmp_path / "diag_1_extra_periodic.png").stat().st_size > 10_000
+
+
+def test_cli_bad_arguments_exit_2(tmp_path, capsys):
+    path = tmp_path / "traj.csv"
+    record(minutes=1, plates=2).to_csv(path, index=False)
+    assert main(["diagnose", str(path), "--out", str(tmp_path / "d.json"), "--sensor", "sonar"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--sensor" in err
+    assert main(["diagnose", str(tmp_path / "missing.csv"), "--out", str(tmp_path / "d.json")]) == 2
+
+
+def test_config_supplies_the_camera_facts(tmp_path):
+    from jaxdefl.pipeline import _camera_facts
+
+    facts = _camera_facts("configs/exp2_tof_3hz.toml")
+    assert facts["sensor"] == "tof" and facts["frame_rate_hz"] == 20 and len(facts["tap_offsets"]) == 4
+    assert _camera_facts("configs/exp2_kinect_3hz.toml")["sensor"] == "structured_light"
+
+
+def test_every_effect_id_is_in_the_library():
+    from jaxdefl.diagnose import load_effects
+
+    assert set(load_effects()) == set(EFFECT_IDS)
