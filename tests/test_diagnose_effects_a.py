@@ -152,6 +152,9 @@ def test_drift_exponential(amp, tau):
     assert good
     best = min(good, key=lambda p: delta_bic(ctx, states, p))
     assert value(best, "kind") == "exponential"
+    assert close(value(best, "tau_s"), tau, 0.4)  # the grid's estimate, before the refit
+    best = best.refine()  # what the search does before accepting it
+    assert passing(ctx, states, [best])
     assert keys(ctx, best) == [f"{p}z" for p in range(1, 6)]
     assert close(value(best, "amplitude_mm"), amp)
     assert close(value(best, "tau_s"), tau)

@@ -23,6 +23,7 @@ __all__ = [
     "combined_p",
     "project_out",
     "screen_columns",
+    "screen_grid",
     "touched",
     "median_signed",
 ]
@@ -139,3 +140,56 @@ def median_signed(values: np.ndarray) -> float:
     if 0.2 < pos < 0.8:
         return float(np.median(np.abs(values)))
     return float(np.median(values))
+
+
+def screen_grid(
+    ctx: Context, states: list[State], idx: list[int], nus: dict, cols: np.ndarray, chunk: int = 8
+):
+    """`screen_columns` for many series at once, with columns given on the frame clock.
+
+    Args:
+        idx: the series; nus: {series: (sample, q) nuisance}; cols: (frame, c) candidate columns
+            on the frame clock (``k`` of each sample picks its row).
+    Returns:
+        (stat (series, c), beta (series, c)): χ²_1 statistic and coefficient of every column
+        alone (nuisance free) on every series. The products are GEMMs over the frame clock,
+        a few series at a time (memory).
+    """
+    nf, c = cols.shape
+    stat = np.zeros((len(idx), c))
+    beta = np.zeros((len(idx), c))
+    sq = cols * cols
+    for start in range(0, len(idx), chunk):
+        part = idx[start : start + chunk]
+        qmax = max(nus[i].shape[1] for i in part)
+        wg = np.zeros((nf, len(part)))
+        rg = np.zeros((nf, len(part)))
+        ng = np.zeros((nf, len(part) * qmax))
+        grams, s2 = [], []
+        for j, i in enumerate(part):
+            s, st = ctx.series[i], states[i]
+            w = weights(st)
+            nu = nus[i]
+            nw = nu * w[:, None]
+            gram = nw.T @ nu
+            gram = gram + 1e-12 * np.trace(gram) * np.eye(gram.shape[0])
+            r = s.y - st.mean
+            r0 = r - nu @ np.linalg.solve(gram, nw.T @ r)
+            n_used = max(int((w > 0).sum()) - nu.shape[1], 1)
+            s2.append(float(np.sum(w * r0 * r0)) / n_used or 1e-300)
+            wg[s.k, j] = w
+            rg[s.k, j] = w * r0
+            ng[s.k, j * qmax : j * qmax + nu.shape[1]] = nw
+            grams.append(gram)
+        ctr = cols.T @ rg  # (c, part)
+        ctc = sq.T @ wg  # (c, part)
+        ctn = cols.T @ ng  # (c, part × q)
+        for j, i in enumerate(part):
+            q = nus[i].shape[1]
+            cn = ctn[:, j * qmax : j * qmax + q]
+            proj = np.einsum("cq,cq->c", cn, np.linalg.solve(grams[j], cn.T).T)
+            den = np.maximum(ctc[:, j] - proj, 1e-300)
+            row = start + j
+            beta[row] = ctr[:, j] / den
+            stat[row] = ctr[:, j] ** 2 / den / s2[j]
+    return stat, beta

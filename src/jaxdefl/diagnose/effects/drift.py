@@ -28,7 +28,7 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
-from .._base import Context, Effect, Proposal, State, keep_series, lstsq
+from .._base import Context, Effect, Proposal, State, keep_series, lstsq, peak_offset
 from .._varpro import fit_shared
 from ._common_a import (
     chi2_sf,
@@ -37,7 +37,7 @@ from ._common_a import (
     median_signed,
     param,
     residual,
-    screen_columns,
+    screen_grid,
     touched,
     updated,
     weights,
@@ -53,9 +53,8 @@ def _columns(theta, t, aux):
     return jnp.exp(-t * jnp.exp(-theta[0]))[:, None]
 
 
-def _nuisance3(ctx: Context, i: int) -> np.ndarray:
+def _pad3(nu: np.ndarray) -> np.ndarray:
     """The free nuisance padded with zero columns to three (variable projection wants one q)."""
-    nu = ctx.nuisance(i)
     if nu.shape[1] < 3:
         nu = np.concatenate([nu, np.zeros((nu.shape[0], 3 - nu.shape[1]))], axis=1)
     return nu
@@ -79,28 +78,25 @@ class Drift(Effect):
         idx = [i for i in range(len(ctx.series)) if not touched(states[i], self.id) and ctx.series[i].n >= 64]
         if not idx:
             return []
+        nus = {i: ctx.nuisance(i) for i in idx}
         out = []
-        exp_prop = self._exponential(ctx, states, idx)
+        exp_prop = self._exponential(ctx, states, idx, nus)
         if exp_prop is not None:
             out.append(exp_prop)
-        poly_prop = self._polynomial(ctx, states, idx)
+        poly_prop = self._polynomial(ctx, states, idx, nus)
         if poly_prop is not None:
             out.append(poly_prop)
         return out
 
     # -- exponential -------------------------------------------------------------------------
-    def _exponential(self, ctx: Context, states: list[State], idx: list[int]) -> Proposal | None:
+    def _exponential(self, ctx: Context, states: list[State], idx: list[int], nus: dict) -> Proposal | None:
         dur = float(ctx.duration_s)
         tau_lo = max(5.0 / max(ctx.f0_hz, 1e-9), 10 * ctx.dt_s, 0.01 * dur)
         grid = np.geomspace(tau_lo, 2.0 * dur, N_GRID)
-        stat = np.zeros((len(idx), N_GRID))
-        logn = np.array([math.log(ctx.series[i].n) for i in idx])
-        # the columns on the frame clock once (exp is the cost), then each series' frames
+        # the columns on the frame clock once (exp is the cost), screened for all series by GEMMs
         e_grid = np.exp(-(np.arange(ctx.n_frames) * ctx.dt_s)[:, None] / grid[None, :])
-        for j, i in enumerate(idx):
-            s, st = ctx.series[i], states[i]
-            cols = e_grid[s.k]
-            stat[j] = screen_columns(ctx.nuisance(i), weights(st), residual(ctx, i, st), cols)[0]
+        stat = screen_grid(ctx, states, idx, nus, e_grid)[0]
+        logn = np.array([math.log(ctx.series[i].n) for i in idx])
         crit = np.maximum(stat - logn[:, None], 0.0).sum(axis=0)
         g = int(np.argmax(crit))
         if crit[g] <= 0:
@@ -113,34 +109,67 @@ class Drift(Effect):
             dof_total=len(idx),
             n_scan_total=N_GRID,
         )
+        log_tau = math.log(grid[g])
+        if 0 < g < N_GRID - 1:
+            log_tau += peak_offset(*(math.exp(v / max(crit[g], 1.0)) for v in crit[g - 1 : g + 2])) * (
+                math.log(grid[1] / grid[0])
+            )
         sel = [i for j, i in enumerate(idx) if stat[j, g] > logn[j]]
-        tau0 = float(grid[g])
-        fit, sel = self._fit(ctx, states, sel, tau0)
-        if fit is None:
+        prop = self._linear(ctx, states, sel, nus, math.exp(log_tau), None, p_value)
+        if prop is None:
             return None
-        # keep the series whose own evidence pays for their amplitude; refit once if some left
-        new = self._states(ctx, states, sel, fit)
-        kept = [i for i in sel if keep_series(gain(ctx, i, states[i], new[i]), 1, ctx.series[i].n)]
-        if not kept:
+        prop.refine = lambda: self._refined(ctx, states, prop, nus, p_value)
+        return prop
+
+    def _linear(self, ctx, states, sel, nus, tau, sig_tau, p_value) -> Proposal | None:
+        """The exponential at a given τ on each series (linear amplitude + nuisance); the series
+        that pay for their amplitude make the proposal."""
+        new, amps, sds = {}, {}, {}
+        for i in sel:
+            s, st = ctx.series[i], states[i]
+            col = np.exp(-s.t / tau)[:, None]
+            beta, cov, fitted = lstsq(
+                np.concatenate([col, nus[i]], axis=1), residual(ctx, i, st), weights(st)
+            )
+            cand = updated(st, self.id, 1, mean=st.mean + fitted)
+            if keep_series(gain(ctx, i, st, cand), 1, s.n):
+                new[i], amps[i], sds[i] = cand, float(beta[0]), math.sqrt(max(float(cov[0, 0]), 0.0))
+        if not new:
             return None
-        if len(kept) < len(sel):
-            fit, kept = self._fit(ctx, states, kept, float(math.exp(fit.theta[0])))
-            if fit is None:
-                return None
-            new = self._states(ctx, states, kept, fit)
+        return self._proposal(ctx, new, amps, sds, tau, sig_tau, p_value)
+
+    def _refined(self, ctx, states, prop, nus, p_value) -> Proposal | None:
+        """τ by variable projection (optimistix) on the proposal's series, then the states again."""
+        sel = prop.series
+        tau0 = float(prop.parameters["tau_s"]["value"])
+        ts = [ctx.series[i].t for i in sel]
+        rs = [residual(ctx, i, states[i]) for i in sel]
+        ws = [weights(states[i]) for i in sel]
+        nu3 = [_pad3(nus[i]) for i in sel]
+        fit = fit_shared(_columns, np.array([math.log(tau0)]), ts, rs, ws, nu3, scale=np.array([0.1]))
+        if not fit.converged or not np.isfinite(fit.theta[0]):
+            return None
         tau = float(math.exp(fit.theta[0]))
-        if not (grid[0] / 2 <= tau <= 4 * grid[-1]):
+        dur = float(ctx.duration_s)
+        if not (0.002 * dur <= tau <= 10 * dur):
             return None
         sig_tau = tau * math.sqrt(max(float(fit.theta_cov[0, 0]), 0.0))
-        a = fit.beta[:, 0]
-        sa = np.sqrt(np.maximum(fit.beta_cov[:, 0, 0], 0.0))
+        out = self._linear(ctx, states, sel, nus, tau, sig_tau, p_value)
+        if out is not None:
+            out.n_params = 1 + len(out.series)
+        return out
+
+    def _proposal(self, ctx, new, amps, sds, tau, sig_tau, p_value) -> Proposal:
+        kept = sorted(new)
+        a = np.array([amps[i] for i in kept])
+        sa = np.array([sds[i] for i in kept])
         amp = median_signed(a)
         amp_sigma = 1.2533 * math.sqrt(float(np.mean(sa**2)) / a.size)
         where = ", ".join(ctx.series[i].key for i in kept)
         return Proposal(
             effect=self.id,
             series=kept,
-            states={i: new[i] for i in kept},
+            states=new,
             n_params=1 + len(kept),
             p_value=p_value,
             parameters={
@@ -156,48 +185,35 @@ class Drift(Effect):
                 f"decaying with a time constant of {tau / 60:.1f} min: the camera warming up "
                 "(or its mount settling) adds a slowly vanishing offset."
             ),
-            detail={"amplitudes_mm": {ctx.series[i].key: float(v) for i, v in zip(kept, a, strict=True)}},
+            detail={"amplitudes_mm": {ctx.series[i].key: amps[i] for i in kept}},
         )
 
-    @staticmethod
-    def _fit(ctx, states, sel, tau0):
-        if not sel:
-            return None, sel
-        ts = [ctx.series[i].t for i in sel]
-        rs = [residual(ctx, i, states[i]) for i in sel]
-        ws = [weights(states[i]) for i in sel]
-        nus = [_nuisance3(ctx, i) for i in sel]
-        fit = fit_shared(_columns, np.array([math.log(tau0)]), ts, rs, ws, nus)
-        if not fit.converged or not np.isfinite(fit.theta[0]):
-            return None, sel
-        return fit, sel
-
-    def _states(self, ctx, states, sel, fit) -> dict[int, State]:
-        return {
-            i: updated(states[i], self.id, 1, mean=states[i].mean + fit.fitted[j]) for j, i in enumerate(sel)
-        }
-
     # -- polynomial --------------------------------------------------------------------------
-    def _polynomial(self, ctx: Context, states: list[State], idx: list[int]) -> Proposal | None:
+    def _polynomial(self, ctx: Context, states: list[State], idx: list[int], nus: dict) -> Proposal | None:
         dur = float(ctx.duration_s)
         t_mid = 0.5 * dur
         stat = np.zeros((len(idx), MAX_DEGREE))
-        fits = {}
+        grams = {}
         for j, i in enumerate(idx):
             s, st = ctx.series[i], states[i]
-            u = (s.t - t_mid) / (0.5 * dur)
-            cols_all = _legendre(u, MAX_DEGREE)
-            nu = ctx.nuisance(i)
+            g = np.concatenate([_legendre((s.t - t_mid) / (0.5 * dur), MAX_DEGREE), nus[i]], axis=1)
             w = weights(st)
             r = residual(ctx, i, st)
+            gw = g * w[:, None]
+            gtg = gw.T @ g
+            b = gw.T @ r
+            rr = float(np.sum(w * r * r))
+            q = nus[i].shape[1]
+            rss = {}
+            for d in range(0, MAX_DEGREE + 1):
+                cols = list(range(d)) + list(range(MAX_DEGREE, MAX_DEGREE + q))
+                sub = gtg[np.ix_(cols, cols)]
+                rss[d] = rr - float(b[cols] @ np.linalg.lstsq(sub, b[cols], rcond=None)[0])
+            n_used = max(int((w > 0).sum()) - MAX_DEGREE - q, 1)
+            s2 = max(rss[MAX_DEGREE] / n_used, 1e-300)
             for d in range(1, MAX_DEGREE + 1):
-                beta, cov, fitted = lstsq(np.concatenate([cols_all[:, :d], nu], axis=1), r, w)
-                b, c = beta[:d], cov[:d, :d]
-                try:
-                    stat[j, d - 1] = float(b @ np.linalg.solve(c, b))
-                except np.linalg.LinAlgError:
-                    stat[j, d - 1] = 0.0
-                fits[(i, d)] = (fitted, cols_all[:, :d] @ b)
+                stat[j, d - 1] = max(rss[0] - rss[d], 0.0) / s2
+            grams[i] = g
         logn = np.array([math.log(ctx.series[i].n) for i in idx])
         degrees = np.arange(1, MAX_DEGREE + 1)
         crit = np.maximum(stat - degrees[None, :] * logn[:, None], 0.0).sum(axis=0)
@@ -208,20 +224,21 @@ class Drift(Effect):
         p_single = min(1.0, float(chi2_sf(stat[:, dj].max(), d)) * len(idx) * MAX_DEGREE)
         p_total = min(1.0, float(chi2_sf(stat[:, dj].sum(), d * len(idx))) * MAX_DEGREE)
         p_value = min(1.0, 2 * min(p_single, p_total))
-        new = {}
-        amps = []
+        new, amps = {}, {}
         for j, i in enumerate(idx):
             if stat[j, dj] <= d * logn[j]:
                 continue
-            fitted, drift = fits[(i, d)]
-            st = updated(states[i], self.id, d, mean=states[i].mean + fitted)
-            if keep_series(gain(ctx, i, states[i], st), d, ctx.series[i].n):
-                new[i] = st
-                amps.append(float(drift[0] - drift.mean()))
+            st = states[i]
+            g = grams[i][:, list(range(d)) + list(range(MAX_DEGREE, grams[i].shape[1]))]
+            beta, _, fitted = lstsq(g, residual(ctx, i, st), weights(st))
+            cand = updated(st, self.id, d, mean=st.mean + fitted)
+            if keep_series(gain(ctx, i, st, cand), d, ctx.series[i].n):
+                drift = g[:, :d] @ beta[:d]
+                new[i], amps[i] = cand, float(drift[0] - drift.mean())
         if not new:
             return None
         kept = sorted(new)
-        amp = median_signed(np.array(amps))
+        amp = median_signed(np.array([amps[i] for i in kept]))
         where = ", ".join(ctx.series[i].key for i in kept)
         return Proposal(
             effect=self.id,
@@ -243,7 +260,7 @@ class Drift(Effect):
                 f"polynomial; {amp:+.3f} mm at the start against the record's mean): camera warm-up "
                 "or a settling mount."
             ),
-            detail={"amplitudes_mm": {ctx.series[i].key: a for i, a in zip(kept, amps, strict=True)}},
+            detail={"amplitudes_mm": {ctx.series[i].key: amps[i] for i in kept}},
         )
 
 

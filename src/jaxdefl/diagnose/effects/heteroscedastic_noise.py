@@ -7,12 +7,14 @@ threshold loses or gains pixels at one end of the stroke; the noise grows or fal
 record as the camera warms, the ambient light changes or the plate gets dirty (kind "time").
 
 Signature test: per plate and axis, maximum likelihood of σ_i = σ0 · scale_i · (1 + θ·x_i)
-(σ0 profiled) by Newton steps on θ, with x = (cos φ_i, sin φ_i) for kind "phase" (φ the nominal
-harmonic's phase angle ω(t − t_ref) − phase, 0 at the peak of the motion) and x = u_i =
-(t − t_mid)/(duration/2) for kind "time". Twice the likelihood gain is χ²_2 (χ²_1) under the
-nominal model; the p-value is the largest single-series gain Bonferroni-corrected over series ×
-the two kinds, or the gain summed over all series (χ²_2S or χ²_S) corrected for the two kinds,
-whichever is smaller (doubled). One proposal per kind: BIC decides.
+(σ0 profiled) by Newton steps on θ, with x = (cos φ_i, sin φ_i) for kind "phase" (φ the
+nominal harmonic's phase angle ω(t − t_ref) − phase, 0 at the peak of the motion) and x = u_i =
+(t − t_mid)/(duration/2) for kind "time"; the squared residuals are summed in 72 bins of the
+phase or 240 bins of time (σ hardly changes within a bin) and the gain is recomputed exactly.
+Twice the likelihood gain is χ²_2 (χ²_1) under the nominal model; the p-value is the largest
+single-series gain Bonferroni-corrected over series × the two kinds, or the gain summed over all
+series (χ²_2S or χ²_S) corrected for the two kinds, whichever is smaller (doubled). One proposal
+per kind: BIC decides.
 
 Model term: the noise model only (`State.scale` multiplied by 1 + m u_i, u = cos(φ − ψ) or the
 centred time); the offset (and C, D) are refitted with the new weights for free. Two parameters
@@ -35,6 +37,7 @@ __all__ = ["HeteroscedasticNoise", "EFFECT"]
 
 KINDS = ("phase", "time")
 NEWTON_STEPS = 12
+N_BINS = {"phase": 72, "time": 240}  # the likelihood on bins of the motion's phase or of time
 M_MAX = 0.95  # |1 + θ·x| stays >= 0.05
 
 
@@ -47,35 +50,38 @@ def _features(ctx: Context, i: int, kind: str) -> np.ndarray:
     return ((s.t - mid) / (0.5 * ctx.duration_s))[:, None]
 
 
-def _objective(theta: np.ndarray, x: np.ndarray, v: np.ndarray) -> float:
+def _objective(theta: np.ndarray, x: np.ndarray, v: np.ndarray, c: np.ndarray) -> float:
     s = 1.0 + x @ theta
     if np.any(s <= 0):
         return np.inf
-    return float(np.sum(np.log(s)) + 0.5 * v.size * math.log(float(np.sum(v / s**2))))
+    return float(c @ np.log(s) + 0.5 * c.sum() * math.log(float(np.sum(v / s**2))))
 
 
-def fit_scale(x: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+def fit_scale(
+    x: np.ndarray, v: np.ndarray, c: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, float]:
     """Maximum likelihood of θ in σ_i = σ0 (1 + θ·x_i), σ0 profiled, from squared residuals v.
 
     Args:
-        x: (sample, k) features; v: (sample,) squared standardised residuals.
+        x: (bin, k) features; v: (bin,) sums of squared standardised residuals; c: (bin,) sample
+            counts (1 each when x and v are per sample).
     Returns:
         (θ (k,), cov (k, k), twice the log-likelihood gain over θ = 0).
     """
+    c = np.ones_like(v) if c is None else c
     k = x.shape[1]
-    n = v.size
+    n = float(c.sum())
     theta = np.zeros(k)
-    f0 = f = _objective(theta, x, v)
+    f0 = f = _objective(theta, x, v, c)
     hess = np.eye(k)
     for _ in range(NEWTON_STEPS):
         s = 1.0 + x @ theta
         q = float(np.sum(v / s**2))
         g_v = (v / s**3) @ x
-        grad = np.sum(x / s[:, None], axis=0) - n / q * g_v
         xs = x / s[:, None]
-        hess = (
-            -xs.T @ xs + 3.0 * n / q * (xs * (v / s**2)[:, None]).T @ xs - 2.0 * n / q**2 * np.outer(g_v, g_v)
-        )
+        grad = c @ xs - n / q * g_v
+        hess = -(xs * c[:, None]).T @ xs + 3.0 * n / q * (xs * (v / s**2)[:, None]).T @ xs
+        hess -= 2.0 * n / q**2 * np.outer(g_v, g_v)
         try:
             step = -np.linalg.solve(hess, grad)
         except np.linalg.LinAlgError:
@@ -86,20 +92,29 @@ def fit_scale(x: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray, flo
         while lam > 1e-4:
             cand = theta + lam * step
             if np.linalg.norm(cand) < M_MAX:
-                fc = _objective(cand, x, v)
+                fc = _objective(cand, x, v, c)
                 if fc <= f:
                     break
             lam *= 0.5
         else:
             break
         theta, f_old, f = cand, f, fc
-        if f_old - f < 1e-9:
+        if f_old - f < 1e-10:
             break
     try:
         cov = np.linalg.inv(hess)
     except np.linalg.LinAlgError:
         cov = np.full((k, k), np.nan)
     return theta, cov, 2.0 * (f0 - f)
+
+
+def _binned(x: np.ndarray, v: np.ndarray, key: np.ndarray, n_bins: int):
+    """Per-bin mean features, sums of v and counts (bins empty of samples dropped)."""
+    c = np.bincount(key, minlength=n_bins).astype(float)
+    vb = np.bincount(key, v, minlength=n_bins)
+    xb = np.stack([np.bincount(key, x[:, j], minlength=n_bins) for j in range(x.shape[1])], axis=1)
+    ok = c > 0
+    return xb[ok] / c[ok, None], vb[ok], c[ok]
 
 
 class HeteroscedasticNoise(Effect):
@@ -120,7 +135,13 @@ class HeteroscedasticNoise(Effect):
             v = (r[inl] / st.scale[inl]) ** 2
             for kind in KINDS:
                 x = _features(ctx, i, kind)
-                theta, cov, two_gain = fit_scale(x[inl], v)
+                xi = x[inl]
+                if kind == "phase":
+                    frac = np.arctan2(xi[:, 1], xi[:, 0]) / (2 * np.pi) + 0.5
+                else:
+                    frac = 0.5 * (xi[:, 0] + 1.0)
+                key = np.clip((frac * N_BINS[kind]).astype(np.int64), 0, N_BINS[kind] - 1)
+                theta, cov, two_gain = fit_scale(*_binned(xi, v, key, N_BINS[kind]))
                 fits[kind][i] = (theta, cov, x)
                 stat[kind][j] = two_gain
         out = []
