@@ -21,13 +21,15 @@ def test_non_ambiguity_range_table_3_1():
     assert non_ambiguity_range_m(30) == 299792458 / 60e6
 
 
-def _static(**camera):
-    raw = {
-        "camera": {"dropout_prob": 0.0, **camera},
+def _raw_static():
+    return {
         "recording": {"duration_s": 1.0},
         "loading": {"amplitude_mm": 0.0, "longitudinal_mm": 0.0, "lateral_mm": 0.0},
     }
-    return config_from_dict(raw)
+
+
+def _static(**camera):
+    return config_from_dict({**_raw_static(), "camera": {"dropout_prob": 0.0, **camera}})
 
 
 def test_noise_free_range_is_the_geometry():
@@ -50,14 +52,23 @@ def test_range_wraps_at_the_non_ambiguity_range():
     assert (frames < 1000).mean() > 0.05  # the floor at ~2.7-3.3 m comes back short
 
 
+def _surface_scatter(frames, top):
+    """Per-pixel STD of the top surface about its own per-frame level (Table 6.1's STD: the
+    frame-common range error moves the whole surface and is not in it)."""
+    z = frames.reshape(len(frames), -1)[:, top].astype(np.float64)
+    z = z - z.mean(axis=1, keepdims=True)
+    return float(np.median(z.std(axis=0, ddof=1)))
+
+
 @pytest.mark.parametrize("fm", [29.0, 31.0])
 def test_noise_matches_table_6_1(fm):
     for fs, expected in TABLE_6_1_MM[fm].items():
-        cfg = _static(frame_rate_hz=fs, modulation_mhz=fm, fov_deg=[69.0, 56.0])
+        # Table 6.1 was measured with Cam 3 (69 x 56 deg), whose centroid residuals calibrate it
+        cfg = _static(frame_rate_hz=fs, modulation_mhz=fm, fov_deg=[69.0, 56.0], name="cam3")
         t, frames, _, _ = render_frames(cfg, duration_s=max(2.0, 40 / fs))
         top = tof_model(cfg, pixel_model(cfg)).top_pixels
         assert top.size > 200
-        sd = np.median(frames.reshape(len(t), -1)[:, top].std(axis=0, ddof=1))
+        sd = _surface_scatter(frames, top)
         assert abs(sd / expected - 1) < 0.15, (fm, fs, sd, expected)
 
 
@@ -67,8 +78,22 @@ def test_noise_grows_with_frame_rate_and_falls_with_modulation():
         cfg = _static(frame_rate_hz=fs, modulation_mhz=fm)
         t, frames, _, _ = render_frames(cfg, duration_s=2.0)
         top = tof_model(cfg, pixel_model(cfg)).top_pixels
-        sds[fs, fm] = np.median(frames.reshape(len(t), -1)[:, top].std(axis=0))
+        sds[fs, fm] = _surface_scatter(frames, top)
     assert sds[10.0, 29.0] < sds[40.0, 31.0] < sds[40.0, 29.0]
+
+
+def test_frame_common_range_error_moves_the_whole_surface():
+    # the correlated part: the top surface's per-frame mean scatters by about the calibrated
+    # sigma (its common part; the smooth part averages down over the surface)
+    cfg = _static(frame_rate_hz=40.0, modulation_mhz=29.0, fov_deg=[69.0, 56.0], name="cam3")
+    tm = tof_model(cfg, pixel_model(cfg))
+    t, frames, _, _ = render_frames(cfg, duration_s=5.0)
+    level = frames.reshape(len(t), -1)[:, tm.top_pixels].astype(np.float64).mean(axis=1)
+    common = tm.sigma_corr_mm * math.sqrt(1 - tm.corr_spatial)
+    assert tm.sigma_corr_mm > 10.0  # Table 6.2: 13.08 mm at 40 Hz for Cam 3
+    assert np.std(level, ddof=1) == pytest.approx(common, rel=0.25)
+    off = config_from_dict({**_raw_static(), "camera": {"dropout_prob": 0.0, "centroid_residual_mm": 0.0}})
+    assert tof_model(off, pixel_model(off)).sigma_corr_mm == 0.0
 
 
 def test_motion_artefacts_match_fig_6_9():

@@ -58,13 +58,12 @@ import dataclasses
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
 import pandas as pd
 
-from .config import SimConfig, load_config
+from .config import SimConfig, config_from_dict
 from .lds import frame_clock, truth_table
 from .writer import simulate_trajectories
 
@@ -103,8 +102,23 @@ SIGNAL_MIN = 200.0  # Σ n rms²/σ² over the affected series (aim: >= ~150, wi
 RMS_RATIO_RANGE = (0.1, 0.6)  # effect RMS / raw noise σ of the touched series
 MODULATION_RANGE = (0.15, 0.4)  # heteroscedastic noise
 
-_ROOT = Path(__file__).resolve().parents[3]
-_CONFIGS = {"tof": "exp2_tof_3hz.toml", "structured_light": "exp2_kinect_3hz.toml"}
+# Experiment II's days at 3 Hz: (day, cycles at start, f0 Hz, mid-span amplitude mm) of Table 6.16
+# (ToF days, LDS) and Table 6.24 (Kinect days), as in configs/exp2_{tof,kinect}_3hz.toml
+SESSIONS = {
+    "tof": {
+        "day1": (1, 32400, 3.0680, 2.32),
+        "day2": (2, 60050, 3.0678, 2.42),
+        "day3": (3, 92450, 3.0679, 2.58),
+        "day5": (5, 226400, 3.0681, 2.58),
+        "day8": (8, 391000, 3.0687, 2.61),
+        "day11": (11, 880286, 3.0673, 2.63),
+    },
+    "structured_light": {
+        "day7": (7, 332900, 3.0684, 2.59),
+        "day8": (8, 391000, 3.0687, 2.62),
+        "day10": (10, 677400, 3.0675, 2.64),
+    },
+}
 _AXES = ("x", "y", "z")
 # raw noise σ (mm) per axis: the thesis' Table 6.17 (ToF, 20 Hz: 0.76 mm in z); ToF noise grows with
 # the frame rate as the range noise of Table 6.1 (29 MHz: 2.56 -> 3.14 mm from 20 to 30 Hz)
@@ -161,22 +175,40 @@ class RecordingSpec:
 
 
 def sim_config(spec: RecordingSpec) -> SimConfig:
-    """The simulator config of a spec: Experiment II's day, fatigue off, plates over the span."""
-    cfg = load_config(_ROOT / "configs" / _CONFIGS[spec.sensor], session=spec.session or None)
-    span = cfg.beam.span_mm
-    x0 = 200.0
-    spacing = (span - 2 * x0) / (spec.n_plates - 1)
-    lds_plates = spec.lds_plates or (3,)
-    return dataclasses.replace(
-        cfg,
-        recording=dataclasses.replace(cfg.recording, duration_s=float(spec.duration_s)),
-        fatigue=dataclasses.replace(cfg.fatigue, law="none"),
-        plates=dataclasses.replace(cfg.plates, count=spec.n_plates, x0_mm=x0, spacing_mm=spacing),
-        camera=dataclasses.replace(
-            cfg.camera, frame_rate_hz=float(spec.frame_rate_hz), dropout_prob=spec.dropout_prob, plates=()
-        ),
-        lds=dataclasses.replace(cfg.lds, enabled=True, plates=lds_plates, defective_plate=0),
-    )
+    """The simulator config of a spec: Experiment II's day, fatigue off, plates over the span.
+
+    Self-contained (`config_from_dict`), so that edits to the shipped configs do not move the
+    benchmark.
+    """
+    sessions = SESSIONS[spec.sensor]
+    name = spec.session or next(iter(sessions))
+    if name not in sessions:
+        raise ValueError(f"session: expected one of {', '.join(sessions)} for {spec.sensor}, got {name!r}")
+    day, cycles, f0, amp = sessions[name]
+    span, x0 = 3400.0, 200.0
+    raw = {
+        "recording": {
+            "segment": name,
+            "day": day,
+            "duration_s": float(spec.duration_s),
+            "start_epoch_s": 1.7e9,
+            "cycles_at_start": float(cycles),
+        },
+        "beam": {"span_mm": span, "load_a_mm": 1200.0},
+        "plates": {"count": spec.n_plates, "x0_mm": x0, "spacing_mm": (span - 2 * x0) / (spec.n_plates - 1)},
+        "loading": {"frequency_hz": f0, "amplitude_mm": amp, "longitudinal_mm": 0.5, "lateral_mm": 0.05},
+        "fatigue": {"law": "none"},
+        "camera": {
+            "sensor": "sr4000" if spec.sensor == "tof" else "kinect",
+            "frame_rate_hz": float(spec.frame_rate_hz),
+            "x_mm": 1700.0,
+            "y_mm": 400.0,
+            "standoff_mm": 1900.0,
+            "dropout_prob": float(spec.dropout_prob),
+        },
+        "lds": {"enabled": True, "plates": list(spec.lds_plates or (3,)), "defective_plate": 0},
+    }
+    return config_from_dict(raw, source=f"<concealed effects {name}>")
 
 
 def random_spec(
@@ -192,7 +224,7 @@ def random_spec(
     fs = 30.0 if sensor == "structured_light" else float(rng.choice([20.0, 30.0], p=[0.6, 0.4]))
     duration = 60.0 * (float(rng.uniform(15.0, 20.0)) if minutes is None else float(minutes))
     n_plates = int(rng.integers(9, 14))
-    days = ["day1", "day2", "day3", "day5", "day8", "day11"] if sensor == "tof" else ["day7", "day8", "day10"]
+    days = list(SESSIONS[sensor])
     return RecordingSpec(
         sensor=sensor,  # type: ignore[arg-type]
         frame_rate_hz=fs,

@@ -195,6 +195,9 @@ class ToFModel:
     top_pixels: np.ndarray  # (n,) pixels that see only the beam top (for precision checks)
     nar_mm: float
     integration_ms: float
+    camera_xy_mm: np.ndarray  # (2,) camera X, Y (world mm)
+    plate_depth_mm: float  # camera Z of the plates' top faces at rest
+    plate_shape: np.ndarray  # (plate,) deflection / mid-span deflection
     sigma_corr_mm: float = 0.0  # per-frame correlated range error (sigma, mm)
     corr_spatial: float = 0.0  # share of its variance that varies across the image
     corr_basis: np.ndarray | None = None  # (4, p) smooth modes
@@ -259,6 +262,9 @@ def tof_model(cfg: SimConfig, pm: PixelModel) -> ToFModel:
         plate_foot=pm.plate_foot.astype(np.float64),
         plate_occ=pm.plate_occ.astype(np.float32),
         plate_edges=pm.plate_edges,
+        camera_xy_mm=np.array([cam.x_mm, cam.y_mm]),
+        plate_depth_mm=float(pm.plate_depth_mm[0]),
+        plate_shape=np.asarray(pm.plate_shape, float),
         sigma_c=float(sigma_c),
         offset_b=(0.25 * amp + 200.0).astype(np.float32),
         scattering=cam.scattering,
@@ -306,17 +312,17 @@ def _kernel(correlated: bool = True):
         def tap(i):
             d = defl[i]
             bg = jnp.sum(m["bg_base"] * jnp.exp(1j * (m["k"] * m["bg_gain"] * d)), axis=1)
-            e = m["edges"]
+            # the plates' rectangles where they are at this tap: moved along and across the beam,
+            # and seen smaller as they move down (footprints are at the plates' rest depth)
+            sc = (m["pdepth"] / (m["pdepth"] + m["pshape"] * d))[:, None]
+            shift = jnp.stack([dx[i], dx[i], dy[i], dy[i]])
+            e = m["pcam"] + (m["edges"] + shift - m["pcam"]) * sc
             idx = m["pidx"]
             ok = idx >= 0
             ii = jnp.maximum(idx, 0)
             fp = m["foot"]
-            ox = jnp.clip(
-                jnp.minimum(fp[:, 1], e[ii, 1] + dx[i]) - jnp.maximum(fp[:, 0], e[ii, 0] + dx[i]), 0
-            )
-            oy = jnp.clip(
-                jnp.minimum(fp[:, 3], e[ii, 3] + dy[i]) - jnp.maximum(fp[:, 2], e[ii, 2] + dy[i]), 0
-            )
+            ox = jnp.clip(jnp.minimum(fp[:, 1], e[ii, 1]) - jnp.maximum(fp[:, 0], e[ii, 0]), 0)
+            oy = jnp.clip(jnp.minimum(fp[:, 3], e[ii, 3]) - jnp.maximum(fp[:, 2], e[ii, 2]), 0)
             f = jnp.where(ok, ox / (fp[:, 1] - fp[:, 0]) * oy / (fp[:, 3] - fp[:, 2]), 0.0)
             f = (f * (1 - m["occ"])).astype(jnp.float32)
             plate = m["pbase"] * jnp.exp(1j * (m["k"] * m["pgain"] * d))
@@ -353,6 +359,9 @@ def _device_model(tm: ToFModel) -> dict:
         foot=jnp.asarray(tm.plate_foot, jnp.float32),
         occ=jnp.asarray(tm.plate_occ),
         edges=jnp.asarray(tm.plate_edges, jnp.float32),
+        pcam=jnp.asarray(np.repeat(tm.camera_xy_mm, 2), jnp.float32),
+        pdepth=jnp.float32(tm.plate_depth_mm),
+        pshape=jnp.asarray(tm.plate_shape, jnp.float32),
         sigma_c=jnp.float32(tm.sigma_c),
         B=jnp.asarray(tm.offset_b),
         scatter=jnp.complex64(tm.scattering),
