@@ -453,6 +453,7 @@ def test_score_perfect_and_wrong_reports():
     assert json.loads(by[(1, "drift")].param_errors)["tau_s"] == pytest.approx(0.4)
     assert not by[(1, "level_jump")].named
     assert by[(2, "motion_artefact")].detected  # half of the reference plates is enough
+    assert by[(2, "motion_artefact")].jaccard == pytest.approx(3 / 5)
     assert by[(3, "level_jump")].named and not by[(3, "level_jump")].located
     assert by[(3, "level_jump")].jaccard == 0.0
     assert conf.loc["level_jump", "level_jump"] == 2 and conf.loc["level_jump", "none"] == 1
@@ -549,6 +550,8 @@ def test_benchmark_plumbing_with_a_stand_in(tmp_path, monkeypatch):
     assert len(cases) == 2 and summary["n_controls"] == 1
     assert set(pd.read_csv(tmp_path / "confusion.csv", index_col=0).index) >= {"none", "level_jump"}
     assert not results[0]["error"] and not results[1]["error"]
+    again = bench.score(bench.load_results(tmp_path))
+    pd.testing.assert_frame_equal(again[0], cases)
 
 
 # ---------------------------------------------------------------------------------------------
