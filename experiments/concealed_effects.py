@@ -468,6 +468,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     shown = {k: v for k, v in vars(args).items() if k not in ("diagnose", "rescore") and v is not None}
     if args.rescore:
         results = load_results(args.out)
+        shown = {"out": args.out, "rescore": "(scored again from the saved truth and diag)"}
     else:
         plan = plan_cases(args.cases, args.controls, args.seed)
         results = run_benchmark(plan, args.minutes, args.workers, args.diagnose)
