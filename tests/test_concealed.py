@@ -18,8 +18,8 @@ from jaxdefl.simulate.effects import (
     EFFECT_IDS,
     RMS_RATIO_RANGE,
     SIGNAL_MIN,
+    CleanRecording,
     RecordingSpec,
-    _Base,
     draw_effect,
     make_case,
     make_recording,
@@ -69,7 +69,7 @@ def clean():
 
 
 def test_nominal_is_the_simulator_kinematics():
-    base = _Base(SPEC, SEED)
+    base = CleanRecording(SPEC, SEED)
     truth, lds = simulate_trajectories(sim_config(SPEC), SPEC.duration_s, SEED)
     pos = base.motion(base.t)
     for i, a in enumerate("xyz"):
@@ -348,7 +348,7 @@ def test_drawn_magnitudes_are_below_the_noise_and_detectable(eid):
         n_plates=11,
         dropout_prob=0.1,
     )
-    base = _Base(spec, 9)
+    base = CleanRecording(spec, 9)
     rng = np.random.default_rng(1)
     e = draw_effect(eid, base, rng)
     _, _, truth = make_recording(spec, [e], 9, base=base)

@@ -48,8 +48,8 @@ ranges: the taps spread over 0.4-1 frame period; timestamps late by 2-10 ms; a c
 20-200 ppm (either sign) but as small as the RMS target asks (20-40 ppm for 15-20 minutes: larger
 rates put the camera-LDS mismatch far above the raw noise).
 
-Public surface: `EFFECT_IDS`, `RecordingSpec`, `random_spec`, `draw_effect`, `make_recording`,
-`make_case`, `primary_parameters`.
+Public surface: `EFFECT_IDS`, `RecordingSpec`, `CleanRecording`, `random_spec`, `draw_effect`,
+`make_recording`, `make_case`, `primary_parameters`, `effect_strength`.
 """
 
 from __future__ import annotations
@@ -75,11 +75,14 @@ __all__ = [
     "SIGNAL_MIN",
     "RMS_RATIO_RANGE",
     "RecordingSpec",
+    "CleanRecording",
+    "SESSIONS",
     "random_spec",
     "draw_effect",
     "make_recording",
     "make_case",
     "primary_parameters",
+    "effect_strength",
 ]
 
 EFFECT_IDS = (
@@ -141,7 +144,7 @@ class RecordingSpec:
             amplitudes).
         dropout_prob: probability of a lost frame.
         reference: whether an LDS table comes with the recording.
-        session: the config's ``[[session]]`` (day): loading frequency and amplitude.
+        session: a day of `SESSIONS` (loading frequency and amplitude); "": the sensor's first.
         noise_mm: raw noise σ per axis (mm); None: from sensor and frame rate (`_NOISE_MM`).
         plate_noise_spread: per-plate σ factors drawn uniformly in 1 ± this.
         noisy_plate: a plate (1-based) whose noise is ``noisy_factor`` times larger; 0: none.
@@ -153,7 +156,7 @@ class RecordingSpec:
     n_plates: int = 13
     dropout_prob: float = 0.03
     reference: bool = True
-    session: str = ""  # "": the config's first session
+    session: str = ""
     noise_mm: tuple[float, float, float] | None = None  # x, y, z
     plate_noise_spread: float = 0.15
     noisy_plate: int = 0
@@ -238,8 +241,12 @@ def random_spec(
     )
 
 
-class _Base:
-    """The clean kinematics, frame clock, noise levels and LDS of one recording (no effects)."""
+class CleanRecording:
+    """The clean kinematics, frame clock, noise levels and LDS of one recording (no effects).
+
+    Built once per (spec, seed) and shared by `draw_effect` (magnitudes relative to its noise)
+    and `make_recording`.
+    """
 
     def __init__(self, spec: RecordingSpec, seed: int):
         self.spec, self.seed = spec, int(seed)
@@ -301,7 +308,7 @@ def _by_id(effects: Sequence[Mapping], eid: str) -> Mapping | None:
     return found[0] if found else None
 
 
-def _modulations(base: _Base, effects: Sequence[Mapping]):
+def _modulations(base: CleanRecording, effects: Sequence[Mapping]):
     """AM gain g(t) and FM phase Δφ(t) functions of true epoch time (None when absent)."""
     am = fm = None
     e = _by_id(effects, "amplitude_modulation")
@@ -335,7 +342,7 @@ def _modulations(base: _Base, effects: Sequence[Mapping]):
     return am, fm
 
 
-def _camera_clean(base: _Base, effects: Sequence[Mapping]) -> tuple[np.ndarray, np.ndarray]:
+def _camera_clean(base: CleanRecording, effects: Sequence[Mapping]) -> tuple[np.ndarray, np.ndarray]:
     """(table times, clean camera positions (frame, plate, axis)) before noise and quantisation."""
     am, fm = _modulations(base, effects)
     t = base.t
@@ -369,7 +376,7 @@ def _camera_clean(base: _Base, effects: Sequence[Mapping]) -> tuple[np.ndarray, 
     return t_tab, pos
 
 
-def _render(base: _Base, effects: Sequence[Mapping]) -> tuple[np.ndarray, np.ndarray, dict]:
+def _render(base: CleanRecording, effects: Sequence[Mapping]) -> tuple[np.ndarray, np.ndarray, dict]:
     """(table times, camera positions with noise (frame, plate, axis), realised extras)."""
     t_tab, pos = _camera_clean(base, effects)
     extras: dict[str, Any] = {}
@@ -401,7 +408,7 @@ def _render(base: _Base, effects: Sequence[Mapping]) -> tuple[np.ndarray, np.nda
     return t_tab, pos, extras
 
 
-def _het_u(base: _Base, e: Mapping, t_tab: np.ndarray) -> np.ndarray:
+def _het_u(base: CleanRecording, e: Mapping, t_tab: np.ndarray) -> np.ndarray:
     if e["kind"] == "phase":
         trel = t_tab - t_tab[0]
         return np.cos(base.omega * trel - base.phase - float(e["parameters"]["phase_rad"]))
@@ -409,7 +416,7 @@ def _het_u(base: _Base, e: Mapping, t_tab: np.ndarray) -> np.ndarray:
     return (t_tab - mid) / (0.5 * (t_tab[-1] - t_tab[0]))
 
 
-def _lds(base: _Base, effects: Sequence[Mapping]) -> pd.DataFrame | None:
+def _lds(base: CleanRecording, effects: Sequence[Mapping]) -> pd.DataFrame | None:
     """The LDS table: the beam's motion (with the load's AM / FM) at 300 Hz, 2 µm noise."""
     if base.lds is None:
         return None
@@ -427,7 +434,7 @@ def _lds(base: _Base, effects: Sequence[Mapping]) -> pd.DataFrame | None:
     return lds.reset_index(drop=True)
 
 
-def _table(base: _Base, t_tab: np.ndarray, pos: np.ndarray) -> pd.DataFrame:
+def _table(base: CleanRecording, t_tab: np.ndarray, pos: np.ndarray) -> pd.DataFrame:
     n, m = pos.shape[:2]
     return pd.DataFrame(
         {
@@ -445,7 +452,7 @@ def _table(base: _Base, t_tab: np.ndarray, pos: np.ndarray) -> pd.DataFrame:
 # magnitudes: effective RMS and likelihood signal of an effect
 
 
-def _absorbed_rms(base: _Base, t: np.ndarray, delta: np.ndarray, tied: bool) -> np.ndarray:
+def _absorbed_rms(base: CleanRecording, t: np.ndarray, delta: np.ndarray, tied: bool) -> np.ndarray:
     """RMS per column of ``delta`` (frame, series) after removing what the nominal model absorbs."""
     if tied:
         return np.sqrt(np.mean((delta - delta.mean(axis=0)) ** 2, axis=0))
@@ -465,7 +472,7 @@ def _series_mask(e: Mapping) -> tuple[np.ndarray, list[int]]:
     return idx, axes
 
 
-def effect_strength(base: _Base, e: Mapping) -> tuple[float, float]:
+def effect_strength(base: CleanRecording, e: Mapping) -> tuple[float, float]:
     """(pooled RMS ratio r, likelihood signal S) of one effect on the series it touches."""
     eid, p = e["id"], e["parameters"]
     idx, axes = _series_mask(e)
@@ -512,7 +519,7 @@ def _adjacent(rng: np.random.Generator, n_plates: int, k: int) -> list[int]:
 
 
 def _fit_magnitude(
-    base: _Base,
+    base: CleanRecording,
     e: dict,
     key: str,
     target: float,
@@ -549,7 +556,7 @@ def _extra_frequency(rng: np.random.Generator, f0: float, fs: float) -> float:
 
 def draw_effect(
     effect_id: str,
-    base: _Base,
+    base: CleanRecording,
     rng: np.random.Generator,
     target_ratio: float | None = None,
     signal_min: float = SIGNAL_MIN,
@@ -758,7 +765,7 @@ def primary_parameters(effect: Mapping) -> dict[str, tuple[float, bool]]:
 # public entry points
 
 
-def _truth_entry(base: _Base, t_tab: np.ndarray, e: Mapping, extras: Mapping) -> dict:
+def _truth_entry(base: CleanRecording, t_tab: np.ndarray, e: Mapping, extras: Mapping) -> dict:
     eid, p = e["id"], dict(e["parameters"])
     t0, t1 = float(t_tab[0]), float(t_tab[-1])
     out: dict[str, Any] = {
@@ -795,7 +802,7 @@ def _truth_entry(base: _Base, t_tab: np.ndarray, e: Mapping, extras: Mapping) ->
 
 
 def make_recording(
-    spec: RecordingSpec, effects: Sequence[Mapping], seed: int, base: _Base | None = None
+    spec: RecordingSpec, effects: Sequence[Mapping], seed: int, base: CleanRecording | None = None
 ) -> tuple[pd.DataFrame, pd.DataFrame | None, dict]:
     """A recording with the given effects injected.
 
@@ -805,14 +812,14 @@ def make_recording(
             ``parameters``, ``plates``, ``axes``; extra_periodic optionally ``plate_factors``).
         seed: drop-outs, LDS noise, camera noise and outliers; the same seed gives the same noise
             whatever the effects, so a control and an effect case differ by the effect alone.
-        base: a `_Base` already built for (spec, seed) (saves the kinematics).
+        base: a `CleanRecording` already built for (spec, seed) (saves the kinematics).
 
     Returns:
         traj: [segment, t, plate, x, y, z] (mm, epoch s) at the delivered frames.
         lds: [segment, t, plate, z] or None without a reference.
         truth: {"recording": {...}, "effects": [...]} with the labels (kept away from the tables).
     """
-    base = base if base is not None else _Base(spec, seed)
+    base = base if base is not None else CleanRecording(spec, seed)
     ids = [e["id"] for e in effects]
     if len(set(ids)) != len(ids):
         raise ValueError(f"effects: each id at most once, got {ids}")
@@ -868,6 +875,6 @@ def make_case(
         sensor = "tof"
     reference = True if any(i in NEEDS_REFERENCE for i in ids) else None
     spec = random_spec(rng, minutes=minutes, sensor=sensor, reference=reference)
-    base = _Base(spec, seed)
+    base = CleanRecording(spec, seed)
     effects = [draw_effect(i, base, rng) for i in ids]
     return make_recording(spec, effects, seed, base=base)
