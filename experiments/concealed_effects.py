@@ -24,7 +24,9 @@ tables and the hints a user has (``sensor``, ``frame_rate_hz``) and nothing else
 - seconds per recording (the diagnose call only).
 
 Writes DIR/cases.csv (one row per case and injected effect; one row per control), DIR/confusion.csv,
-DIR/summary.md, DIR/truth/*.json and DIR/diag/*.json, and prints the summary.
+DIR/summary.md and DIR/results/case_NNN.json (plan, truth, DIAG dict, seconds, error: saved as each
+case ends, so that a stopped run resumes where it stopped, and ``--rescore`` scores them again),
+and prints the summary.
 """
 
 from __future__ import annotations
@@ -135,34 +137,53 @@ def run_benchmark(
     workers: int = 1,
     diagnose: str | Callable = DIAGNOSE,
     log: Callable[[str], None] | None = print,
+    out: Path | None = None,
 ) -> list[dict]:
     """Every case of the plan (in ``workers`` processes when > 1; ``diagnose`` must then be a
-    "module:function" name)."""
-    results = []
+    "module:function" name). With ``out``, each case is saved as it ends (DIR/results/) and a
+    case already saved there for the same seed, effects and length is not run again (resume)."""
+    done: dict[int, dict] = {}
+    if out is not None:
+        (out / "results").mkdir(parents=True, exist_ok=True)
+        for r in load_results(out):
+            p = r["plan"]
+            if r.get("minutes") == minutes:
+                done[p["case"]] = r
 
-    def note(r: dict) -> None:
-        if log is None:
-            return
-        ids = ",".join(r["plan"]["effects"]) or "control"
-        rep = ",".join(e.get("id", "?") for e in (r["diag"] or {}).get("effects", [])) or "-"
-        err = f"  ERROR {r['error'][:80]}" if r["error"] else ""
-        log(f"case {r['plan']['case']:3d} {ids:45s} -> {rep:45s} {r['seconds']:6.1f} s{err}")
+    def finish(r: dict) -> dict:
+        r["minutes"] = minutes
+        if out is not None:
+            path = out / "results" / f"case_{r['plan']['case']:03d}.json"
+            path.write_text(json.dumps(r, indent=1, default=str))
+        if log is not None:
+            ids = ",".join(r["plan"]["effects"]) or "control"
+            rep = ",".join(e.get("id", "?") for e in (r["diag"] or {}).get("effects", [])) or "-"
+            err = f"  ERROR {r['error'][:80]}" if r["error"] else ""
+            log(f"case {r['plan']['case']:3d} {ids:45s} -> {rep:45s} {r['seconds']:6.1f} s{err}")
+        return r
 
+    def same(p: Mapping) -> bool:
+        r = done.get(p["case"])
+        return r is not None and r["plan"]["seed"] == p["seed"] and r["plan"]["effects"] == list(p["effects"])
+
+    todo = [p for p in plan if not same(p)]
+    results = {p["case"]: done[p["case"]] for p in plan if same(p)}
+    if log is not None and results:
+        log(f"resuming: {len(results)} cases already in {out}")
     if workers <= 1:
-        for p in plan:
-            results.append(run_case(p, minutes, diagnose))
-            note(results[-1])
+        for p in todo:
+            results[p["case"]] = finish(run_case(p, minutes, diagnose))
     else:
         if callable(diagnose):
             raise ValueError("diagnose: with workers > 1 give a 'module:function' name")
         import multiprocessing as mp
 
         with ProcessPoolExecutor(workers, mp_context=mp.get_context("spawn")) as pool:
-            futures = [pool.submit(run_case, p, minutes, diagnose) for p in plan]
+            futures = [pool.submit(run_case, p, minutes, diagnose) for p in todo]
             for f in futures:
-                results.append(f.result())
-                note(results[-1])
-    return results
+                r = finish(f.result())
+                results[r["plan"]["case"]] = r
+    return [results[p["case"]] for p in plan]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -418,14 +439,12 @@ def _md(df: pd.DataFrame) -> str:
 def write_outputs(
     out: Path, results: Sequence[Mapping], args: Mapping
 ) -> tuple[pd.DataFrame, pd.DataFrame, dict, str]:
+    """Score and write DIR/cases.csv, DIR/confusion.csv, DIR/summary.md and DIR/results/*.json."""
     cases, conf, summary = score(results)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "truth").mkdir(exist_ok=True)
-    (out / "diag").mkdir(exist_ok=True)
+    (out / "results").mkdir(parents=True, exist_ok=True)
     for r in results:
-        c = r["plan"]["case"]
-        (out / "truth" / f"case_{c:03d}.json").write_text(json.dumps(r["truth"], indent=1))
-        (out / "diag" / f"case_{c:03d}.json").write_text(json.dumps(r["diag"], indent=1, default=str))
+        path = out / "results" / f"case_{r['plan']['case']:03d}.json"
+        path.write_text(json.dumps(dict(r), indent=1, default=str))
     cases.to_csv(out / "cases.csv", index=False)
     conf.to_csv(out / "confusion.csv", index_label="injected")
     md = summary_markdown(cases, conf, summary, args)
@@ -434,21 +453,8 @@ def write_outputs(
 
 
 def load_results(out: Path) -> list[dict]:
-    """The results saved by `write_outputs` (truth, diag and the per-case rows of cases.csv)."""
-    rows = pd.read_csv(out / "cases.csv").drop_duplicates("case").set_index("case")
-    results = []
-    for path in sorted((out / "truth").glob("case_*.json")):
-        case = int(path.stem.split("_")[1])
-        truth = json.loads(path.read_text())
-        diag = json.loads((out / "diag" / path.name).read_text())
-        row = rows.loc[case]
-        plan = {"case": case, "kind": row["kind"], "seed": int(row["seed"])}
-        plan["effects"] = [e["id"] for e in truth["effects"]]
-        error = row["error"] if isinstance(row["error"], str) else ""
-        results.append(
-            {"plan": plan, "truth": truth, "diag": diag, "seconds": float(row["seconds"]), "error": error}
-        )
-    return results
+    """The per-case results saved in DIR/results/ ({plan, truth, diag, seconds, error, minutes})."""
+    return [json.loads(p.read_text()) for p in sorted((out / "results").glob("case_*.json"))]
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -460,7 +466,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--workers", type=int, default=1, help="processes")
     ap.add_argument("--diagnose", default=DIAGNOSE, help="module:function of the diagnosis")
-    ap.add_argument("--rescore", action="store_true", help="score DIR/truth and DIR/diag again, no run")
+    ap.add_argument("--rescore", action="store_true", help="score DIR/results again, no run")
     args = ap.parse_args(argv)
     if args.cases < 0 or args.controls < 0 or args.workers < 1:
         print("concealed_effects: --cases and --controls must be >= 0, --workers >= 1", file=sys.stderr)
@@ -468,10 +474,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     shown = {k: v for k, v in vars(args).items() if k not in ("diagnose", "rescore") and v is not None}
     if args.rescore:
         results = load_results(args.out)
-        shown = {"out": args.out, "rescore": "(scored again from the saved truth and diag)"}
+        shown = {"out": args.out, "rescore": "(scored again from DIR/results)"}
     else:
         plan = plan_cases(args.cases, args.controls, args.seed)
-        results = run_benchmark(plan, args.minutes, args.workers, args.diagnose)
+        results = run_benchmark(plan, args.minutes, args.workers, args.diagnose, out=args.out)
     *_, md = write_outputs(args.out, results, shown)
     print(md)
     return 0

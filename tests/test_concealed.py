@@ -543,7 +543,14 @@ def test_benchmark_plumbing_with_a_stand_in(tmp_path, monkeypatch):
         {"case": 0, "kind": "single", "effects": ["level_jump"], "seed": 21},
         {"case": 1, "kind": "control", "effects": [], "seed": 22},
     ]
-    results = bench.run_benchmark(plan, minutes=2.0, diagnose=_stand_in, log=None)
+    results = bench.run_benchmark(plan, minutes=2.0, diagnose=_stand_in, log=None, out=tmp_path)
+    assert len(list((tmp_path / "results").glob("case_*.json"))) == 2  # saved as they end
+
+    def fail(*args, **kw):
+        raise AssertionError("a saved case ran again")
+
+    again = bench.run_benchmark(plan, minutes=2.0, diagnose=fail, log=None, out=tmp_path)  # resumes
+    assert [r["diag"] for r in again] == [r["diag"] for r in results]
     cases, conf, summary, md = bench.write_outputs(tmp_path, results, {"minutes": 2.0})
     assert (tmp_path / "cases.csv").exists() and (tmp_path / "confusion.csv").exists()
     assert "Concealed-effect benchmark" in (tmp_path / "summary.md").read_text()
