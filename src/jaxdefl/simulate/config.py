@@ -135,7 +135,7 @@ class CameraConfig:
     # the true motion matches the thesis (Tables 6.2/6.7 for cam3/cam4, 6.12/6.17 for cam2)
     calibration: str = ""  # cam2, cam3 or cam4; "": camera.name if it is one of them, else cam2
     centroid_residual_mm: float = -1.0  # -1: from the calibration unit's table; 0: no such error
-    correlated_spatial_fraction: float = 0.2  # share of its variance that varies across the image
+    correlated_spatial_fraction: float = 0.1  # share of its variance in a per-frame tilt
     dropout_prob: float = 0.03
     scattering: float = 0.003
     supersample: int = 4

@@ -21,9 +21,9 @@ Noise has two parts.
   which all pixels demodulate wanders from frame to frame (clock jitter and temperature of the
   illumination driver), a common phase offset delta, i.e. a common range error delta / k that is
   larger at short integration times (less averaging) and, for the same phase jitter, smaller at
-  higher modulation frequency. A share (``camera.correlated_spatial_fraction``) varies smoothly
-  across the image (the LED array's phase is not uniform over the field), so plates far apart are
-  only partly correlated. Its size is calibrated, per camera unit, so that a plate centroid's
+  higher modulation frequency. A share (``camera.correlated_spatial_fraction``) is a random tilt
+  of the range field (the LED array's phase is not uniform over the field), so plates far apart
+  are only partly correlated. Its size is calibrated, per camera unit, so that a plate centroid's
   residual about the true motion (what `jaxdefl fit` reports as sigma_residual_mm) matches the
   thesis: Table 6.2 for Cam 3 (29 MHz) and Cam 4 (31 MHz) at 10-40 Hz, Tables 6.12/6.17 for Cam 2
   (0.76 mm at 20 Hz, 29 MHz); the per-pixel part's contribution to the centroid is subtracted.
@@ -165,15 +165,15 @@ def centroid_residual_mm(unit: str, integration_ms: float, modulation_mhz: float
 
 
 def _spatial_basis(h: int, w: int) -> np.ndarray:
-    """(4, h*w) smooth modes across the image: cosine and sine of one period over the image width
-    and over its height. With independent N(0, 1/4) weights their sum is a stationary field of unit
-    variance at every pixel whose correlation falls off over a quarter of the image."""
-    ku = 2 * np.pi * np.arange(w) / w
-    kv = 2 * np.pi * np.arange(h) / h
-    uu = np.broadcast_to(ku[None, :], (h, w)).ravel()
-    vv = np.broadcast_to(kv[:, None], (h, w)).ravel()
-    r2 = math.sqrt(2.0)
-    return np.stack([r2 * np.cos(uu), r2 * np.sin(uu), r2 * np.cos(vv), r2 * np.sin(vv)]).astype(np.float32)
+    """(2, h*w) smooth modes across the image: a range gradient along the columns and one along
+    the rows (a per-frame tilt of the range field), each of unit mean square over the frame. A
+    tilt leaves a surface's scatter about its fitted plane (Table 6.1) unchanged, while plates
+    in different parts of the image are only partly correlated."""
+    cu = math.sqrt(3.0) * ((np.arange(w) + 0.5) / w * 2 - 1)
+    cv = math.sqrt(3.0) * ((np.arange(h) + 0.5) / h * 2 - 1)
+    uu = np.broadcast_to(cu[None, :], (h, w)).ravel()
+    vv = np.broadcast_to(cv[:, None], (h, w)).ravel()
+    return np.stack([uu, vv]).astype(np.float32)
 
 
 @dataclass(frozen=True)
@@ -200,7 +200,7 @@ class ToFModel:
     plate_shape: np.ndarray  # (plate,) deflection / mid-span deflection
     sigma_corr_mm: float = 0.0  # per-frame correlated range error (sigma, mm)
     corr_spatial: float = 0.0  # share of its variance that varies across the image
-    corr_basis: np.ndarray | None = None  # (4, p) smooth modes
+    corr_basis: np.ndarray | None = None  # (2, p) smooth modes
     centroid_residual_mm: float = 0.0  # the centroid residual it is calibrated to
     centroid_independent_mm: float = 0.0  # the per-pixel noise's share of a plate centroid
 
@@ -305,7 +305,7 @@ def _kernel(correlated: bool = True):
         # defl, dx, dy: (4,) at the four tap times
         if correlated:
             # the frame's modulation-phase offset: common part plus smooth modes across the image
-            a = jax.random.normal(jax.random.fold_in(key, 7), (5,), dtype=jnp.float32)
+            a = jax.random.normal(jax.random.fold_in(key, 7), (3,), dtype=jnp.float32)
             eps = m["corr_c0"] * a[0] + m["corr_c1"] * (a[1:] @ m["corr_basis"])
             offset = jnp.exp(1j * (m["k"] * eps)).astype(jnp.complex64)
 
@@ -366,9 +366,9 @@ def _device_model(tm: ToFModel) -> dict:
         B=jnp.asarray(tm.offset_b),
         scatter=jnp.complex64(tm.scattering),
         corr_c0=jnp.float32(tm.sigma_corr_mm * math.sqrt(1.0 - tm.corr_spatial)),
-        corr_c1=jnp.float32(tm.sigma_corr_mm * math.sqrt(tm.corr_spatial / 4.0)),
+        corr_c1=jnp.float32(tm.sigma_corr_mm * math.sqrt(tm.corr_spatial / 2.0)),
         corr_basis=jnp.asarray(
-            tm.corr_basis if tm.corr_basis is not None else np.zeros((4, tm.bg_base.shape[0]), np.float32)
+            tm.corr_basis if tm.corr_basis is not None else np.zeros((2, tm.bg_base.shape[0]), np.float32)
         ),
     )
 
