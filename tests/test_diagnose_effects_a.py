@@ -117,13 +117,30 @@ def test_harmonic_distortion_found_on_its_plates():
         return y
 
     ctx, states = make_case(inject, seed=1)
-    props = EFFECT.propose(ctx, states)
-    assert len(passing(ctx, states, props)) == 1
-    (prop,) = props
-    assert keys(ctx, prop) == ["2z", "3z"]
-    assert value(prop, "order") == 2
-    assert close(value(prop, "amplitude_mm"), 0.2)
-    assert prop.n_params == 4
+    good = passing(ctx, states, EFFECT.propose(ctx, states))
+    per = [p for p in good if p.detail["mode"] == "per_series"]
+    assert len(per) == 1 and per[0].n_params == 4
+    for prop in (per[0], min(good, key=lambda p: delta_bic(ctx, states, p))):
+        assert keys(ctx, prop) == ["2z", "3z"]
+        assert value(prop, "order") == 2
+        assert close(value(prop, "amplitude_mm"), 0.2)
+
+
+def test_harmonic_distortion_common_to_all_plates():
+    from jaxdefl.diagnose.effects.harmonic_distortion import EFFECT
+
+    def inject(t, p, axis, clean, eps, sig):
+        y = clean + sig * eps
+        return y + 0.04 * np.cos(3 * OMEGA * t - 2.0) if axis == "z" else y
+
+    ctx, states = make_case(inject, seed=7, n_plates=5)
+    good = passing(ctx, states, EFFECT.propose(ctx, states))
+    best = min(good, key=lambda p: delta_bic(ctx, states, p))
+    assert best.detail["mode"] == "common"
+    assert keys(ctx, best) == [f"{p}z" for p in range(1, 6)]
+    assert value(best, "order") == 3
+    assert close(value(best, "amplitude_mm"), 0.04)
+    assert best.n_params == 2
 
 
 def test_harmonic_distortion_clean():
@@ -181,13 +198,30 @@ def test_level_jump(plates, size, t_j):
         return y + size * (t >= t_j) if axis == "z" and p in plates else y
 
     ctx, states = make_case(inject, seed=3, n_plates=5)
-    props = EFFECT.propose(ctx, states)
-    assert len(passing(ctx, states, props)) == 1
-    (prop,) = props
+    good = passing(ctx, states, EFFECT.propose(ctx, states))
+    prop = min(good, key=lambda p: delta_bic(ctx, states, p))
+    assert prop.detail["mode"] == ("common" if len(plates) > 1 else "per_series")
     assert keys(ctx, prop) == [f"{p}z" for p in plates]
     assert abs(value(prop, "t_jump_s") - t_j) < 2.0
     assert close(value(prop, "size_mm"), size)
-    assert prop.n_params == 1 + len(plates)
+
+
+def test_level_jump_common_below_each_plate():
+    """0.06 mm on every plate: ~12 χ² units each, too little alone, plenty together."""
+    from jaxdefl.diagnose.effects.level_jump import EFFECT
+
+    def inject(t, p, axis, clean, eps, sig):
+        y = clean + sig * eps
+        return y - 0.06 * (t >= 333.3) if axis == "z" else y
+
+    ctx, states = make_case(inject, seed=8, n_plates=6)
+    good = passing(ctx, states, EFFECT.propose(ctx, states))
+    prop = min(good, key=lambda p: delta_bic(ctx, states, p))
+    assert prop.detail["mode"] == "common" and prop.n_params == 2
+    assert len(prop.series) >= 5 and all(ctx.series[i].axis == "z" for i in prop.series)
+    sig_t = prop.parameters["t_jump_s"]["sigma"]
+    assert 1.0 < sig_t < 20.0 and abs(value(prop, "t_jump_s") - 333.3) < 4 * sig_t
+    assert close(value(prop, "size_mm"), -0.06)
 
 
 def test_level_jump_clean():

@@ -6,6 +6,7 @@ projections out of the free nuisance, per-series likelihood gains and scan-corre
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import stats
@@ -26,6 +27,8 @@ __all__ = [
     "screen_grid",
     "touched",
     "median_signed",
+    "SharedAmplitude",
+    "shared_amplitude",
 ]
 
 
@@ -193,3 +196,89 @@ def screen_grid(
             beta[row] = ctr[:, j] / den
             stat[row] = ctr[:, j] ** 2 / den / s2[j]
     return stat, beta
+
+
+@dataclass
+class SharedAmplitude:
+    """A term with the same linear coefficients on every series it touches (a common mode).
+
+    Attributes:
+        beta, cov: (k,) the shared coefficients and their covariance.
+        stat: χ²_k statistic of the shared term over all the candidate series (before any
+            selection: the honest signature).
+        series: the series kept (each one's own likelihood gain positive: it has no parameter
+            of its own to pay for).
+        states: {series: new State}; gains: {series: log-likelihood gain}.
+    """
+
+    beta: np.ndarray
+    cov: np.ndarray
+    stat: float
+    series: list[int]
+    states: dict
+    gains: dict
+
+
+def shared_amplitude(
+    ctx: Context,
+    states: list[State],
+    idx: list[int],
+    cols_of,
+    nus: dict | None,
+    effect: str,
+    k_own: int = 0,
+) -> SharedAmplitude | None:
+    """Fit columns with one set of coefficients shared by the series ``idx`` (nuisance free per
+    series), drop the series whose own gain is not positive, refit, and build the new states.
+
+    Args:
+        cols_of: ``cols_of(i) -> (sample, k)`` the columns on series i.
+        nus: {series: nuisance} (computed when missing).
+        k_own: parameters each kept series adds to its own `State.n_params` (0: all shared).
+    """
+    parts = {}
+    for i in idx:
+        s, st = ctx.series[i], states[i]
+        c = cols_of(i)
+        nu = nus[i] if nus is not None and i in nus else ctx.nuisance(i)
+        w = weights(st)
+        r = s.y - st.mean
+        both = project_out(nu, w, np.concatenate([c, r[:, None]], axis=1))
+        cp, rp = both[:, :-1], both[:, -1]
+        cw = cp * w[:, None]
+        n_used = max(int((w > 0).sum()) - nu.shape[1], 1)
+        s2 = float(np.sum(w * rp * rp)) / n_used or 1e-300
+        parts[i] = (cw.T @ cp, cw.T @ rp, s2, c, nu, w)
+    if not parts:
+        return None
+
+    def solve(sel):
+        a = sum(parts[i][0] / parts[i][2] for i in sel)
+        b = sum(parts[i][1] / parts[i][2] for i in sel)
+        cov = np.linalg.pinv(a)
+        return cov @ b, cov, float(b @ cov @ b)
+
+    beta, cov, stat = solve(list(parts))
+    sel = list(parts)
+    for _ in range(2):
+        g = {i: (2 * beta @ parts[i][1] - beta @ parts[i][0] @ beta) / (2 * parts[i][2]) for i in sel}
+        nxt = [i for i in sel if g[i] > 0]
+        if not nxt or nxt == sel:
+            break
+        sel = nxt
+        beta, cov, _ = solve(sel)
+    new, gains = {}, {}
+    for i in sel:
+        st = states[i]
+        _, _, _, c, nu, w = parts[i]
+        term = c @ beta
+        r = ctx.series[i].y - st.mean - term
+        nw = nu * w[:, None]
+        gamma = np.linalg.lstsq(nw.T @ nu, nw.T @ r, rcond=None)[0]
+        cand = updated(st, effect, k_own, mean=st.mean + term + nu @ gamma)
+        d = gain(ctx, i, st, cand)
+        if d > 0:
+            new[i], gains[i] = cand, d
+    if not new:
+        return None
+    return SharedAmplitude(beta=beta, cov=cov, stat=stat, series=sorted(new), states=new, gains=gains)

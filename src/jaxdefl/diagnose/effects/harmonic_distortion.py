@@ -13,8 +13,13 @@ its own evidence pays for its two amplitudes (BIC); the p-value is the largest p
 Bonferroni-corrected over series × orders, or the strongest order summed over all series
 (χ²_2S) corrected over the orders, whichever is smaller (doubled).
 
+Common mode: the same test with one amplitude and phase shared by all the series of an axis
+(columns at the record's f0 and mid time; χ²_2 per order, Bonferroni over orders × axes): a
+cyclic range error or a structural harmonic that every plate sees alike, too weak on each plate
+alone. Both proposals go to the search; BIC decides.
+
 Model term: y += Σ_k a_k cos(k ω (t − t_ref) − ψ_k) on the kept series and orders, two linear
-parameters (a_k cos ψ_k, a_k sin ψ_k) each.
+parameters (a_k cos ψ_k, a_k sin ψ_k) each; in common mode two per order in all.
 
 Plausible magnitudes: a few per cent of the motion amplitude (0.01–0.2 mm for a 4-mm motion) for
 support contact; cyclic ToF range errors of 1–10 mm peak over a wavelength of c/(8 f_mod) (about
@@ -28,7 +33,17 @@ import math
 import numpy as np
 
 from .._base import Context, Effect, Proposal, State, keep_series, lstsq
-from ._common_a import chi2_sf, combined_p, gain, param, residual, updated, weights
+from ._common_a import (
+    bonferroni,
+    chi2_sf,
+    combined_p,
+    gain,
+    param,
+    residual,
+    shared_amplitude,
+    updated,
+    weights,
+)
 
 __all__ = ["HarmonicDistortion", "EFFECT"]
 
@@ -36,10 +51,13 @@ ORDERS = (2, 3, 4, 5)
 SCREEN_MARGIN = 8.0  # exact fits for series whose screen comes within this of the BIC bar
 
 
-def _columns(ctx: Context, i: int) -> np.ndarray:
-    """(sample, 2 × orders) cos, sin of k ω (t − t_ref) for k in ORDERS (angle-addition recurrence)."""
+def _columns(ctx: Context, i: int, omega: float | None = None, t_ref: float | None = None) -> np.ndarray:
+    """(sample, 2 × orders) cos, sin of k ω (t − t_ref) for k in ORDERS (angle-addition recurrence);
+    ω and t_ref of the series' nominal harmonic unless given."""
     h = ctx.nominal[i]
-    a = h.omega * (ctx.series[i].t - h.t_ref)
+    omega = h.omega if omega is None else omega
+    t_ref = h.t_ref if t_ref is None else t_ref
+    a = omega * (ctx.series[i].t - t_ref)
     c1, s1 = np.cos(a), np.sin(a)
     c, s = c1 * c1 - s1 * s1, 2 * s1 * c1
     cols = np.empty((a.size, 2 * len(ORDERS)))
@@ -59,6 +77,10 @@ class HarmonicDistortion(Effect):
         n_ord = len(ORDERS)
         wald = np.zeros((len(ctx.series), n_ord))
         fits = {}
+        # common mode: the record's f0 and mid time, so that the columns are one for all series
+        om0, tr0 = 2 * math.pi * ctx.f0_hz, 0.5 * ctx.duration_s
+        common_b = np.zeros((len(ctx.series), 2 * n_ord))
+        common_m = np.zeros(len(ctx.series))
         for i, st in enumerate(states):
             s = ctx.series[i]
             if s.n < 8 * (2 * n_ord + 3):
@@ -74,6 +96,8 @@ class HarmonicDistortion(Effect):
             cols = _columns(ctx, i)
             z = (w * r0) @ cols
             wald[i] = 2.0 * (z[0::2] ** 2 + z[1::2] ** 2) / (s2 * sw)
+            common_b[i] = ((w * r0) @ _columns(ctx, i, om0, tr0)) / s2
+            common_m[i] = 0.5 * sw / s2
             if wald[i].max() < 2.0 * math.log(s.n) - SCREEN_MARGIN:
                 continue
             nu = ctx.nuisance(i)
@@ -86,8 +110,20 @@ class HarmonicDistortion(Effect):
                 except np.linalg.LinAlgError:
                     wald[i, j] = 0.0
             fits[i] = (cols, beta, cov)
+        out = []
+        for axis in ("z", "x", "y"):
+            prop = self._common(ctx, states, ctx.indices(axis), common_b, common_m, om0, tr0)
+            if prop is not None:
+                out.append(prop)
+        prop = self._per_series(ctx, states, wald, fits)
+        if prop is not None:
+            out.append(prop)
+        return out
+
+    def _per_series(self, ctx, states, wald, fits) -> Proposal | None:
+        n_ord = len(ORDERS)
         if not fits:
-            return []
+            return None
         n_screened = int(np.count_nonzero(wald.any(axis=1)))
         # a pair stays when its own evidence pays for its two amplitudes
         logn = np.array([math.log(max(ctx.series[i].n, 2)) for i in range(len(ctx.series))])
@@ -116,7 +152,7 @@ class HarmonicDistortion(Effect):
                 sa = math.sqrt(max(float(g @ cov[2 * m : 2 * m + 2, 2 * m : 2 * m + 2] @ g), 0.0))
                 amps[i][ORDERS[j]] = (a, sa)
         if not new_states:
-            return []
+            return None
         series = sorted(new_states)
         # the strongest order: the largest summed statistic over the series that keep it
         score = {k: sum(wald[i, ORDERS.index(k)] for i in series if k in kept_orders[i]) for k in ORDERS}
@@ -144,27 +180,77 @@ class HarmonicDistortion(Effect):
             + ". Support contact, a cyclic range error of the camera or mixed pixels at the plate "
             "edges distort the recorded waveform."
         )
-        return [
-            Proposal(
-                effect=self.id,
-                series=series,
-                states=new_states,
-                n_params=n_params,
-                p_value=p,
-                parameters={"order": param(order, None), "amplitude_mm": param(amp, amp_sigma)},
-                t_start=0.0,
-                t_end=float(ctx.duration_s),
-                band_hz=[all_orders[0] * f0, all_orders[-1] * f0],
-                explanation=explanation,
-                detail={
-                    "orders": {ctx.series[i].key: kept_orders[i] for i in series},
-                    "amplitudes_mm": {
-                        ctx.series[i].key: {str(k): amps[i][k][0] for k in kept_orders[i]} for i in series
-                    },
-                    "p_single_order": float(chi2_sf(wald.max(), 2)),
+        return Proposal(
+            effect=self.id,
+            series=series,
+            states=new_states,
+            n_params=n_params,
+            p_value=p,
+            parameters={"order": param(order, None), "amplitude_mm": param(amp, amp_sigma)},
+            t_start=0.0,
+            t_end=float(ctx.duration_s),
+            band_hz=[all_orders[0] * f0, all_orders[-1] * f0],
+            explanation=explanation,
+            detail={
+                "mode": "per_series",
+                "orders": {ctx.series[i].key: kept_orders[i] for i in series},
+                "amplitudes_mm": {
+                    ctx.series[i].key: {str(k): amps[i][k][0] for k in kept_orders[i]} for i in series
                 },
-            )
-        ]
+                "p_single_order": float(chi2_sf(wald.max(), 2)),
+            },
+        )
+
+    def _common(self, ctx, states, idx, common_b, common_m, om0, tr0) -> Proposal | None:
+        """One distortion (same amplitude and phase in the record's time) on the series of an axis:
+        a cyclic range error of the camera or a structural harmonic seen by every plate."""
+        idx = [i for i in idx if common_m[i] > 0]
+        if len(idx) < 2:
+            return None
+        n_ord = len(ORDERS)
+        b = common_b[idx].sum(axis=0)
+        m = float(common_m[idx].sum())
+        stat = (b[0::2] ** 2 + b[1::2] ** 2) / m  # χ²_2 per order
+        n_tot = sum(ctx.series[i].n for i in idx)
+        orders = [ORDERS[j] for j in range(n_ord) if stat[j] > 2 * math.log(n_tot)]
+        if not orders:
+            return None
+        p = bonferroni(float(chi2_sf(stat.max(), 2)), 3 * n_ord)  # orders × axes
+        js = [ORDERS.index(k) for k in orders]
+        pick = [c for j in js for c in (2 * j, 2 * j + 1)]
+        fit = shared_amplitude(ctx, states, idx, lambda i: _columns(ctx, i, om0, tr0)[:, pick], None, self.id)
+        if fit is None:
+            return None
+        order = ORDERS[int(np.argmax(stat))]
+        jj = orders.index(order)
+        bb = fit.beta[2 * jj : 2 * jj + 2]
+        amp = float(np.hypot(*bb))
+        g = bb / max(amp, 1e-300)
+        amp_sigma = math.sqrt(max(float(g @ fit.cov[2 * jj : 2 * jj + 2, 2 * jj : 2 * jj + 2] @ g), 0.0))
+        psi = float(math.atan2(bb[1], bb[0]))
+        f0 = ctx.f0_hz
+        where = ", ".join(ctx.series[i].key for i in fit.series)
+        return Proposal(
+            effect=self.id,
+            series=fit.series,
+            states=fit.states,
+            n_params=2 * len(orders),
+            p_value=p,
+            parameters={
+                "order": param(order, None),
+                "amplitude_mm": param(amp, amp_sigma),
+                "phase_rad": param(psi, amp_sigma / max(amp, 1e-300)),
+            },
+            t_start=0.0,
+            t_end=float(ctx.duration_s),
+            band_hz=[orders[0] * f0, orders[-1] * f0],
+            explanation=(
+                f"Every plate of {where} carries the same component at {order}×f0 "
+                f"({order * f0:.2f} Hz) of {amp:.3f} mm: a distortion common to the plates, such as "
+                "the camera's cyclic range error or a structural harmonic of the loading."
+            ),
+            detail={"mode": "common", "orders": orders, "t_ref_s": tr0},
+        )
 
 
 EFFECT = HarmonicDistortion()

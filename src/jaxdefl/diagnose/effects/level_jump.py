@@ -14,8 +14,14 @@ statistic Bonferroni-corrected over series × candidate splits, or the summed st
 over the candidate splits, whichever is smaller (doubled): conservative, since neighbouring splits
 are strongly correlated. The jump time is refined to the frame on the series that keep it.
 
+Common mode: the same scan with one size shared by the series of an axis (Σ_s b_s/σ_s² over
+Σ_s M_s/σ_s² of the CUSUM pieces: χ²_1 at a fixed split, Bonferroni over splits × axes): the
+camera shifting every plate alike, too little on each plate alone. Both proposals go to the
+search; BIC decides.
+
 Model term: y += δ_s H(t − t_j), t_j shared by the series it touches, δ_s per series: 1 + S
-parameters. One jump per proposal: the search calls again after accepting one.
+parameters (common mode: t_j and one δ, 2 parameters). One jump per proposal: the search calls
+again after accepting one.
 
 Plausible magnitudes: 0.1-2 mm for ToF integration-time changes; 1-10 mm for structured-light
 session jumps (thesis Table 6.21), less on the centroids of large plates.
@@ -28,15 +34,27 @@ import math
 import numpy as np
 
 from .._base import Context, Effect, Proposal, State, keep_series
-from ._common_a import combined_p, gain, median_signed, param, project_out, updated, weights
+from ._common_a import (
+    bonferroni,
+    chi2_sf,
+    combined_p,
+    gain,
+    median_signed,
+    param,
+    project_out,
+    shared_amplitude,
+    updated,
+    weights,
+)
 
 __all__ = ["LevelJump", "EFFECT"]
 
 EDGE = 0.01  # fraction of the record at each end where no split is tried (drift and outliers' ground)
 
 
-def _cusum(ctx: Context, i: int, st: State) -> tuple[np.ndarray, float]:
-    """(frame − 1,) χ²_1 statistic of a mean change after each frame, and σ̂² of the series."""
+def _cusum(ctx: Context, i: int, st: State):
+    """(frame − 1,) χ²_1 statistic of a mean change after each frame, σ̂² of the series, and the
+    pieces of the statistic: b = Σ_{k<=m} w (r − r̄), M = W_m (W − W_m)/W (stat = b²/(σ̂² M))."""
     s = ctx.series[i]
     w = weights(st)
     r = s.y - st.mean
@@ -53,9 +71,10 @@ def _cusum(ctx: Context, i: int, st: State) -> tuple[np.ndarray, float]:
     wt = float(wk.sum())
     rbar = float(rk.sum()) / max(wt, 1e-300)
     den = s2 * cw * (wt - cw) / max(wt, 1e-300)
+    b = cr - cw * rbar
     with np.errstate(divide="ignore", invalid="ignore"):
-        stat = np.where(den > 0, (cr - cw * rbar) ** 2 / den, 0.0)
-    return stat, s2
+        stat = np.where(den > 0, b * b / den, 0.0)
+    return stat, s2, b, den / s2
 
 
 class LevelJump(Effect):
@@ -74,9 +93,22 @@ class LevelJump(Effect):
             return []
         stat = np.zeros((len(idx), hi - lo))
         s2 = np.zeros(len(idx))
+        axes = sorted({ctx.series[i].axis for i in idx})
+        cb = {a: np.zeros(hi - lo) for a in axes}  # common mode: Σ b/σ̂², Σ M/σ̂² per axis
+        cm = {a: np.zeros(hi - lo) for a in axes}
         for j, i in enumerate(idx):
-            full, s2[j] = _cusum(ctx, i, states[i])
+            full, s2[j], b, m_ = _cusum(ctx, i, states[i])
             stat[j] = full[lo:hi]
+            ax = ctx.series[i].axis
+            cb[ax] += b[lo:hi] / s2[j]
+            cm[ax] += m_[lo:hi] / s2[j]
+        out = []
+        for ax in axes:
+            prop = self._common(
+                ctx, states, [i for i in idx if ctx.series[i].axis == ax], cb[ax], cm[ax], lo, len(axes)
+            )
+            if prop is not None:
+                out.append(prop)
         logn = np.array([math.log(ctx.series[i].n) for i in idx])
         n_cand = hi - lo
         total = stat.sum(axis=0)
@@ -90,7 +122,7 @@ class LevelJump(Effect):
             if cand is not None and (best is None or cand[0] > best[0]):
                 best = cand
         if best is None:
-            return []
+            return out
         _, m, kept, _ = best
         # refine the split on the series that keep the jump, then rebuild
         rows = [idx.index(i) for i in kept]
@@ -110,7 +142,7 @@ class LevelJump(Effect):
         sig_t = ctx.dt_s * max(0.5, math.sqrt(26.0) / max(snr, 1e-300))
         where = ", ".join(ctx.series[i].key for i in kept)
         who = "the camera (all these plates at once)" if len(kept) > 1 else "one plate"
-        return [
+        return out + [
             Proposal(
                 effect=self.id,
                 series=kept,
@@ -127,9 +159,58 @@ class LevelJump(Effect):
                     " changed its level — a structured-light re-calibration, an integration-time change or "
                     "a knock."
                 ),
-                detail={"sizes_mm": {ctx.series[i].key: float(d) for i, d in zip(kept, deltas, strict=True)}},
+                detail={
+                    "mode": "per_series",
+                    "sizes_mm": {ctx.series[i].key: float(d) for i, d in zip(kept, deltas, strict=True)},
+                },
             )
         ]
+
+    def _common(self, ctx, states, idx, cb, cm, lo, n_axes) -> Proposal | None:
+        """One jump of the same size on the series of an axis (the camera moved its levels)."""
+        if len(idx) < 2:
+            return None
+        with np.errstate(divide="ignore", invalid="ignore"):
+            c = np.where(cm > 0, cb * cb / cm, 0.0)
+        j = int(np.argmax(c))
+        n_tot = sum(ctx.series[i].n for i in idx)
+        if c[j] <= 2 * math.log(n_tot):
+            return None
+        p_value = bonferroni(float(chi2_sf(c[j], 1)), c.size * n_axes)
+        m = lo + j
+        fit = shared_amplitude(
+            ctx, states, idx, lambda i: (ctx.series[i].k > m).astype(float)[:, None], None, self.id
+        )
+        if fit is None:
+            return None
+        size = float(fit.beta[0])
+        size_sigma = math.sqrt(max(float(fit.cov[0, 0]), 0.0))
+        t_j = (m + 0.5) * ctx.dt_s
+        # location: the argmax of a two-sided random walk with drift, var ≈ 26 / (δ²/σ²)² frames²
+        snr = (
+            size
+            * size
+            * sum(1.0 / max(float(np.var(ctx.series[i].y - states[i].mean)), 1e-300) for i in fit.series)
+        )
+        sig_t = ctx.dt_s * max(0.5, math.sqrt(26.0) / max(snr, 1e-300))
+        where = ", ".join(ctx.series[i].key for i in fit.series)
+        return Proposal(
+            effect=self.id,
+            series=fit.series,
+            states=fit.states,
+            n_params=2,
+            p_value=p_value,
+            parameters={"t_jump_s": param(t_j, sig_t), "size_mm": param(size, size_sigma)},
+            t_start=float(t_j),
+            t_end=float(ctx.duration_s),
+            band_hz=None,
+            explanation=(
+                f"All of {where} step by {size:+.3f} mm at t = {t_j:.2f} s and stay there: the camera "
+                "changed its levels at once — a structured-light re-calibration or an integration-time "
+                "change."
+            ),
+            detail={"mode": "common"},
+        )
 
     def _at(self, ctx: Context, states: list[State], idx: list[int], m: int):
         """Fit a jump after frame m on each series; keep those that pay. (score, m, kept, fits)."""
