@@ -120,3 +120,19 @@ def test_cli_config_error_exit_code_2(tmp_path, capsys):
     assert main(["simulate", str(p), "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
     assert "expected <= 54 Hz" in err and len(err.strip().splitlines()) == 1
+
+
+def test_plates_below_the_floor_are_impossible():
+    with pytest.raises(ConfigError, match=r"key 'plates.depth_below_top_mm': expected a depth between"):
+        config_from_dict({"plates": {"depth_below_top_mm": 900.0}})
+
+
+def test_noise_calibration_keys():
+    with pytest.raises(ConfigError, match=r"key 'camera.calibration': expected one of cam2, cam3, cam4"):
+        config_from_dict({"camera": {"calibration": "cam9"}})
+    with pytest.raises(ConfigError, match=r"key 'camera.centroid_residual_mm': expected a value >= 0"):
+        config_from_dict({"camera": {"centroid_residual_mm": -0.5}})
+    with pytest.raises(ConfigError, match=r"key 'camera.correlated_spatial_fraction': expected a fraction"):
+        config_from_dict({"camera": {"correlated_spatial_fraction": 1.5}})
+    day10 = load_config(CONFIGS / "exp2_tof_3hz.toml", "day10")
+    assert day10.camera.centroid_residual_mm == 0.57  # Table 6.17
