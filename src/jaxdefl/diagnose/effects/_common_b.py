@@ -201,11 +201,10 @@ def lm_shared(
 
 def select_series(gains: dict[int, float], n: dict[int, int], k_own: int = 1) -> list[int]:
     """Series where a shared term is individually significant (its gain would pay for ``k_own``
-    parameters of its own); if none is, those that gain at all."""
+    parameters of its own); if none is, all of them (picking those that merely gain would
+    select noise and bias the ΔBIC)."""
     kept = [i for i, g in gains.items() if keep_series(g, k_own, n[i])]
-    if not kept:
-        kept = [i for i, g in gains.items() if g > 0]
-    return sorted(kept)
+    return sorted(kept or gains)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -495,7 +494,9 @@ class Carriers:
         freq = np.arange(spec.size) / (m * ctx.dt_s)
         band = (freq >= f_lo) & (freq <= f_hi)
         power = np.abs(spec[band]) ** 2 / max(q, 1e-300)
-        n_ind = max((f_hi - f_lo) * n * ctx.dt_s, 1.0)
+        # the peak is searched on an oversampled grid: count twice the independent frequencies
+        # (calibrated on white noise: p-values of the maximum then come out uniform)
+        n_ind = max(2.0 * (f_hi - f_lo) * n * ctx.dt_s, 1.0)
         return freq[band], power, n_ind, grid, q
 
     def refine_peak(self, grid: np.ndarray, q: float, f_peak: float, half_width: float, n_fine: int = 41):
