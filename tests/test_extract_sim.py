@@ -94,9 +94,17 @@ def test_fitted_deflection(simulated):
     cycles = cfg.recording.cycles_at_start + cfg.loading.frequency_hz * (t_mid - cfg.t0_s)
     a_mid = float(midspan_amplitude_mm(cfg, cycles))
     xs = np.asarray(cfg.plate_x_mm())
+    # a ToF camera measures the amplitude times its motion-artefact gain (3.4 % low at 3 Hz and
+    # 20 Hz); the plate-centroid residual is the thesis' 0.76 mm, so sigma_A is ~0.02 mm on 120 s
+    gain = 1.0
+    if name == "tof":
+        from jaxdefl.fit.motion import motion_artefact_response
+
+        gain = float(motion_artefact_response(cfg.loading.frequency_hz, cfg.camera.frame_rate_hz)[0])
     for _, row in est.iterrows():
-        a_true = a_mid * float(beam_shape(xs[row.plate - 1], cfg.beam.span_mm, cfg.beam.load_a_mm))
-        assert abs(row.amplitude_mm - a_true) < 0.1, (name, row.plate, row.amplitude_mm, a_true)
+        a_true = gain * a_mid * float(beam_shape(xs[row.plate - 1], cfg.beam.span_mm, cfg.beam.load_a_mm))
+        tol = max(0.1, 4 * row.sigma_amplitude_mm)
+        assert abs(row.amplitude_mm - a_true) < tol, (name, row.plate, row.amplitude_mm, a_true)
     f0_err = np.abs(est["f0_hz"] - cfg.loading.frequency_hz)
     # The simulated Kinect adds a frame-common depth jitter (camera.frame_noise_mm = 0.4 mm shared
     # by all plates): on 60 s sigma_f0 is ~7e-5 Hz and all plates missed 1e-4 Hz together (the
