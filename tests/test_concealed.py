@@ -579,6 +579,8 @@ def test_small_benchmark_meets_the_targets(tmp_path):
         {"case": 3, "kind": "single", "effects": ["drift"], "seed": 34},
         {"case": 4, "kind": "control", "effects": [], "seed": 35},
         {"case": 5, "kind": "control", "effects": [], "seed": 36},
+        {"case": 6, "kind": "single", "effects": ["timing_error"], "seed": 37},
+        {"case": 7, "kind": "pair", "effects": ["level_jump", "outliers"], "seed": 38},
     ]
     results = bench.run_benchmark(plan, minutes=15.0, log=None)
     cases, conf, s, md = bench.write_outputs(tmp_path, results, {"minutes": 15})
