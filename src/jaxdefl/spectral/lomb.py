@@ -136,20 +136,29 @@ def _grid_batch(h_dense, m_dense, terms, which, var, df_dt, *, n_fft, j_lo, j_hi
     pp = jnp.where(i < last, power[rows, jnp.clip(i + 1, 0, last)], 0.0).astype(h_dense.dtype)
     # Exact float64 P_N at the peak bin (it gives the FAP): t = k dt on the frame grid, so
     # ω t = 2π j df dt k. The neighbours only shape the parabola that seeds the fit.
-    k = jnp.arange(h_dense.shape[1], dtype=h_dense.dtype)
-    s, c = sincos(2 * jnp.pi * df_dt * (j_lo + i)[:, None] * k[None, :])
-    n = jnp.sum(m_dense, axis=1)
-    p0 = lomb_from_sums(
-        jnp.sum(h_dense * c, -1),
-        jnp.sum(h_dense * s, -1),
-        jnp.sum(m_dense * (c * c - s * s), -1),
-        jnp.sum(m_dense * 2 * s * c, -1),
-        n,
-        var,
-    )
+    theta = 2 * jnp.pi * df_dt * (j_lo + i)
+    ch, sh = _dft_at(h_dense, theta)
+    c2, s2 = _dft_at(m_dense, 2 * theta)
+    p0 = lomb_from_sums(ch, sh, c2, s2, jnp.sum(m_dense, axis=1), var)
     if dtype == jnp.float64:
         p0 = power[rows, i]  # already exact
     return i, p0, pm, pp, (power if keep else None)
+
+
+def _dft_at(x, theta):
+    """Σ_k x_k cos θk and Σ_k x_k sin θk over the frames k of each row of ``x`` (window, frame).
+
+    With k = a·n_b + b, e^{iθk} = e^{iθ n_b a} e^{iθb}: sines and cosines of n_a + n_b angles per
+    window instead of one pair per frame, then one complex multiply-add per frame.
+    """
+    length = x.shape[1]
+    n_b = min(64, length & -length)  # `bucket` lengths have a power-of-two factor
+    xr = x.reshape(x.shape[0], length // n_b, n_b)
+    sb, cb = sincos(theta[:, None] * jnp.arange(n_b, dtype=x.dtype))
+    sa, ca = sincos(theta[:, None] * (n_b * jnp.arange(length // n_b, dtype=x.dtype)))
+    xc = jnp.sum(xr * cb[:, None, :], -1)
+    xs = jnp.sum(xr * sb[:, None, :], -1)
+    return jnp.sum(ca * xc - sa * xs, -1), jnp.sum(sa * xc + ca * xs, -1)
 
 
 def _parabola(i, p0, pm, pp, n_freq):
@@ -192,12 +201,13 @@ def _dense_grid(w: Windows, rows: np.ndarray, length: int):
     ybar = np.where(m, y, 0.0).sum(axis=1) / n
     h = np.where(m, y - ybar[:, None], 0.0)
     var = (h**2).sum(axis=1) / (n - 1)  # (5.26)
-    r = np.broadcast_to(np.arange(rows.size)[:, None], m.shape)
-    dense_h = np.zeros((rows.size, length))
-    dense_m = np.zeros((rows.size, length), bool)
-    dense_h[r[m], k[m]] = h[m]
-    dense_m[r[m], k[m]] = True
-    return dense_h, dense_m, n, var
+    # One flat scatter per array; masked samples land in a spare last column, cut off after.
+    flat = np.where(m, k, length) + (length + 1) * np.arange(rows.size)[:, None]
+    dense_h = np.zeros((rows.size, length + 1))
+    dense_m = np.zeros((rows.size, length + 1), bool)
+    dense_h.ravel()[flat.ravel()] = h.ravel()
+    dense_m.ravel()[flat.ravel()] = m.ravel()
+    return dense_h[:, :length], dense_m[:, :length], n, var
 
 
 def _peaks_grid(w: Windows, rows, out, fmin, fmax, oversampling, keep, search_dtype):
