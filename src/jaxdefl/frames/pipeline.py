@@ -446,7 +446,7 @@ def calibrate_scene(
     for c in centres[pk]:
         # opened by one pixel: a surface is thicker than the thin strip where a slanted side face
         # (the beam's, next to the plates bonded at its bottom) crosses the level
-        lab, n = ndi.label(ndi.binary_erosion(np.abs(zmed - c) < 10, structure=_EIGHT), structure=_EIGHT)
+        lab, n = ndi.label(ndi.binary_opening(np.abs(zmed - c) < 10, structure=_EIGHT), structure=_EIGHT)
         biggest = np.bincount(lab.ravel())[1:].max() if n else 0
         levels.append((c, biggest))
     if not levels:
