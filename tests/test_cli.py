@@ -122,7 +122,10 @@ def test_demo_runs_frames_to_report(tmp_path):
         assert (out / name).exists(), name
     est = pd.read_csv(out / "estimates_whole.csv")
     z = est[est["axis"] == "z"]
-    assert sorted(z["plate"]) == [5, 6, 7, 8, 9]  # the plates in the demo camera's view
+    # the plates in the demo camera's view: a contiguous run about mid-span (plates 5-9 at least;
+    # how many more depends on the plates' depth below the beam top)
+    plates = sorted(z["plate"])
+    assert plates == list(range(plates[0], plates[-1] + 1)) and {5, 6, 7, 8, 9} <= set(plates)
     assert (z["status"] == "converged").all()
     # Experiment II day 1 loads at 3.0680 Hz (configs/exp2_tof_3hz.toml)
     assert np.all(np.abs(z["f0_hz"] - 3.0680) < 5 * z["sigma_f0_hz"] + 1e-4)
