@@ -149,6 +149,15 @@ class Diagnosis:
                     "detail": _jsonable(p.detail),
                 }
             )
+        # A later effect may refit an earlier one's parameters at no cost (a clock offset and a
+        # tap spread trade phase against the LDS): the report carries the joint values.
+        latest: dict[str, dict] = {}
+        for a, e in zip(self.accepted, effects, strict=True):
+            for eid, params in (a.proposal.detail or {}).get("reestimated", {}).items():
+                if eid in latest:
+                    latest[eid]["parameters"].update(_jsonable(params))
+                    latest[eid].setdefault("reestimated_by", []).append(e["id"])
+            latest[e["id"]] = e
         nominal = self._summary(self.nominal, self.tests_nominal)
         nominal["series"] = [
             {
