@@ -85,19 +85,8 @@ __all__ = [
     "effect_strength",
 ]
 
-EFFECT_IDS = (
-    "motion_artefact",
-    "harmonic_distortion",
-    "drift",
-    "level_jump",
-    "amplitude_modulation",
-    "frequency_modulation",
-    "timing_error",
-    "extra_periodic",
-    "outliers",
-    "heteroscedastic_noise",
-    "quantization",
-)
+from .._effect_ids import EFFECT_IDS  # noqa: F401 (re-exported)
+
 NEEDS_REFERENCE = frozenset({"motion_artefact", "timing_error"})
 STRUCTURED_LIGHT_ONLY = frozenset({"quantization"})
 TOF_ONLY = frozenset({"motion_artefact"})  # four-phase sampling is a ToF property

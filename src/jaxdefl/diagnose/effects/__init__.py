@@ -8,19 +8,7 @@ from .._base import Effect
 
 __all__ = ["EFFECT_IDS", "load_effects"]
 
-EFFECT_IDS = (
-    "motion_artefact",
-    "harmonic_distortion",
-    "drift",
-    "level_jump",
-    "amplitude_modulation",
-    "frequency_modulation",
-    "timing_error",
-    "extra_periodic",
-    "outliers",
-    "heteroscedastic_noise",
-    "quantization",
-)
+from ..._effect_ids import EFFECT_IDS
 
 
 def load_effects() -> dict[str, Effect]:
