@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import importlib
 
+from ..._effect_ids import EFFECT_IDS
 from .._base import Effect
 
 __all__ = ["EFFECT_IDS", "load_effects"]
-
-from ..._effect_ids import EFFECT_IDS
 
 
 def load_effects() -> dict[str, Effect]:
