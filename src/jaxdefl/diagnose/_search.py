@@ -299,9 +299,6 @@ def run_diagnosis(
             usable[eid] = eff
         else:
             cannot_tell.append({"id": eid, "reason": why})
-    missing = [e for e in (effects or EFFECT_IDS) if e not in library]
-    for eid in missing:
-        cannot_tell.append({"id": eid, "reason": "not in this installation's effect library"})
 
     n_total = sum(s.n for s in ctx.series)
     states = list(nominal)
