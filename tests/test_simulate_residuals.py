@@ -35,7 +35,9 @@ def _fit_residuals(df: pd.DataFrame, tmp_path: Path) -> pd.Series:
     """sigma_residual_mm per plate of the z axis, one window over the record (as `jaxdefl fit`)."""
     path = tmp_path / "traj.csv"
     write_trajectory(df, path)
-    est = estimate_table(read_trajectory(path), axes=("z",), progress=False).table
+    # fap_max=1: the residual σ is measured whether or not a short, noisy record's peak is
+    # significant (Experiment I's 500 frames at 40 Hz hold 12 loading cycles under 4 mm noise)
+    est = estimate_table(read_trajectory(path), axes=("z",), fap_max=1.0, progress=False).table
     est = est[est.status == "converged"]
     return est.set_index("plate").sigma_residual_mm
 
