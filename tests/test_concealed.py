@@ -567,11 +567,6 @@ def test_benchmark_plumbing_with_a_stand_in(tmp_path, monkeypatch):
 
 @pytest.mark.slow
 def test_small_benchmark_meets_the_targets(tmp_path):
-    pytest.importorskip("jaxdefl.diagnose")
-    try:
-        from jaxdefl.diagnose import diagnose  # noqa: F401
-    except ImportError:
-        pytest.skip("jaxdefl.diagnose.diagnose not available yet")
     plan = [
         {"case": 0, "kind": "single", "effects": ["level_jump"], "seed": 31},
         {"case": 1, "kind": "single", "effects": ["harmonic_distortion"], "seed": 32},

@@ -29,6 +29,7 @@ parameters (see `keep_series`).
 
 from __future__ import annotations
 
+import abc
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -269,7 +270,7 @@ class Context:
         return np.stack(cols, axis=1)
 
 
-class Effect:
+class Effect(abc.ABC):
     """A candidate effect: subclasses set the class attributes and implement `propose`.
 
     Attributes:
@@ -279,8 +280,6 @@ class Effect:
         min_cycles: loading cycles the record needs before the effect can be told apart from
             the nominal model (e.g. a slow drift from the offset).
         min_plates: plates needed (an effect defined as common to all plates needs several).
-        min_duration_s: record length needed (slow processes cannot be told from each other, or
-            from the offset, in a few minutes).
     """
 
     id: str = ""
@@ -288,7 +287,6 @@ class Effect:
     needs_reference: bool = False
     min_cycles: float = 20.0
     min_plates: int = 1
-    min_duration_s: float = 0.0
 
     def cannot_tell(self, ctx: Context) -> str | None:
         """Why this effect cannot be told on this record, or None when it can."""
@@ -297,17 +295,13 @@ class Effect:
         cycles = ctx.f0_hz * ctx.duration_s
         if not cycles >= self.min_cycles:
             return f"record too short: {cycles:.0f} loading cycles, needs {self.min_cycles:.0f}"
-        if not ctx.duration_s >= self.min_duration_s:
-            return (
-                f"record too short: {ctx.duration_s / 60:.1f} min, a {self.id.replace('_', ' ')} "
-                f"needs {self.min_duration_s / 60:.0f} min to be told from the nominal model"
-            )
         if len(ctx.plates) < self.min_plates:
             return f"needs at least {self.min_plates} plates, the table has {len(ctx.plates)}"
         return None
 
-    def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:  # pragma: no cover
-        raise NotImplementedError
+    @abc.abstractmethod
+    def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
+        """Screen the current states; proposals for this effect, or [] when nothing is there."""
 
 
 def lstsq(cols: np.ndarray, r: np.ndarray, w: np.ndarray | None = None):
