@@ -26,6 +26,7 @@ import pandas as pd
 from .._errors import ConfigError
 from ._base import Context, Proposal, State, loglik, rms_equivalent
 from ._context import build_context
+from ._correlation import FrameCorrelation, frame_correlation
 from ._whiteness import combined_p, residual_tests
 from .effects import EFFECT_IDS, load_effects
 
@@ -59,6 +60,7 @@ class Diagnosis:
     tests_final: list[dict]
     seconds: float
     rounds: list[list[dict]] = field(default_factory=list)
+    corr: FrameCorrelation | None = None
 
     # --- summaries --------------------------------------------------------------------------
     def _summary(self, states: list[State], tests: list[dict]) -> dict:
@@ -159,6 +161,9 @@ class Diagnosis:
                     latest[eid].setdefault("reestimated_by", []).append(e["id"])
             latest[e["id"]] = e
         nominal = self._summary(self.nominal, self.tests_nominal)
+        if self.corr is not None:
+            axes = sorted(self.corr.matrix)
+            nominal["frame_correlation"] = {a: self.corr.mean_offdiagonal(a) for a in axes}
         nominal["series"] = [
             {
                 "plate": s.plate,
@@ -223,18 +228,28 @@ def _jsonable(x):
     return x
 
 
-def _score(ctx: Context, states: list[State], p: Proposal, n_total: int) -> tuple[float, float, float]:
-    """(ΔBIC, RMS before, RMS after) of a proposal; RMS likelihood-equivalent over its series."""
+def _score(
+    ctx: Context, states: list[State], p: Proposal, n_total: int, corr: FrameCorrelation | None = None
+) -> tuple[float, float, float]:
+    """(ΔBIC, RMS before, RMS after) of a proposal; RMS likelihood-equivalent over its series.
+
+    With ``corr``, each axis' share of Δlog L is divided by its design effect: noise shared by
+    the plates of a frame is not evidence for a term shared by the plates (`_correlation`).
+    """
     ll0 = ll1 = 0.0
     n = 0
+    dll = {}
     for i in p.series:
         y = ctx.series[i].y
-        ll0 += loglik(y, states[i])
-        ll1 += loglik(y, p.states[i])
+        a, b = loglik(y, states[i]), loglik(y, p.states[i])
+        ll0 += a
+        ll1 += b
+        dll[i] = b - a
         n += ctx.series[i].n
     if not (math.isfinite(ll0) and math.isfinite(ll1)) or n == 0:
         return math.inf, math.nan, math.nan
-    dbic = -2.0 * (ll1 - ll0) + p.n_params * math.log(n_total)
+    gain = ll1 - ll0 if corr is None else corr.discount(ctx, p, dll)
+    dbic = -2.0 * gain + p.n_params * math.log(n_total)
     return dbic, rms_equivalent(ll0, n), rms_equivalent(ll1, n)
 
 
@@ -301,6 +316,15 @@ def run_diagnosis(
             cannot_tell.append({"id": eid, "reason": why})
 
     n_total = sum(s.n for s in ctx.series)
+    corr = frame_correlation(ctx, nominal)
+    for axis in sorted(corr.matrix):
+        rho = corr.mean_offdiagonal(axis)
+        if rho > 0.05:
+            notes.append(
+                f"the plates' {axis} noise is correlated within a frame (mean ρ = {rho:.2f}, from "
+                "frame-to-frame differences of the residuals): evidence for effects alike on "
+                "several plates is discounted by the design effect 1 + (m − 1)ρ"
+            )
     states = list(nominal)
     accepted: list[Accepted] = []
     rounds: list[list[dict]] = []
@@ -327,7 +351,7 @@ def run_diagnosis(
                     if base is states or all(base[i] is states[i] for i in p.series)
                     else _rebase(p, base, states)
                 )
-                scored.append((*_score(ctx, states, q, n_total), eid))
+                scored.append((*_score(ctx, states, q, n_total, corr), eid))
         rounds.append([{"effect": e, "delta_bic": d} for d, _, _, e in scored])
         scored.sort(key=lambda x: x[0])
         chosen = None
@@ -338,14 +362,14 @@ def run_diagnosis(
             tried.add(eid)
             if not fresh_round:
                 screen(eid)  # propose again on the current states: the exact proposal
-            for p, _ in sorted(cache[eid], key=lambda x: _score(ctx, states, x[0], n_total)[0]):
-                d, r0, r1 = _score(ctx, states, p, n_total)
+            for p, _ in sorted(cache[eid], key=lambda x: _score(ctx, states, x[0], n_total, corr)[0]):
+                d, r0, r1 = _score(ctx, states, p, n_total, corr)
                 if not _passes(d, r0, r1, p.p_value, n_tests):
                     continue
                 if p.refine is not None:
                     q = p.refine()
                     if q is not None:
-                        d2, q0, q1 = _score(ctx, states, q, n_total)
+                        d2, q0, q1 = _score(ctx, states, q, n_total, corr)
                         if _passes(d2, q0, q1, q.p_value, n_tests):
                             d, r0, r1, p = d2, q0, q1, q
                 chosen = Accepted(p, d, r0, r1, {i: states[i] for i in p.series})
@@ -382,6 +406,7 @@ def run_diagnosis(
         tests_final=tests_final,
         seconds=time.perf_counter() - start,
         rounds=rounds,
+        corr=corr,
     )
 
 

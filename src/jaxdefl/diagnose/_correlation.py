@@ -1,0 +1,102 @@
+"""Noise shared by the plates of a frame, and what it does to the evidence for common effects.
+
+A time-of-flight camera's range error has a part common to the whole frame (a modulation-phase
+offset, a tilt across the image: `jaxdefl.simulate` calibrates it to the thesis' Tables 6.2 and
+6.17), so the residuals of different plates in the same frame are correlated, often strongly.
+The likelihood of `_base.loglik` treats series as independent. For an effect that adds the
+same term to m plates, that overstates the evidence by Kish's design effect
+
+    d = 1ᵀ R 1 / m = 1 + (m − 1) ρ̄        (R: the m plates' residual correlation matrix),
+
+exactly for equal terms and noise levels: the generalised least-squares information about the
+term's amplitude is m Σg² / (σ² d), the independent-noise one m Σg² / σ². Without it, the
+frame-common noise itself is reported as level jumps, modulations and distortions alike on all
+plates. The search divides each axis' share of a proposal's Δlog L by that axis' d.
+
+ρ is estimated from first differences of the nominal residuals on the frame clock: differencing
+keeps white frame-common noise whole (the correlation of differences of equicorrelated white
+noise is ρ) and removes the slow structure (drift, jumps, modulations) that an effect common to
+the plates would otherwise lend to ρ.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from ._base import Context, Proposal, State
+
+__all__ = ["FrameCorrelation", "frame_correlation"]
+
+# Pairs with fewer common differences than this get no correlation (ρ = 0).
+_MIN_PAIRS = 50
+
+
+@dataclass(frozen=True)
+class FrameCorrelation:
+    """Correlation of the plates' residual noise within a frame, per axis.
+
+    Attributes:
+        index: series index -> (axis, column in that axis' matrix).
+        matrix: axis -> (m, m) correlation matrix of the axis' series (1 on the diagonal).
+    """
+
+    index: dict[int, tuple[str, int]]
+    matrix: dict[str, np.ndarray]
+
+    def mean_offdiagonal(self, axis: str) -> float:
+        r = self.matrix[axis]
+        m = r.shape[0]
+        return float((r.sum() - m) / (m * (m - 1))) if m > 1 else 0.0
+
+    def design_effect(self, series: list[int]) -> dict[str, float]:
+        """Per axis, d = 1ᵀR1 / m over the given series of that axis (≥ 1)."""
+        cols: dict[str, list[int]] = {}
+        for i in series:
+            axis, c = self.index[i]
+            cols.setdefault(axis, []).append(c)
+        out = {}
+        for axis, c in cols.items():
+            r = self.matrix[axis][np.ix_(c, c)]
+            out[axis] = max(1.0, float(r.sum()) / len(c))
+        return out
+
+    def discount(self, ctx: Context, p: Proposal, dll: dict[int, float]) -> float:
+        """Δlog L of proposal ``p`` (per-series ``dll``) with each axis' share divided by d."""
+        d = self.design_effect(p.series)
+        return float(sum(v / d[ctx.series[i].axis] for i, v in dll.items()))
+
+
+def frame_correlation(ctx: Context, states: list[State]) -> FrameCorrelation:
+    """Correlation of first differences of the residuals ``y − mean`` of same-axis series."""
+    index: dict[int, tuple[str, int]] = {}
+    by_axis: dict[str, list[int]] = {}
+    for i, s in enumerate(ctx.series):
+        index[i] = (s.axis, len(by_axis.setdefault(s.axis, [])))
+        by_axis[s.axis].append(i)
+    matrix = {}
+    n_frames = int(max(int(s.k.max()) for s in ctx.series)) + 1 if ctx.series else 0
+    for axis, members in by_axis.items():
+        m = len(members)
+        diffs = np.full((n_frames, m), np.nan)
+        for c, i in enumerate(members):
+            s, st = ctx.series[i], states[i]
+            r = np.where(st.inlier, s.y - st.mean, np.nan)
+            grid = np.full(n_frames + 1, np.nan)
+            grid[s.k] = r
+            diffs[:, c] = np.diff(grid)
+        ok = np.isfinite(diffs)
+        z = np.where(ok, diffs, 0.0)
+        okf = ok.astype(np.float64)
+        count = okf.T @ okf
+        # centred per pair would need pair-wise means; differences have mean ~0, so use raw moments
+        cross = z.T @ z
+        sq = (z**2).T @ okf  # Σ over common frames of column i's squares, pair (i, j)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            r = cross / np.sqrt(sq * sq.T)
+        r = np.where((count >= _MIN_PAIRS) & np.isfinite(r), r, 0.0)
+        r = np.clip(r, 0.0, 1.0)  # negative correlation would credit evidence: never
+        np.fill_diagonal(r, 1.0)
+        matrix[axis] = r
+    return FrameCorrelation(index, matrix)
