@@ -240,6 +240,29 @@ def test_a_common_line_is_still_found_under_frame_common_noise():
     assert e["parameters"]["amplitude_mm"]["value"] == pytest.approx(0.3, rel=0.25)
 
 
+def test_a_noise_free_table_says_cannot_tell():
+    # A simulation's truth written with 6 decimals: any structure is "significant" against
+    # rounding errors, so nothing is reported, with the reason.
+    t = np.arange(6000) / 20.0
+    rows = [
+        pd.DataFrame(
+            {
+                "t": 1.7e9 + t,
+                "plate": p,
+                "x": np.round(10 + 0.5 * np.cos(2 * np.pi * F0 * t), 6),
+                "z": np.round(1900 + 2.4 * p / 5 * np.cos(2 * np.pi * F0 * t), 6),
+            }
+        )
+        for p in range(1, 6)
+    ]
+    d = diagnose(pd.concat(rows, ignore_index=True))
+    assert d["effects"] == [] and d["unexplained"] == []
+    assert {c["id"] for c in d["cannot_tell"]} == set(EFFECT_IDS)
+    why = {c["id"]: c["reason"] for c in d["cannot_tell"]}
+    assert "reference" in why["motion_artefact"]  # its own reason comes first
+    assert all("noise" in why[e] for e in EFFECT_IDS if e not in ("motion_artefact", "timing_error"))
+
+
 def test_only_named_effects_are_searched():
     d = diagnose(record(seed=16, line=(1.37, 0.15)), effects=("drift",))
     assert d["effects"] == []
