@@ -12,7 +12,8 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 
-_cache = os.environ.get("JAXDEFL_CACHE_DIR", os.path.join(os.path.expanduser("~"), ".cache", "jaxdefl", "jax"))
+_default_cache = os.path.join(os.path.expanduser("~"), ".cache", "jaxdefl", "jax")
+_cache = os.environ.get("JAXDEFL_CACHE_DIR", _default_cache)
 if _cache:
     try:
         os.makedirs(_cache, exist_ok=True)

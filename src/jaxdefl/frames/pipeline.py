@@ -8,8 +8,9 @@ Stages, on a chunk of frames (B, H, W) at a time:
    nearer than the floor, segmented as large low-eccentricity regions; its depth is the second
    threshold. The plates are the depth layer next to the top surface (the thesis' scene, and the
    simulator's, has them between top and floor, bonded 295 mm below the top; a layer above the
-   top is tried too, and the one holding a row of similar, collinear regions wins). Each plate found is numbered by its
-   position along the beam and keeps its area, eccentricity and image position as a template.
+   top is tried too, and the one holding a row of similar, collinear regions wins). Each plate
+   found is numbered by its position along the beam and keeps its area, eccentricity and image
+   position as a template.
 2. **Per frame**, batched: depth relative to that frame's beam-top level (a per-frame median,
    so common depth shifts of structured-light cameras cancel); the plate layer's depth band
    (depth-based classification); ToF: Otsu on the amplitude image masked by the band (eq.

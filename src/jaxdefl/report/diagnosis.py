@@ -69,7 +69,8 @@ def plot_effect(diag, k: int, path: Path) -> Path:
     for x in ax:
         x.legend(fontsize=8)
     fig.suptitle(
-        f"{p.effect} — plate {s.plate} {s.axis}: ΔBIC {a.delta_bic:.0f}, RMS {a.rms_before:.4f} → {a.rms_after:.4f} mm"
+        f"{p.effect} — plate {s.plate} {s.axis}: ΔBIC {a.delta_bic:.0f}, "
+        f"RMS {a.rms_before:.4f} → {a.rms_after:.4f} mm"
     )
     fig.tight_layout()
     path = Path(path)
