@@ -6,7 +6,8 @@
 Generates recordings with the simulator (`jaxdefl.simulate.effects`): every effect several times
 alone, random pairs of effects, and effect-free controls, with decoys the nominal model handles
 (3-30 % drop-outs, 9-13 plates of different amplitudes, a plate with a larger noise, 20 and
-30 Hz, 15-20 minutes, with and without an LDS). The labels stay here: the diagnosing call gets the
+30 Hz, 15-20 minutes, with and without an LDS, and on half of the ToF recordings noise shared by
+the plates of a frame, 40-85 % of its variance). The labels stay here: the diagnosing call gets the
 tables and the hints a user has (``sensor``, ``frame_rate_hz``) and nothing else. Then scores:
 
 - confusion matrix: rows the injected id ("none" for a control), columns the reported ids ("none"
@@ -276,6 +277,7 @@ def score(results: Sequence[Mapping]) -> tuple[pd.DataFrame, pd.DataFrame, dict]
             "minutes": round(rec["duration_s"] / 60.0, 2),
             "n_plates": rec["n_plates"],
             "dropout_prob": rec["dropout_prob"],
+            "frame_common": rec.get("frame_common", 0.0),
             "reference": rec["reference"],
             "reported_ids": ";".join(rep_ids),
             "extra_ids": ";".join(extras),

@@ -137,6 +137,9 @@ class RecordingSpec:
         noise_mm: raw noise σ per axis (mm); None: from sensor and frame rate (`_NOISE_MM`).
         plate_noise_spread: per-plate σ factors drawn uniformly in 1 ± this.
         noisy_plate: a plate (1-based) whose noise is ``noisy_factor`` times larger; 0: none.
+        frame_common: share of each plate's noise variance common to all plates of a frame (a
+            ToF camera's frame-wide range error: the simulator's per-frame error, thesis Tables
+            6.2/6.17); 0: independent plates.
     """
 
     sensor: Literal["tof", "structured_light"] = "tof"
@@ -150,6 +153,7 @@ class RecordingSpec:
     plate_noise_spread: float = 0.15
     noisy_plate: int = 0
     noisy_factor: float = 1.8
+    frame_common: float = 0.0
 
     def sigma_mm(self) -> dict[str, float]:
         if self.noise_mm is not None:
@@ -210,14 +214,18 @@ def random_spec(
     reference: bool | None = None,
 ) -> RecordingSpec:
     """A recording with random decoys: 9-13 plates, 20/30 Hz, 3-30 % drop-outs, 15-20 minutes
-    (or ``minutes``), with or without the LDS, sometimes a plate with a larger noise."""
+    (or ``minutes``), with or without the LDS, sometimes a plate with a larger noise, and for
+    half of the ToF recordings noise shared by the plates of a frame (40-85 % of its variance).
+
+    The frame-common share is drawn from a stream of its own, seeded by the other draws, so that
+    this decoy did not move the benchmark's other random draws."""
     if sensor is None:
         sensor = "structured_light" if rng.random() < 0.2 else "tof"
     fs = 30.0 if sensor == "structured_light" else float(rng.choice([20.0, 30.0], p=[0.6, 0.4]))
     duration = 60.0 * (float(rng.uniform(15.0, 20.0)) if minutes is None else float(minutes))
     n_plates = int(rng.integers(9, 14))
     days = list(SESSIONS[sensor])
-    return RecordingSpec(
+    spec = RecordingSpec(
         sensor=sensor,  # type: ignore[arg-type]
         frame_rate_hz=fs,
         duration_s=round(duration, 3),
@@ -228,6 +236,11 @@ def random_spec(
         noisy_plate=int(rng.integers(1, n_plates + 1)) if rng.random() < 0.4 else 0,
         noisy_factor=round(float(rng.uniform(1.5, 2.0)), 3),
     )
+    if sensor == "tof":
+        own = np.random.default_rng([n_plates, int(spec.dropout_prob * 1e4), int(spec.duration_s)])
+        if own.random() < 0.5:
+            spec = dataclasses.replace(spec, frame_common=round(float(own.uniform(0.4, 0.85)), 3))
+    return spec
 
 
 class CleanRecording:
@@ -272,6 +285,10 @@ class CleanRecording:
             fac[spec.noisy_plate - 1] *= spec.noisy_factor
         self.sigma = np.stack([sig[a] * fac for a in _AXES], axis=1)  # (plate, axis)
         self.eps = rng.standard_normal((t.size, spec.n_plates, 3))  # unit white noise
+        if spec.frame_common > 0:  # its own stream: the independent part stays as it was
+            common = np.random.default_rng([self.seed, 7002]).standard_normal((t.size, 1, 3))
+            c = spec.frame_common
+            self.eps = math.sqrt(1.0 - c) * self.eps + math.sqrt(c) * common
 
     def motion(self, t: np.ndarray, am=None, fm=None) -> np.ndarray:
         """(frame, plate, axis) clean positions at true epoch times t, with the load's AM / FM."""
@@ -825,6 +842,7 @@ def make_recording(
             "duration_s": spec.duration_s,
             "n_plates": spec.n_plates,
             "dropout_prob": spec.dropout_prob,
+            "frame_common": spec.frame_common,
             "reference": spec.reference,
             "lds_plates": list(spec.lds_plates),
             "session": spec.session,
