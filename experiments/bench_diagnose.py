@@ -35,7 +35,7 @@ def main() -> None:
     from jaxdefl.fit import estimate_windows
     from jaxdefl.io import validate_trajectory
     from jaxdefl.series import make_windows
-    from jaxdefl.simulate.effects import RecordingSpec, _Base, draw_effect, make_recording
+    from jaxdefl.simulate.effects import RecordingSpec, CleanRecording, draw_effect, make_recording
 
     effects = () if args.effect == "none" else (args.effect,)
     spec = RecordingSpec(
@@ -45,7 +45,7 @@ def main() -> None:
         n_plates=args.plates,
     )
     t = time.perf_counter()
-    base = _Base(spec, args.seed)
+    base = CleanRecording(spec, args.seed)
     rng = np.random.default_rng(args.seed)
     drawn = [draw_effect(e, base, rng) for e in effects]
     traj, lds, truth = make_recording(spec, drawn, seed=args.seed, base=base)
