@@ -323,12 +323,21 @@ def _run(
     # Proposals of every effect, with the states they were made on. After an effect is accepted
     # the others are re-scored on the new states by re-applying their change (`_rebase`), and
     # only the best one is proposed afresh: a round costs one effect's screening, not eleven.
-    # When nothing passes, every effect screens the current states once more before stopping.
+    # When nothing passes, every effect not yet screened on the current states screens them once
+    # more before stopping.
     cache: dict[str, list[tuple[Proposal, list[State]]]] = {}
+    screened_on: dict[str, list[State]] = {}
 
     def screen(eid: str) -> None:
         base = list(states)
+        screened_on[eid] = base
         cache[eid] = [(p, base) for p in usable[eid].propose(ctx, base) if p.series]
+
+    def current(eid: str) -> bool:
+        """The effect was screened on the current states (since the last acceptance): screening
+        it again would return the same proposals."""
+        base = screened_on.get(eid)
+        return base is not None and all(b is st for b, st in zip(base, states, strict=True))
 
     for eid in usable:
         screen(eid)
@@ -351,7 +360,7 @@ def _run(
             if eid in tried or not dbic < DELTA_BIC_MAX:
                 continue
             tried.add(eid)
-            if not fresh_round:
+            if not current(eid):
                 screen(eid)  # propose again on the current states: the exact proposal
             for p, _ in sorted(cache[eid], key=lambda x: _score(ctx, states, x[0], n_total)[0]):
                 d, r0, r1 = _score(ctx, states, p, n_total)
@@ -373,7 +382,8 @@ def _run(
             if fresh_round:
                 break
             for eid in usable:
-                screen(eid)
+                if not current(eid):
+                    screen(eid)
             fresh_round = True
             continue
         accepted.append(chosen)
@@ -385,7 +395,10 @@ def _run(
         fresh_round = False
 
     tests_nominal = [residual_tests(ctx, i, st) for i, st in enumerate(nominal)]
-    tests_final = [residual_tests(ctx, i, st) for i, st in enumerate(states)]
+    # a series no accepted effect touched keeps its nominal state and so its nominal tests
+    tests_final = [
+        tests_nominal[i] if st is nominal[i] else residual_tests(ctx, i, st) for i, st in enumerate(states)
+    ]
     return Diagnosis(
         ctx=ctx,
         nominal=nominal,
