@@ -259,6 +259,11 @@ def _passes(dbic: float, rms0: float, rms1: float, p_value: float, n_tests: int)
     return dbic < DELTA_BIC_MAX and rms1 < rms0 and p_value * n_tests < ALPHA
 
 
+# One BLAS thread: the diagnosis' products are many small GEMMs and dots over one series, where
+# OpenBLAS's threads cost more to wake than they save and, on cores shared with other jobs, spin
+# against them (measured: the whole search twice as slow, drift's screening five times). JAX's
+# solvers keep their own thread pool.
+@threadpool_limits.wrap(limits=1, user_api="blas")
 def run_diagnosis(
     traj: pd.DataFrame,
     reference: pd.DataFrame | None = None,
@@ -270,6 +275,7 @@ def run_diagnosis(
     effects: tuple[str, ...] | None = None,
     source: str = "<table>",
     on_round=None,
+    reference_source: str = "--reference",
 ) -> Diagnosis:
     """Diagnose a trajectory table (DESIGN.md contract) against the nominal model.
 
@@ -278,22 +284,9 @@ def run_diagnosis(
         sensor, frame_rate_hz, modulation_mhz, tap_offsets: what the user knows of the camera.
         segment: the segment to diagnose when the table has several.
         effects: restrict the library to these ids (default: all).
+        source, reference_source: the tables' names in error messages.
         on_round: optional callback(round number, accepted effect id or None).
     """
-    # One BLAS thread: the diagnosis' products are many small GEMMs and dots over one series,
-    # where OpenBLAS's threads cost more to wake than they save and, on cores shared with other
-    # jobs, spin against them (measured: the whole search twice as slow, drift's screening
-    # five times). JAX's solvers keep their own thread pool.
-    with threadpool_limits(limits=1, user_api="blas"):
-        return _run(
-            traj, reference, sensor, frame_rate_hz, modulation_mhz, tap_offsets, segment, effects,
-            source, on_round,
-        )
-
-
-def _run(
-    traj, reference, sensor, frame_rate_hz, modulation_mhz, tap_offsets, segment, effects, source, on_round
-) -> Diagnosis:
     start = time.perf_counter()
     library = load_effects()
     if effects is not None:
@@ -304,7 +297,15 @@ def _run(
             )
         library = {k: v for k, v in library.items() if k in effects}
     ctx, nominal, notes = build_context(
-        traj, reference, sensor, frame_rate_hz, modulation_mhz, tap_offsets, segment, source=source
+        traj,
+        reference,
+        sensor,
+        frame_rate_hz,
+        modulation_mhz,
+        tap_offsets,
+        segment,
+        source=source,
+        reference_source=reference_source,
     )
     cannot_tell = []
     usable = {}
