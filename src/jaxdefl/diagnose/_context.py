@@ -80,7 +80,7 @@ def build_context(
     if modulation_mhz is not None and not modulation_mhz > 0:
         raise ConfigError(f"--modulation-mhz: expected a positive frequency in MHz, got {modulation_mhz}")
     df = validate_trajectory(traj.reset_index(drop=True), source)
-    segs = [str(s) for s in pd.unique(df["segment"].to_numpy(dtype=object))]
+    segs = [str(s) for s in df["segment"].unique()]
     if segment is None and len(segs) > 1:
         raise ConfigError(
             f"{source}: the table has {len(segs)} segments ({', '.join(map(str, segs[:5]))}"
