@@ -10,12 +10,16 @@ to it. Both are run twice: the first call includes JIT compilation (the persiste
 later processes faster), the second is the steady state. Prints seconds per stage: context
 (validation, nominal fits), screening per effect, refinement, residual tests.
 
+The stages run under the same one-thread BLAS limit as `run_diagnosis`. The load average is
+printed at the start and the end: the cores are shared, compare against the peer of the same run.
+
 Measured (2 cores shared with other jobs, 2026-11-23): see the closing note of issue 7.
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import time
 
 import numpy as np
@@ -29,13 +33,16 @@ def main() -> None:
     ap.add_argument("--effect", default="drift", help="an effect id, or none")
     ap.add_argument("--seed", type=int, default=3)
     args = ap.parse_args()
+    print("load average (1, 5, 15 min): {:.2f} {:.2f} {:.2f}".format(*os.getloadavg()))
+
+    from threadpoolctl import threadpool_limits
 
     from jaxdefl.diagnose import load_effects, run_diagnosis
     from jaxdefl.diagnose._context import build_context
     from jaxdefl.fit import estimate_windows
     from jaxdefl.io import validate_trajectory
     from jaxdefl.series import make_windows
-    from jaxdefl.simulate.effects import RecordingSpec, _Base, draw_effect, make_recording
+    from jaxdefl.simulate.effects import CleanRecording, RecordingSpec, draw_effect, make_recording
 
     effects = () if args.effect == "none" else (args.effect,)
     spec = RecordingSpec(
@@ -45,7 +52,7 @@ def main() -> None:
         n_plates=args.plates,
     )
     t = time.perf_counter()
-    base = _Base(spec, args.seed)
+    base = CleanRecording(spec, args.seed)
     rng = np.random.default_rng(args.seed)
     drawn = [draw_effect(e, base, rng) for e in effects]
     traj, lds, truth = make_recording(spec, drawn, seed=args.seed, base=base)
@@ -66,31 +73,33 @@ def main() -> None:
         print(
             f"{run:>22}: fit alone {t_fit:6.1f} s | diagnose {t_diag:6.1f} s "
             f"(ratio {t_diag / t_fit:5.1f}x) | located: {found} | "
-            f"{int((est.table['status'] == 'converged').sum())} series fitted"
+            f"{int((est.table['status'] == 'converged').sum())} series fitted | {len(diag.rounds)} rounds"
         )
 
-    # stages of the steady state
-    t = time.perf_counter()
-    ctx, states, _ = build_context(traj, lds, "tof", args.rate)
-    print(f"  context (validation, nominal and reference fits): {time.perf_counter() - t:.2f} s")
-    for eid, eff in load_effects().items():
-        if eff.cannot_tell(ctx):
-            continue
+    # stages of the steady state, under run_diagnosis' BLAS limit
+    with threadpool_limits(limits=1, user_api="blas"):
         t = time.perf_counter()
-        props = eff.propose(ctx, states)
-        t_p = time.perf_counter() - t
-        t = time.perf_counter()
-        for p in props:
-            if p.refine is not None:
-                p.refine()
-        print(f"  {eid:>22}: screen {t_p:5.2f} s, refine {time.perf_counter() - t:5.2f} s")
-    from jaxdefl.diagnose._whiteness import residual_tests
+        ctx, states, _ = build_context(traj, lds, "tof", args.rate)
+        print(f"  context (validation, nominal and reference fits): {time.perf_counter() - t:.2f} s")
+        for eid, eff in load_effects().items():
+            if eff.cannot_tell(ctx):
+                continue
+            t = time.perf_counter()
+            props = eff.propose(ctx, states)
+            t_p = time.perf_counter() - t
+            t = time.perf_counter()
+            for p in props:
+                if p.refine is not None:
+                    p.refine()
+            print(f"  {eid:>22}: screen {t_p:5.2f} s, refine {time.perf_counter() - t:5.2f} s")
+        from jaxdefl.diagnose._whiteness import residual_tests
 
-    t = time.perf_counter()
-    for i, st in enumerate(states):
-        residual_tests(ctx, i, st)
-    print(f"  residual tests: {time.perf_counter() - t:.2f} s; samples {sum(s.n for s in ctx.series)}")
+        t = time.perf_counter()
+        for i, st in enumerate(states):
+            residual_tests(ctx, i, st)
+        print(f"  residual tests: {time.perf_counter() - t:.2f} s; samples {sum(s.n for s in ctx.series)}")
     print(f"  truth: {[e['id'] for e in truth['effects']] if isinstance(truth, dict) else truth}")
+    print("load average (1, 5, 15 min): {:.2f} {:.2f} {:.2f}".format(*os.getloadavg()))
 
 
 if __name__ == "__main__":

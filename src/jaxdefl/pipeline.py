@@ -16,6 +16,7 @@ from . import __version__
 from ._errors import ConfigError, JaxdeflError
 from .fit import Estimates, estimate_windows
 from .io import read_reference, read_trajectory, write_trajectory
+from .io.trajectory import _load_frame
 from .series import make_windows, windows_like
 
 __all__ = ["compare_with_reference", "demo", "estimate_table", "fit_file", "fit_reference"]
@@ -368,15 +369,23 @@ def diagnose_file(
     ):
         if val is not None:
             facts[key] = val
-    df = read_trajectory(traj)
-    ref = read_reference(reference) if reference is not None else None
+    # the tables as read: `run_diagnosis` validates them (once; validation sorts every row)
+    df = _load_frame(traj)
+    ref = _load_frame(reference) if reference is not None else None
 
     def on_round(r: int, eid: str | None) -> None:
         console.print(f"round {r + 1}: " + (f"located [bold]{eid}[/bold]" if eid else "nothing more to add"))
 
     with console.status("diagnosing ..."):
         diag = run_diagnosis(
-            df, ref, segment=segment, effects=effects, source=str(traj), on_round=on_round, **facts
+            df,
+            ref,
+            segment=segment,
+            effects=effects,
+            source=str(traj),
+            reference_source=str(reference),
+            on_round=on_round,
+            **facts,
         )
     d = diag.to_json()
     d["settings"] = {

@@ -33,6 +33,7 @@ import abc
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 
 import numpy as np
 
@@ -145,6 +146,28 @@ class State:
     def with_(self, **kw) -> State:
         return replace(self, **kw)
 
+    # The noise model's constants, computed once per state: `loglik` is called on the same
+    # state for every proposal scored against it, and the boolean indexing and logarithms over
+    # a long series would otherwise dominate scoring.
+    @cached_property
+    def n_inlier(self) -> int:
+        return int(self.inlier.sum())
+
+    @cached_property
+    def all_inlier(self) -> bool:
+        return self.n_inlier == self.inlier.size
+
+    @cached_property
+    def unit_scale(self) -> bool:
+        return bool(np.all(self.scale == 1.0))
+
+    @cached_property
+    def log_scale_sum(self) -> float:
+        """Σ log scale over the inliers."""
+        if self.unit_scale:
+            return 0.0
+        return float(np.sum(np.log(self.scale[self.inlier])))
+
 
 def loglik(y: np.ndarray, st: State, mean: np.ndarray | None = None) -> float:
     """Log-likelihood of ``y`` under the state (optionally with another ``mean``).
@@ -156,16 +179,19 @@ def loglik(y: np.ndarray, st: State, mean: np.ndarray | None = None) -> float:
     """
     mean = st.mean if mean is None else mean
     r = y - mean
-    inl = st.inlier
-    n_in = int(inl.sum())
+    n_in = st.n_inlier
     if n_in == 0:
         return -np.inf
-    z = r[inl] / st.scale[inl]
+    if st.all_inlier:
+        z = r if st.unit_scale else r / st.scale
+    else:
+        inl = st.inlier
+        z = r[inl] / st.scale[inl]
     s2 = max(float(np.mean(z * z)), 1e-300)
-    ll = -np.sum(np.log(st.scale[inl])) - 0.5 * n_in * (math.log(s2) + LOG_2PI + 1.0)
+    ll = -st.log_scale_sum - 0.5 * n_in * (math.log(s2) + LOG_2PI + 1.0)
     if st.outlier_fraction > 0:
         eps, s = st.outlier_fraction, st.outlier_scale_mm
-        ro = r[~inl]
+        ro = r[~st.inlier]
         ll += n_in * math.log1p(-eps)
         ll += np.sum(math.log(eps) - math.log(s) - 0.5 * LOG_2PI - 0.5 * (ro / s) ** 2)
     return float(ll)
@@ -244,6 +270,7 @@ class Context:
     frame_rate_hz: float | None = None
     modulation_mhz: float | None = None
     tap_offsets: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75)
+    _nuisance: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @property
     def plates(self) -> list[int]:
@@ -259,11 +286,22 @@ class Context:
 
     def nuisance(self, i: int, t: np.ndarray | None = None) -> np.ndarray:
         """(sample, k) columns an effect may re-estimate for free on series i: the offset, and on
-        an untied series the harmonic's cosine and sine (its C and D)."""
-        s = self.series[i]
-        t = s.t if t is None else t
+        an untied series the harmonic's cosine and sine (its C and D).
+
+        On the series' own times the columns are computed once per context (every effect asks
+        for them at every screening) and returned read-only.
+        """
+        if t is None:
+            if i not in self._nuisance:
+                cols = self._nuisance_at(i, self.series[i].t)
+                cols.setflags(write=False)
+                self._nuisance[i] = cols
+            return self._nuisance[i]
+        return self._nuisance_at(i, t)
+
+    def _nuisance_at(self, i: int, t: np.ndarray) -> np.ndarray:
         cols = [np.ones_like(t)]
-        if not s.tied:
+        if not self.series[i].tied:
             h = self.nominal[i]
             a = h.omega * (t - h.t_ref)
             cols += [np.cos(a), np.sin(a)]

@@ -60,8 +60,13 @@ def build_context(
     segment: str | None = None,
     axes: tuple[str, ...] | None = None,
     source: str = "<table>",
+    reference_source: str = "--reference",
 ) -> tuple[Context, list[State], list[str]]:
     """Validate the tables, fit the nominal model and return (context, nominal states, notes).
+
+    ``source`` and ``reference_source`` name the tables in error messages (their files, for the
+    CLI, which hands the tables over unvalidated: validation sorts millions of rows, once is
+    enough).
 
     Raises:
         ConfigError: an unknown sensor, a non-positive frame rate, several segments without
@@ -75,7 +80,7 @@ def build_context(
     if modulation_mhz is not None and not modulation_mhz > 0:
         raise ConfigError(f"--modulation-mhz: expected a positive frequency in MHz, got {modulation_mhz}")
     df = validate_trajectory(traj.reset_index(drop=True), source)
-    segs = [str(s) for s in pd.unique(df["segment"].to_numpy(dtype=object))]
+    segs = [str(s) for s in df["segment"].unique()]
     if segment is None and len(segs) > 1:
         raise ConfigError(
             f"{source}: the table has {len(segs)} segments ({', '.join(map(str, segs[:5]))}"
@@ -133,7 +138,7 @@ def build_context(
     ref_harm: dict[int, Harmonic] = {}
     if reference is not None:
         ref = validate_trajectory(
-            reference.reset_index(drop=True), "--reference", required=("t", "plate", "z")
+            reference.reset_index(drop=True), reference_source, required=("t", "plate", "z")
         )
         ref = ref[(ref["t"] >= t0 + t_all[0]) & (ref["t"] <= t0 + t_all[-1])]
         cam_plates = {s.plate for s in series if s.axis == "z"}

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
+from threadpoolctl import threadpool_limits
 
 from .._errors import ConfigError
 from ._base import Context, Proposal, State, loglik, rms_equivalent
@@ -276,6 +277,11 @@ def _passes(dbic: float, rms0: float, rms1: float, p_value: float, n_tests: int)
     return dbic < DELTA_BIC_MAX and rms1 < rms0 and p_value * n_tests < ALPHA
 
 
+# One BLAS thread: the diagnosis' products are many small GEMMs and dots over one series, where
+# OpenBLAS's threads cost more to wake than they save and, on cores shared with other jobs, spin
+# against them (measured: the whole search twice as slow, drift's screening five times). JAX's
+# solvers keep their own thread pool.
+@threadpool_limits.wrap(limits=1, user_api="blas")
 def run_diagnosis(
     traj: pd.DataFrame,
     reference: pd.DataFrame | None = None,
@@ -287,6 +293,7 @@ def run_diagnosis(
     effects: tuple[str, ...] | None = None,
     source: str = "<table>",
     on_round=None,
+    reference_source: str = "--reference",
 ) -> Diagnosis:
     """Diagnose a trajectory table (DESIGN.md contract) against the nominal model.
 
@@ -295,6 +302,7 @@ def run_diagnosis(
         sensor, frame_rate_hz, modulation_mhz, tap_offsets: what the user knows of the camera.
         segment: the segment to diagnose when the table has several.
         effects: restrict the library to these ids (default: all).
+        source, reference_source: the tables' names in error messages.
         on_round: optional callback(round number, accepted effect id or None).
     """
     start = time.perf_counter()
@@ -307,7 +315,15 @@ def run_diagnosis(
             )
         library = {k: v for k, v in library.items() if k in effects}
     ctx, nominal, notes = build_context(
-        traj, reference, sensor, frame_rate_hz, modulation_mhz, tap_offsets, segment, source=source
+        traj,
+        reference,
+        sensor,
+        frame_rate_hz,
+        modulation_mhz,
+        tap_offsets,
+        segment,
+        source=source,
+        reference_source=reference_source,
     )
     cannot_tell = []
     usable = {}
@@ -347,12 +363,21 @@ def run_diagnosis(
     # Proposals of every effect, with the states they were made on. After an effect is accepted
     # the others are re-scored on the new states by re-applying their change (`_rebase`), and
     # only the best one is proposed afresh: a round costs one effect's screening, not eleven.
-    # When nothing passes, every effect screens the current states once more before stopping.
+    # When nothing passes, every effect not yet screened on the current states screens them once
+    # more before stopping.
     cache: dict[str, list[tuple[Proposal, list[State]]]] = {}
+    screened_on: dict[str, list[State]] = {}
 
     def screen(eid: str) -> None:
         base = list(states)
+        screened_on[eid] = base
         cache[eid] = [(p, base) for p in usable[eid].propose(ctx, base) if p.series]
+
+    def current(eid: str) -> bool:
+        """The effect was screened on the current states (since the last acceptance): screening
+        it again would return the same proposals."""
+        base = screened_on.get(eid)
+        return base is not None and all(b is st for b, st in zip(base, states, strict=True))
 
     for eid in usable:
         screen(eid)
@@ -375,7 +400,7 @@ def run_diagnosis(
             if eid in tried or not dbic < DELTA_BIC_MAX:
                 continue
             tried.add(eid)
-            if not fresh_round:
+            if not current(eid):
                 screen(eid)  # propose again on the current states: the exact proposal
             for p, _ in sorted(cache[eid], key=lambda x: _score(ctx, states, x[0], n_total, corr)[0]):
                 d, r0, r1 = _score(ctx, states, p, n_total, corr)
@@ -397,7 +422,8 @@ def run_diagnosis(
             if fresh_round:
                 break
             for eid in usable:
-                screen(eid)
+                if not current(eid):
+                    screen(eid)
             fresh_round = True
             continue
         accepted.append(chosen)
@@ -412,7 +438,11 @@ def run_diagnosis(
         tests_nominal = tests_final = []
     else:
         tests_nominal = [residual_tests(ctx, i, st) for i, st in enumerate(nominal)]
-        tests_final = [residual_tests(ctx, i, st) for i, st in enumerate(states)]
+        # a series no accepted effect touched keeps its nominal state and so its nominal tests
+        tests_final = [
+            tests_nominal[i] if st is nominal[i] else residual_tests(ctx, i, st)
+            for i, st in enumerate(states)
+        ]
     return Diagnosis(
         ctx=ctx,
         nominal=nominal,

@@ -126,8 +126,11 @@ def validate_trajectory(
     out["_row"] = np.arange(len(df)) + 2
 
     out = out.sort_values(["segment", "plate", "_row"], kind="stable").reset_index(drop=True)
-    same_series = (out["segment"].to_numpy()[1:] == out["segment"].to_numpy()[:-1]) & (
-        out["plate"].to_numpy()[1:] == out["plate"].to_numpy()[:-1]
+    # segments compared as codes: the labels as Python strings cost seconds on an LDS table
+    # (a missing label, code -1, equals nothing, as NaN does)
+    seg = pd.factorize(out["segment"])[0]
+    same_series = (
+        (seg[1:] == seg[:-1]) & (seg[1:] >= 0) & (out["plate"].to_numpy()[1:] == out["plate"].to_numpy()[:-1])
     )
     dt = np.diff(out["t"].to_numpy())
     back = same_series & (dt < 0)
