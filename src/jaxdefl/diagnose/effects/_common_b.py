@@ -38,6 +38,7 @@ __all__ = [
     "chi2_p_value",
     "tap_response",
     "TiedModel",
+    "AMBIGUOUS_CHI2",
     "motion_parameters",
     "Carriers",
     "select_series",
@@ -244,6 +245,9 @@ def motion_parameters(ctx: Context, T: float, sigma_T: float) -> dict:
 
 
 PPM = 1e-6
+# a tap spread's gain loss must beat a pure phase shift (a clock offset) by this much in χ² for
+# `motion_artefact` and `timing_error` to be told apart; below it the data cannot separate them
+AMBIGUOUS_CHI2 = 10.0
 TIED_EFFECTS = ("motion_artefact", "timing_error")
 NAMES = ("tap_spread_s", "offset_s", "rate_ppm")
 
@@ -401,6 +405,7 @@ class _Carrier:
     scan: Block  # nuisance of the scan: offset, cos, sin at ω (also on tied series)
     block: Block  # the free nuisance of the series (`Context.nuisance`)
     trend: Block  # the scan's, and on tied series a phase trend (a clock rate, `timing_error`'s)
+    absorbed: Block | None  # tied series: the carrier's cos, sin (what the LDS's harmonic holds)
 
 
 _CACHE: dict = {}
@@ -434,9 +439,11 @@ class Carriers:
             if s.tied:  # the camera's offset is all that is free; the scans still take out C, D
                 block = Block(one[:, None], w, r)
                 trend = Block(np.stack([one, c, sn, sn * (s.t - t_mid)]).T, w, r)
+                absorbed = Block(np.stack([c, sn]).T, w, r)
             else:  # the free nuisance: offset, C, D (`Context.nuisance`, the same span)
                 block = trend = scan
-            self.items.append(_Carrier(i, a, c, sn, arg, r, w, scan, block, trend))
+                absorbed = None
+            self.items.append(_Carrier(i, a, c, sn, arg, r, w, scan, block, trend, absorbed))
 
     @classmethod
     def cached(cls, ctx: Context, states: list[State]) -> Carriers:
@@ -529,9 +536,30 @@ class Carriers:
         den = max(den, 1e-300)
         return num * num / den, num / den, 1.0 / math.sqrt(den)
 
+    @staticmethod
+    def visible(term: Callable) -> Callable:
+        """``term`` as the model of each series carries it: on a tied series without its part
+        along the carrier's cos and sin. The LDS sees the same load, so the reference's
+        harmonic, fitted over the record, already holds the modulation's projection on the
+        carrier (e.g. the mean phase of a few modulation cycles); counted again, it is a phase
+        or gain offset against the LDS that `timing_error` or `motion_artefact` would take up.
+        (On untied series the free C and D take it up alike.)"""
+
+        def seen(it, theta, jac):
+            out = term(it, theta, jac)
+            if it.absorbed is None:
+                return out
+            if not jac:
+                return out - it.absorbed.fit(out)
+            m, j = out
+            return m - it.absorbed.fit(m), j - it.absorbed.fit(j)
+
+        return seen
+
     def fit(self, term: Callable, theta0: np.ndarray, **kw) -> LMResult:
         """Fit shared θ of ``term(it, theta, jac) -> m or (m, J)`` over all carriers, with each
-        series' free nuisance profiled out."""
+        series' free nuisance profiled out (the term as `visible` gives it)."""
+        term = self.visible(term)
 
         def evaluate(p, jac):
             if not jac:
@@ -551,6 +579,7 @@ class Carriers:
         """(kept, {index: State}, gains): the new means, kept where the term is individually
         significant (`select_series`)."""
         ctx = self.ctx
+        term = self.visible(term)
         gains, means, ns = {}, {}, {}
         for it in self.items:
             st = states[it.i]

@@ -27,7 +27,15 @@ import math
 import numpy as np
 
 from .._base import Context, Effect, Proposal, State
-from ._common_b import PPM, TiedModel, chi2_p_value, motion_parameters, param, tied_proposal_states
+from ._common_b import (
+    AMBIGUOUS_CHI2,
+    PPM,
+    TiedModel,
+    chi2_p_value,
+    motion_parameters,
+    param,
+    tied_proposal_states,
+)
 
 __all__ = ["TimingError", "EFFECT"]
 
@@ -81,6 +89,8 @@ class TimingError(Effect):
             p_value = chi2_p_value(delta, len(own))
             if not (res.converged and p_value < P_MAX):
                 continue
+            if 1 in own and self._taps_explain(ctx, model, res, own, extra, period):
+                continue
             kept, new_states, gains = tied_proposal_states(ctx, states, model, res.theta, self.id, len(own))
             if not kept:
                 continue
@@ -129,6 +139,30 @@ class TimingError(Effect):
                 )
             )
         return out
+
+    @staticmethod
+    def _taps_explain(ctx: Context, model: TiedModel, res, own: list[int], extra: list[int], period: float):
+        """Whether a ToF camera's tap spread explains the fitted clock offset as well.
+
+        Sequential taps sample after the frame's stamp: the camera leads the LDS by arg H/ω ≈
+        mean tap offset × T, as early stamps would. When the lead is within what a spread of at
+        most a frame period gives and the gain loss that tells them apart is not resolved
+        (`AMBIGUOUS_CHI2`), the camera's own mechanism is proposed (`motion_artefact`, whose
+        report says a clock offset would do alike), not both.
+        """
+        if ctx.sensor != "tof" or extra:
+            return False
+        d = float(res.theta[1])
+        mean_tap = float(np.mean(ctx.tap_offsets))
+        if not (d < 0 and -d <= mean_tap * period):
+            return False
+        theta = model.current.copy()
+        theta[0] = -d / mean_tap
+        theta[2] = res.theta[2]
+        free = [0] + [j for j in own if j != 1]
+        bounds = [(0.0, 3 * period)] + [(-1e5, 1e5)] * (len(free) - 1)
+        taps = model.fit(theta, free, bounds=bounds)
+        return taps.converged and taps.chi2 <= res.chi2 + AMBIGUOUS_CHI2
 
 
 EFFECT = TimingError()
