@@ -325,6 +325,37 @@ def test_modulation_with_a_reference_leaves_no_clock_offset(depth, cycles, phase
     assert not passing(ctx, states, TIMING.propose(ctx, states))
 
 
+@pytest.mark.parametrize(
+    "am_depth, fm_depth, lds", [(0.2, 0.4, ()), (0.2, 0.4, (2, 3, 4)), (0.25, 0.1, ())]
+)
+def test_amplitude_and_phase_modulation_together(am_depth, fm_depth, lds):
+    """Both at once: the load is a (1 + u) cos(arg + δφ). The second one accepted modulates the
+    motion the first left in the model; on the nominal harmonic the product u δφ was left out,
+    and taken as further phase-modulation lines at f_AM ± f_FM."""
+    from jaxdefl.diagnose.effects.amplitude_modulation import EFFECT as AM
+    from jaxdefl.diagnose.effects.extra_periodic import EFFECT as EXTRA
+    from jaxdefl.diagnose.effects.frequency_modulation import EFFECT as FM
+
+    ctx, states = make_case(
+        seed=3,
+        axes=("z", "x"),
+        lds_plates=lds,
+        am=lambda t: 1 + am_depth * np.cos(2 * np.pi * 0.013 * t + 1.0),
+        fm=lambda t: fm_depth * np.sin(2 * np.pi * 0.021 * t + 2.0),
+    )
+    found = {}
+    for _ in range(2):
+        p = passing(ctx, states, AM.propose(ctx, states) + FM.propose(ctx, states))[0]
+        found[p.effect] = p
+        states = accept(states, p)
+    assert within(value(found["amplitude_modulation"], "depth"), am_depth)
+    assert within(value(found["amplitude_modulation"], "freq_hz"), 0.013)
+    assert within(value(found["frequency_modulation"], "depth_rad"), fm_depth)
+    assert within(value(found["frequency_modulation"], "freq_hz"), 0.021)
+    for eff in (AM, FM, EXTRA):
+        assert not passing(ctx, states, eff.propose(ctx, states)), eff.id
+
+
 # -------------------------------------------------------------------------------------- clean data
 
 

@@ -390,16 +390,49 @@ def tied_proposal_states(
 
 
 # ---------------------------------------------------------------------------------------------
-# carriers of the nominal harmonic (amplitude and phase modulation)
+# carriers of the current motion (amplitude and phase modulation)
+
+MODULATIONS = ("amplitude_modulation", "frequency_modulation")
+
+
+def current_motion(ctx: Context, i: int, mean: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(A(t), ψ(t)) of the motion in a model mean: mean ≈ c + A(t) cos(arg(t) + ψ(t)), arg the
+    nominal harmonic's, by linear LS of (1, cos arg, sin arg) over a sliding window of two
+    loading periods (moving sums on the frame clock; the mean is noise-free, so the window only
+    has to average out the 2ω term and other effects' lines). A modulation already accepted is
+    in A and ψ; a new one multiplies or shifts that motion, not the nominal harmonic, so the
+    product of the two is in the model rather than left as side lines at f_AM ± f_FM."""
+    s, h = ctx.series[i], ctx.nominal[i]
+    n = ctx.n_frames
+    half = max(int(round(1.0 / (ctx.f0_hz * ctx.dt_s))), 2)
+    arg = h.argument(s.t)
+    cols = np.stack([np.ones_like(s.t), np.cos(arg), np.sin(arg)])
+    lo = np.clip(s.k - half, 0, n)
+    hi = np.clip(s.k + half + 1, 0, n)
+
+    def window_sum(x):
+        c = np.concatenate([[0.0], np.cumsum(np.bincount(s.k, weights=x, minlength=n)[:n])])
+        return c[hi] - c[lo]
+
+    gram = np.empty((s.n, 3, 3))
+    rhs = np.empty((s.n, 3))
+    for j in range(3):
+        rhs[:, j] = window_sum(cols[j] * mean)
+        for m in range(j, 3):
+            gram[:, j, m] = gram[:, m, j] = window_sum(cols[j] * cols[m])
+    ridge = 1e-9 * np.trace(gram, axis1=1, axis2=2)[:, None, None] * np.eye(3)
+    beta = np.linalg.solve(gram + ridge, rhs[..., None])[..., 0]
+    z = beta[:, 1] - 1j * beta[:, 2]
+    return np.abs(z), np.angle(z)
 
 
 @dataclass
 class _Carrier:
     i: int
-    a: float  # the nominal amplitude (mm)
+    a: float | np.ndarray  # the motion's amplitude (mm): nominal, or A(t) of the current model
     cos: np.ndarray  # cos(arg)
     sin: np.ndarray  # sin(arg)
-    arg: np.ndarray
+    arg: np.ndarray  # the motion's phase angle: nominal, or + ψ(t) of the current model
     r: np.ndarray  # current residual
     w: np.ndarray
     scan: Block  # nuisance of the scan: offset, cos, sin at ω (also on tied series)
@@ -415,7 +448,9 @@ class Carriers:
     """The series with a real motion (amplitude ≥ ``min_snr`` σ_A) and their carriers.
 
     In-phase column a cos(arg) (amplitude modulation: y += a u(t) cos arg) and quadrature column
-    −a sin(arg) (phase modulation: y += −a δφ(t) sin arg), arg from the nominal harmonic.
+    −a sin(arg) (phase modulation: y += −a δφ(t) sin arg), a and arg from the nominal harmonic,
+    or on a series that already carries a modulation its current motion (`current_motion`).
+    The nuisance blocks stay at the nominal harmonic's cos and sin (its free C and D).
     """
 
     def __init__(self, ctx: Context, states: list[State], min_snr: float = 10.0):
@@ -443,6 +478,10 @@ class Carriers:
             else:  # the free nuisance: offset, C, D (`Context.nuisance`, the same span)
                 block = trend = scan
                 absorbed = None
+            if any(e in MODULATIONS for e in st.effects):
+                a, psi = current_motion(ctx, i, st.mean)
+                arg = arg + psi
+                c, sn = np.cos(arg), np.sin(arg)
             self.items.append(_Carrier(i, a, c, sn, arg, r, w, scan, block, trend, absorbed))
 
     @classmethod
