@@ -590,7 +590,12 @@ def test_small_benchmark_meets_the_targets(tmp_path):
 # a level jump on plate 3 also taken on plate 6 (size off by 40 %), coarse quantization leaving
 # harmonic_distortion and aliased extra_periodic lines, a half-frame tap spread taken as a clock
 # offset, a deep phase modulation leaving a clock offset against the LDS
-ONCE_FAILED = [(14, ["level_jump"]), (21, ["quantization"]), (22, ["motion_artefact"]), (5, ["frequency_modulation"])]
+ONCE_FAILED = [
+    (14, ["level_jump"]),
+    (21, ["quantization"]),
+    (22, ["motion_artefact"]),
+    (5, ["frequency_modulation"]),
+]
 
 
 @pytest.mark.slow

@@ -325,9 +325,7 @@ def test_modulation_with_a_reference_leaves_no_clock_offset(depth, cycles, phase
     assert not passing(ctx, states, TIMING.propose(ctx, states))
 
 
-@pytest.mark.parametrize(
-    "am_depth, fm_depth, lds", [(0.2, 0.4, ()), (0.2, 0.4, (2, 3, 4)), (0.25, 0.1, ())]
-)
+@pytest.mark.parametrize("am_depth, fm_depth, lds", [(0.2, 0.4, ()), (0.2, 0.4, (2, 3, 4)), (0.25, 0.1, ())])
 def test_amplitude_and_phase_modulation_together(am_depth, fm_depth, lds):
     """Both at once: the load is a (1 + u) cos(arg + δφ). The second one accepted modulates the
     motion the first left in the model; on the nominal harmonic the product u δφ was left out,

@@ -12,9 +12,10 @@
   sampling and the camera clock's offset δ and rate ε; the two reference effects each fit their
   own parameters and re-estimate the other's when it is already in the model (the two commute
   and trade phase, so they are only told apart jointly).
-- `Carriers`: per-series in-phase and quadrature carriers of the nominal harmonic, the demodulated
-  residual combined across series on the frame clock and its low-frequency spectrum (the
-  amplitude and phase modulation scans).
+- `Carriers`: per-series in-phase and quadrature carriers of the nominal harmonic (of the current
+  motion where a modulation is already in the model), the demodulated residual combined across
+  series on the frame clock and its low-frequency spectrum (the amplitude and phase modulation
+  scans).
 """
 
 from __future__ import annotations

@@ -73,7 +73,9 @@ class ModulationEffect(Effect):
         if not car.items:
             return []
         out = []
-        stat, x0, _ = car.linear_stat(self.demodulation, lambda t: self.linear_shape(ctx, t), trend=self.trend)
+        stat, x0, _ = car.linear_stat(
+            self.demodulation, lambda t: self.linear_shape(ctx, t), trend=self.trend
+        )
         p_lin = min(1.0, KINDS * chi2_p_value(stat, 1))
         if p_lin < P_MAX:
             prop = self._linear(ctx, states, car, x0, p_lin)

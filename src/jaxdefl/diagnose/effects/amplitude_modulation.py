@@ -14,10 +14,13 @@ shared trend, the sinusoidal kind the peak of the combined spectrum between 2/du
 (Exp(1) powers, corrected for the independent frequencies scanned). Each is doubled for the two
 kinds tried. The in-phase demodulation separates it from `frequency_modulation` (quadrature).
 
-Model: y += a_s u(t) cos(arg_s(t)), arg_s and a_s the series' nominal harmonic, u(t) = r (t − t_mid)
+Model: y += a_s u(t) cos(arg_s(t)), arg_s and a_s the series' nominal harmonic (or its current
+motion when a phase modulation is already in the model: `current_motion`), u(t) = r (t − t_mid)
 or m cos(2π f_m t + ψ) shared by all series (parameters counted once: 1 or 3); fitted by
-Levenberg-Marquardt on all carrying series with each series' free nuisance profiled out. The
-series reported are those where the term is individually significant.
+Levenberg-Marquardt on all carrying series with each series' free nuisance profiled out. On a
+tied series the term's part along the carrier is left out: the LDS's harmonic holds it
+(`Carriers.visible`). The series reported are those where the term is individually significant.
+Scan and fit are shared with `frequency_modulation` (`_modulation.ModulationEffect`).
 """
 
 from __future__ import annotations

@@ -17,10 +17,13 @@ LDS-tied series is a clock rate (`timing_error`): the linear kind is quadratic i
 scan projects a phase trend out of the tied series.
 
 Model: y += a_s [cos(arg_s + δφ(t)) − cos(arg_s)] ≈ −a_s δφ(t) sin(arg_s), δφ shared by all
-series (1 or 3 parameters counted once), arg_s and a_s from the series' nominal harmonic;
+series (1 or 3 parameters counted once), arg_s and a_s from the series' nominal harmonic, or
+its current motion when an amplitude modulation is already in the model (`current_motion`);
 Levenberg-Marquardt on the exact term with each series' free nuisance profiled out, started from
-the demodulation's estimate. The series reported are those where the term is individually
-significant.
+the demodulation's estimate. On a tied series the term's part along the carrier is left out:
+the LDS's harmonic holds it (`Carriers.visible`). The series reported are those where the term
+is individually significant. Scan and fit are shared with `amplitude_modulation`
+(`_modulation.ModulationEffect`).
 """
 
 from __future__ import annotations

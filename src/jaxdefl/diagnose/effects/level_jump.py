@@ -20,8 +20,9 @@ camera shifting every plate alike, too little on each plate alone. Both proposal
 search; BIC decides.
 
 Model term: y += δ_s H(t − t_j), t_j shared by the series it touches, δ_s per series: 1 + S
-parameters (common mode: t_j and one δ, 2 parameters). One jump per proposal: the search calls
-again after accepting one.
+parameters (common mode: t_j and one δ, 2 parameters). A series keeps a per-series jump when its
+own evidence pays for δ_s and for being chosen among the S series scanned (log n + 2 log S in
+−2 log L). One jump per proposal: the search calls again after accepting one.
 
 Plausible magnitudes: 0.1-2 mm for ToF integration-time changes; 1-10 mm for structured-light
 session jumps (thesis Table 6.21), less on the centroids of large plates.

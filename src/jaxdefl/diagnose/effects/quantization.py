@@ -20,8 +20,10 @@ nominal offset is itself biased by the quantisation; the camera's levels o_s = �
 refitted offset) come out alike on every plate when the levels are the camera's (reported:
 their circular mean).
 
-Model term: mean = q·round((h − φ_s)/q) + φ_s plus the free nuisance refitted; q shared, φ_s per
-series (1 + S parameters). Only where the motion spans more than a step (q < 2A).
+Model term: mean = q·round((h' − φ_s)/q) + φ_s + c_s, h' the current model with its free
+nuisance refitted inside the rounding (`_inside`: the nominal harmonic fitted to a staircase is
+biased), c_s the offset; q shared, φ_s per series (1 + S parameters). Only where the motion spans
+more than a step (q < 2A).
 
 Plausible magnitudes: q of 0.3-20 mm for structured light; its residual RMS is q/√12.
 """
@@ -230,9 +232,7 @@ class Quantization(Effect):
         q = q0
         for outer in range(N_OUTER):
             if outer:
-                bins = {
-                    i: _Binned(h[i], ctx.series[i].y - h[i], weights(states[i]), width) for i in use
-                }
+                bins = {i: _Binned(h[i], ctx.series[i].y - h[i], weights(states[i]), width) for i in use}
             qs = 1.0 / (1.0 / q + np.linspace(-d_nu, d_nu, N_REFINE))
             gains = np.zeros((len(use), qs.size, N_OFFSET))
             for j, i in enumerate(use):

@@ -18,6 +18,11 @@ offset free, (δ, ε) shared by all tied series (one camera clock). Three varian
 offset only (``offset_s``), rate only (``rate_ppm``) and both — and BIC picks. A tap spread T
 already in the model (`motion_artefact`) is re-estimated jointly at no parameter cost. The
 camera's untied series (x, y, z without an LDS) are not touched: their own harmonic absorbs it.
+
+Against `motion_artefact`: on a ToF camera, early stamps and sequential taps both make the camera
+lead the LDS; only the taps' gain loss tells them apart. A clock offset whose lead a tap spread of
+at most a frame period gives, with the gain loss unresolved (`AMBIGUOUS_CHI2`), is not proposed:
+the camera's own mechanism is, and its report says a clock would explain it alike.
 """
 
 from __future__ import annotations
