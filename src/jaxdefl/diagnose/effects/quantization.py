@@ -157,6 +157,85 @@ def _inside(
     return best[0], best[2], best[3]
 
 
+def _joint(ctx: Context, states: list[State], use: list[int], h: dict, q: float, phi: dict):
+    """Gauss-Newton on the shared step q and every series' nuisance inside the rounding.
+
+    A step and the motion's amplitude scaled alike put the steps at the same instants; only the
+    levels tell them apart, so the grid in q and the per-series refit (`_inside`) converge slowly
+    along that valley, and a step off by 2 % leaves a periodic residual of levels (taken as
+    harmonic_distortion). Here both move at once: each series' levels are counted from the one
+    nearest its motion (L_s ≡ φ_s mod q, so that q moves the few levels the motion crosses, not
+    the ~10³ down to 0 mm), the derivatives are central differences over a quarter step at the
+    extreme level, the nuisance is eliminated series by series (Schur complement), and steps that
+    do not lower Σ RSS/σ̂² are halved.
+
+    Returns (q, σ_q from the Gauss-Newton information, {i: (L_s, h', mean, outer offset)}).
+    """
+    data = {}
+    for i in use:
+        s = ctx.series[i]
+        nu = ctx.nuisance(i)
+        w = weights(states[i])
+        level = phi[i] + q * float(np.round((np.median(h[i]) - phi[i]) / q))
+        data[i] = (s.y, w, nu, level)
+
+    def evaluate(hs, qq):
+        out, chi = {}, 0.0
+        for i in use:
+            y, w, _, level = data[i]
+            stair = staircase(hs[i], qq, level)
+            c = float(np.sum(w * (y - stair)) / max(float(w.sum()), 1e-300))
+            rss = float(np.sum(w * (y - stair - c) ** 2))
+            s2 = rss / max(int((w > 0).sum()) - 1, 1) or 1e-300
+            out[i] = (stair + c, c, s2)
+            chi += rss
+        return chi, out
+
+    chi, fit = evaluate(h, q)
+    info = 0.0
+    for _ in range(N_INSIDE):
+        info = grad = 0.0
+        parts = {}
+        for i in use:
+            y, w, nu, level = data[i]
+            hi = h[i]
+            ww = w / fit[i][2]
+            k_max = max(float(np.max(np.abs(np.round((hi - level) / q)))), 1.0)
+            d, dq = 0.25 * q, 0.25 * q / k_max
+            cols = [
+                (staircase(hi + d * c, q, level) - staircase(hi - d * c, q, level)) / (2 * d) for c in nu.T
+            ]
+            jac = np.stack([*cols, np.ones_like(hi)], axis=1)
+            jq = (staircase(hi, q + dq, level) - staircase(hi, q - dq, level)) / (2 * dq)
+            r = y - staircase(hi, q, level)
+            jw = jac * ww[:, None]
+            a_inv = np.linalg.pinv(jw.T @ jac)
+            b, g = jw.T @ r, jw.T @ jq
+            info += float(np.sum(ww * jq * jq) - g @ a_inv @ g)
+            grad += float(np.sum(ww * jq * r) - g @ a_inv @ b)
+            parts[i] = (a_inv, b, g, nu)
+        step_q = grad / info if info > 0 else 0.0
+        lam = 1.0
+        while lam > 0.1:
+            qn = q + lam * step_q
+            hn = {
+                i: h[i] + lam * (nu @ (a_inv @ (b - g * step_q))[: nu.shape[1]])
+                for i, (a_inv, b, g, nu) in parts.items()
+            }
+            chi_n, fit_n = evaluate(hn, qn)
+            if chi_n < chi:
+                break
+            lam *= 0.5
+        else:
+            break
+        small = chi - chi_n <= 1e-9 * chi
+        q, h, chi, fit = qn, hn, chi_n, fit_n
+        if small:
+            break
+    sig_q = 1.0 / math.sqrt(info) if info > 0 else None
+    return q, sig_q, {i: (data[i][3], h[i], fit[i][0], fit[i][1]) for i in use}
+
+
 class Quantization(Effect):
     id = "quantization"
     meaning = "depth measured in steps (structured-light disparity quantisation)"
@@ -246,11 +325,12 @@ class Quantization(Effect):
                 d2 = (per[a - 1] - 2 * per[a] + per[a + 1]) / ((qs[a + 1] - qs[a - 1]) / 2) ** 2
                 if d2 < 0:
                     sig_q = math.sqrt(2.0 / -d2)
-            fits = {}
+            phi = {}
             for j, i in enumerate(use):
-                phi = float(fr[int(np.argmax(gains[j, a]))] * q)
-                fits[i] = (phi, *_inside(ctx, i, states[i], h[i], q, phi))
-                h[i] = fits[i][1]
+                phi[i] = float(fr[int(np.argmax(gains[j, a]))] * q)
+                h[i] = _inside(ctx, i, states[i], h[i], q, phi[i])[0]
+        q, sig_joint, fits = _joint(ctx, states, use, h, q, phi)
+        sig_q = sig_joint if sig_joint is not None else sig_q
         new, kept_gain, levels = {}, {}, {}
         for i in use:
             st = states[i]
