@@ -251,6 +251,27 @@ def test_level_jump_clean():
 
 
 # ---------------------------------------------------------------------------------------------
+# extra_periodic
+
+
+def test_extra_periodic_amplitude_is_the_depth_axis():
+    """A vibration at 4.1 Hz, 0.3 mm along z and 0.1 mm along x on every plate: the reported
+    amplitude is the z series' (a median over both axes, 0.2 mm, described neither)."""
+    from jaxdefl.diagnose.effects.extra_periodic import EFFECT
+
+    def inject(t, p, axis, clean, eps, sig):
+        a = 0.3 if axis == "z" else 0.1
+        return clean + sig * eps + a * np.cos(2 * np.pi * 4.1 * t + 0.7)
+
+    ctx, states = make_case(inject, seed=12, n_plates=5)
+    (prop,) = passing(ctx, states, EFFECT.propose(ctx, states))
+    assert {ctx.series[i].axis for i in prop.series} == {"z", "x"}
+    assert close(value(prop, "freq_hz"), 4.1, 0.001)
+    assert close(value(prop, "amplitude_mm"), 0.3, 0.1)
+    assert close(prop.detail["median_amplitude_by_axis_mm"]["x"], 0.1, 0.25)
+
+
+# ---------------------------------------------------------------------------------------------
 # outliers
 
 
