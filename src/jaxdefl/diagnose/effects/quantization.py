@@ -167,7 +167,8 @@ def _joint(ctx: Context, states: list[State], use: list[int], h: dict, q: float,
     nearest its motion (L_s ≡ φ_s mod q, so that q moves the few levels the motion crosses, not
     the ~10³ down to 0 mm), the derivatives are central differences over a quarter step at the
     extreme level, the nuisance is eliminated series by series (Schur complement), and steps that
-    do not lower Σ RSS/σ̂² are halved.
+    do not lower the summed weighted RSS are halved (the normal equations weigh each series by
+    1/σ̂², so that σ_q is the step's standard error).
 
     Returns (q, σ_q from the Gauss-Newton information, {i: (L_s, h', mean, outer offset)}).
     """
