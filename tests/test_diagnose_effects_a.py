@@ -206,6 +206,24 @@ def test_level_jump(plates, size, t_j):
     assert close(value(prop, "size_mm"), size)
 
 
+@pytest.mark.parametrize("seed", [6, 34])
+def test_level_jump_on_one_plate_among_many_stays_there(seed):
+    """A 0.25-mm jump on one plate of twelve (24 series): the other series, fitted at its split,
+    pass the plain BIC now and then (χ²₁ > log n: 0.2 % each); paying for being chosen among
+    the series keeps the jump on its plate and its size that plate's."""
+    from jaxdefl.diagnose.effects.level_jump import EFFECT
+
+    def inject(t, p, axis, clean, eps, sig):
+        y = clean + sig * eps
+        return y + 0.25 * (t >= 380.0) if axis == "z" and p == 7 else y
+
+    ctx, states = make_case(inject, seed=seed, n_plates=12)
+    good = passing(ctx, states, EFFECT.propose(ctx, states))
+    prop = min(good, key=lambda p: delta_bic(ctx, states, p))
+    assert keys(ctx, prop) == ["7z"]
+    assert close(value(prop, "size_mm"), 0.25)
+
+
 def test_level_jump_common_below_each_plate():
     """0.06 mm on every plate: ~12 χ² units each, too little alone, plenty together."""
     from jaxdefl.diagnose.effects.level_jump import EFFECT
@@ -230,6 +248,27 @@ def test_level_jump_clean():
     for seed in range(3):
         ctx, states = make_case(seed=30 + seed, n_plates=5)
         assert passing(ctx, states, EFFECT.propose(ctx, states)) == []
+
+
+# ---------------------------------------------------------------------------------------------
+# extra_periodic
+
+
+def test_extra_periodic_amplitude_is_the_depth_axis():
+    """A vibration at 4.1 Hz, 0.3 mm along z and 0.1 mm along x on every plate: the reported
+    amplitude is the z series' (a median over both axes, 0.2 mm, described neither)."""
+    from jaxdefl.diagnose.effects.extra_periodic import EFFECT
+
+    def inject(t, p, axis, clean, eps, sig):
+        a = 0.3 if axis == "z" else 0.1
+        return clean + sig * eps + a * np.cos(2 * np.pi * 4.1 * t + 0.7)
+
+    ctx, states = make_case(inject, seed=12, n_plates=5)
+    (prop,) = passing(ctx, states, EFFECT.propose(ctx, states))
+    assert {ctx.series[i].axis for i in prop.series} == {"z", "x"}
+    assert close(value(prop, "freq_hz"), 4.1, 0.001)
+    assert close(value(prop, "amplitude_mm"), 0.3, 0.1)
+    assert close(prop.detail["median_amplitude_by_axis_mm"]["x"], 0.1, 0.25)
 
 
 # ---------------------------------------------------------------------------------------------

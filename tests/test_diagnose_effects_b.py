@@ -207,6 +207,23 @@ def test_unresolved_gain_loss_is_said():
     assert p.detail["gain_loss_evidence_chi2"] < 10 and "not resolved" in p.explanation
 
 
+@pytest.mark.parametrize("seed", [25, 26])
+def test_unresolved_tap_lead_is_one_effect_not_a_clock(seed):
+    """Taps over 0.3 of a ToF frame: a 0.3 % gain loss (10 µm, within the noise) and a 6° lead,
+    which early timestamps would give alike (on these seeds the noise even favours them by a
+    χ² unit or two). The camera's own mechanism is chosen, saying that a clock would do alike,
+    and no clock error is left after it."""
+    from jaxdefl.diagnose.effects.motion_artefact import EFFECT as MOTION
+    from jaxdefl.diagnose.effects.timing_error import EFFECT as TIMING
+
+    ctx, states = make_case(seed=seed, lds_plates=(2, 3, 4), tap_spread=0.3 / FS)
+    p = passing(ctx, states, MOTION.propose(ctx, states) + TIMING.propose(ctx, states))[0]
+    assert p.effect == "motion_artefact" and within(value(p, "tap_spread_s"), 0.3 / FS)
+    assert p.detail["gain_loss_evidence_chi2"] < 10 and "not resolved" in p.explanation
+    states = accept(states, p)
+    assert not passing(ctx, states, TIMING.propose(ctx, states))
+
+
 def test_timing_rate_found():
     from jaxdefl.diagnose.effects.timing_error import EFFECT
 
@@ -285,6 +302,56 @@ def test_modulation_found_and_not_its_twin(case):
     assert not passing(ctx, states, twin.propose(ctx, states))
     states = accept(states, p)
     assert not passing(ctx, states, effect.propose(ctx, states))
+
+
+@pytest.mark.parametrize("depth, cycles, phase", [(0.3, 2.5, 0.0), (0.2, 3.5, 0.5)])
+def test_modulation_with_a_reference_leaves_no_clock_offset(depth, cycles, phase):
+    """A phase modulation of a few cycles (and a half) over the record: its mean phase is in the
+    LDS's harmonic already. Counted again on the tied series it was a phase offset against the
+    LDS, taken up as a clock offset (ms, ΔBIC −40 to −340) once the modulation was accepted."""
+    from jaxdefl.diagnose.effects.frequency_modulation import EFFECT as FM
+    from jaxdefl.diagnose.effects.timing_error import EFFECT as TIMING
+
+    f_m = cycles / 600.0
+    ctx, states = make_case(
+        seed=7,
+        axes=("z", "x"),
+        lds_plates=(2, 3, 4),
+        fm=lambda t: depth * np.sin(2 * np.pi * f_m * t + phase),
+    )
+    p = passing(ctx, states, FM.propose(ctx, states))[0]
+    assert within(value(p, "depth_rad"), depth) and within(value(p, "freq_hz"), f_m)
+    states = accept(states, p)
+    assert not passing(ctx, states, TIMING.propose(ctx, states))
+
+
+@pytest.mark.parametrize("am_depth, fm_depth, lds", [(0.2, 0.4, ()), (0.2, 0.4, (2, 3, 4)), (0.25, 0.1, ())])
+def test_amplitude_and_phase_modulation_together(am_depth, fm_depth, lds):
+    """Both at once: the load is a (1 + u) cos(arg + δφ). The second one accepted modulates the
+    motion the first left in the model; on the nominal harmonic the product u δφ was left out,
+    and taken as further phase-modulation lines at f_AM ± f_FM."""
+    from jaxdefl.diagnose.effects.amplitude_modulation import EFFECT as AM
+    from jaxdefl.diagnose.effects.extra_periodic import EFFECT as EXTRA
+    from jaxdefl.diagnose.effects.frequency_modulation import EFFECT as FM
+
+    ctx, states = make_case(
+        seed=3,
+        axes=("z", "x"),
+        lds_plates=lds,
+        am=lambda t: 1 + am_depth * np.cos(2 * np.pi * 0.013 * t + 1.0),
+        fm=lambda t: fm_depth * np.sin(2 * np.pi * 0.021 * t + 2.0),
+    )
+    found = {}
+    for _ in range(2):
+        p = passing(ctx, states, AM.propose(ctx, states) + FM.propose(ctx, states))[0]
+        found[p.effect] = p
+        states = accept(states, p)
+    assert within(value(found["amplitude_modulation"], "depth"), am_depth)
+    assert within(value(found["amplitude_modulation"], "freq_hz"), 0.013)
+    assert within(value(found["frequency_modulation"], "depth_rad"), fm_depth)
+    assert within(value(found["frequency_modulation"], "freq_hz"), 0.021)
+    for eff in (AM, FM, EXTRA):
+        assert not passing(ctx, states, eff.propose(ctx, states)), eff.id
 
 
 # -------------------------------------------------------------------------------------- clean data

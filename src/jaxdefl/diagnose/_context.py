@@ -126,11 +126,11 @@ def build_context(
                 continue
             s = Series(int(plate), axis, t[ok], y[ok], k[ok])
             h = free.get((int(plate), axis))
-            if h is None:
+            # a plate at a support barely moves: its own strongest line may be another one (2 f0)
+            if h is None or abs(h.f0_hz / f0 - 1.0) > 0.1:
+                why = "no significant peak of its own" if h is None else f"its peak is at {h.f0_hz:.4f} Hz"
                 h = _linear_harmonic(s.t, s.y, 2 * math.pi * f0, 0.5 * duration)
-                notes.append(
-                    f"plate {plate} {axis}: no significant peak of its own; harmonic at f0 = {f0:.4f} Hz"
-                )
+                notes.append(f"plate {plate} {axis}: {why}; harmonic at f0 = {f0:.4f} Hz")
             series.append(s)
             frees.append(h)
 

@@ -12,9 +12,10 @@
   sampling and the camera clock's offset δ and rate ε; the two reference effects each fit their
   own parameters and re-estimate the other's when it is already in the model (the two commute
   and trade phase, so they are only told apart jointly).
-- `Carriers`: per-series in-phase and quadrature carriers of the nominal harmonic, the demodulated
-  residual combined across series on the frame clock and its low-frequency spectrum (the
-  amplitude and phase modulation scans).
+- `Carriers`: per-series in-phase and quadrature carriers of the nominal harmonic (of the current
+  motion where a modulation is already in the model), the demodulated residual combined across
+  series on the frame clock and its low-frequency spectrum (the amplitude and phase modulation
+  scans).
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ __all__ = [
     "chi2_p_value",
     "tap_response",
     "TiedModel",
+    "AMBIGUOUS_CHI2",
     "motion_parameters",
     "Carriers",
     "select_series",
@@ -244,6 +246,9 @@ def motion_parameters(ctx: Context, T: float, sigma_T: float) -> dict:
 
 
 PPM = 1e-6
+# a tap spread's gain loss must beat a pure phase shift (a clock offset) by this much in χ² for
+# `motion_artefact` and `timing_error` to be told apart; below it the data cannot separate them
+AMBIGUOUS_CHI2 = 10.0
 TIED_EFFECTS = ("motion_artefact", "timing_error")
 NAMES = ("tap_spread_s", "offset_s", "rate_ppm")
 
@@ -386,21 +391,55 @@ def tied_proposal_states(
 
 
 # ---------------------------------------------------------------------------------------------
-# carriers of the nominal harmonic (amplitude and phase modulation)
+# carriers of the current motion (amplitude and phase modulation)
+
+MODULATIONS = ("amplitude_modulation", "frequency_modulation")
+
+
+def current_motion(ctx: Context, i: int, mean: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(A(t), ψ(t)) of the motion in a model mean: mean ≈ c + A(t) cos(arg(t) + ψ(t)), arg the
+    nominal harmonic's, by linear LS of (1, cos arg, sin arg) over a sliding window of two
+    loading periods (moving sums on the frame clock; the mean is noise-free, so the window only
+    has to average out the 2ω term and other effects' lines). A modulation already accepted is
+    in A and ψ; a new one multiplies or shifts that motion, not the nominal harmonic, so the
+    product of the two is in the model rather than left as side lines at f_AM ± f_FM."""
+    s, h = ctx.series[i], ctx.nominal[i]
+    n = ctx.n_frames
+    half = max(int(round(1.0 / (ctx.f0_hz * ctx.dt_s))), 2)
+    arg = h.argument(s.t)
+    cols = np.stack([np.ones_like(s.t), np.cos(arg), np.sin(arg)])
+    lo = np.clip(s.k - half, 0, n)
+    hi = np.clip(s.k + half + 1, 0, n)
+
+    def window_sum(x):
+        c = np.concatenate([[0.0], np.cumsum(np.bincount(s.k, weights=x, minlength=n)[:n])])
+        return c[hi] - c[lo]
+
+    gram = np.empty((s.n, 3, 3))
+    rhs = np.empty((s.n, 3))
+    for j in range(3):
+        rhs[:, j] = window_sum(cols[j] * mean)
+        for m in range(j, 3):
+            gram[:, j, m] = gram[:, m, j] = window_sum(cols[j] * cols[m])
+    ridge = 1e-9 * np.trace(gram, axis1=1, axis2=2)[:, None, None] * np.eye(3)
+    beta = np.linalg.solve(gram + ridge, rhs[..., None])[..., 0]
+    z = beta[:, 1] - 1j * beta[:, 2]
+    return np.abs(z), np.angle(z)
 
 
 @dataclass
 class _Carrier:
     i: int
-    a: float  # the nominal amplitude (mm)
+    a: float | np.ndarray  # the motion's amplitude (mm): nominal, or A(t) of the current model
     cos: np.ndarray  # cos(arg)
     sin: np.ndarray  # sin(arg)
-    arg: np.ndarray
+    arg: np.ndarray  # the motion's phase angle: nominal, or + ψ(t) of the current model
     r: np.ndarray  # current residual
     w: np.ndarray
     scan: Block  # nuisance of the scan: offset, cos, sin at ω (also on tied series)
     block: Block  # the free nuisance of the series (`Context.nuisance`)
     trend: Block  # the scan's, and on tied series a phase trend (a clock rate, `timing_error`'s)
+    absorbed: Block | None  # tied series: the carrier's cos, sin (what the LDS's harmonic holds)
 
 
 _CACHE: dict = {}
@@ -410,7 +449,9 @@ class Carriers:
     """The series with a real motion (amplitude ≥ ``min_snr`` σ_A) and their carriers.
 
     In-phase column a cos(arg) (amplitude modulation: y += a u(t) cos arg) and quadrature column
-    −a sin(arg) (phase modulation: y += −a δφ(t) sin arg), arg from the nominal harmonic.
+    −a sin(arg) (phase modulation: y += −a δφ(t) sin arg), a and arg from the nominal harmonic,
+    or on a series that already carries a modulation its current motion (`current_motion`).
+    The nuisance blocks stay at the nominal harmonic's cos and sin (its free C and D).
     """
 
     def __init__(self, ctx: Context, states: list[State], min_snr: float = 10.0):
@@ -434,9 +475,15 @@ class Carriers:
             if s.tied:  # the camera's offset is all that is free; the scans still take out C, D
                 block = Block(one[:, None], w, r)
                 trend = Block(np.stack([one, c, sn, sn * (s.t - t_mid)]).T, w, r)
+                absorbed = Block(np.stack([c, sn]).T, w, r)
             else:  # the free nuisance: offset, C, D (`Context.nuisance`, the same span)
                 block = trend = scan
-            self.items.append(_Carrier(i, a, c, sn, arg, r, w, scan, block, trend))
+                absorbed = None
+            if any(e in MODULATIONS for e in st.effects):
+                a, psi = current_motion(ctx, i, st.mean)
+                arg = arg + psi
+                c, sn = np.cos(arg), np.sin(arg)
+            self.items.append(_Carrier(i, a, c, sn, arg, r, w, scan, block, trend, absorbed))
 
     @classmethod
     def cached(cls, ctx: Context, states: list[State]) -> Carriers:
@@ -529,9 +576,30 @@ class Carriers:
         den = max(den, 1e-300)
         return num * num / den, num / den, 1.0 / math.sqrt(den)
 
+    @staticmethod
+    def visible(term: Callable) -> Callable:
+        """``term`` as the model of each series carries it: on a tied series without its part
+        along the carrier's cos and sin. The LDS sees the same load, so the reference's
+        harmonic, fitted over the record, already holds the modulation's projection on the
+        carrier (e.g. the mean phase of a few modulation cycles); counted again, it is a phase
+        or gain offset against the LDS that `timing_error` or `motion_artefact` would take up.
+        (On untied series the free C and D take it up alike.)"""
+
+        def seen(it, theta, jac):
+            out = term(it, theta, jac)
+            if it.absorbed is None:
+                return out
+            if not jac:
+                return out - it.absorbed.fit(out)
+            m, j = out
+            return m - it.absorbed.fit(m), j - it.absorbed.fit(j)
+
+        return seen
+
     def fit(self, term: Callable, theta0: np.ndarray, **kw) -> LMResult:
         """Fit shared θ of ``term(it, theta, jac) -> m or (m, J)`` over all carriers, with each
-        series' free nuisance profiled out."""
+        series' free nuisance profiled out (the term as `visible` gives it)."""
+        term = self.visible(term)
 
         def evaluate(p, jac):
             if not jac:
@@ -551,6 +619,7 @@ class Carriers:
         """(kept, {index: State}, gains): the new means, kept where the term is individually
         significant (`select_series`)."""
         ctx = self.ctx
+        term = self.visible(term)
         gains, means, ns = {}, {}, {}
         for it in self.items:
             st = states[it.i]

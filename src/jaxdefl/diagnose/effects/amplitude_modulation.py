@@ -14,10 +14,13 @@ shared trend, the sinusoidal kind the peak of the combined spectrum between 2/du
 (Exp(1) powers, corrected for the independent frequencies scanned). Each is doubled for the two
 kinds tried. The in-phase demodulation separates it from `frequency_modulation` (quadrature).
 
-Model: y += a_s u(t) cos(arg_s(t)), arg_s and a_s the series' nominal harmonic, u(t) = r (t − t_mid)
+Model: y += a_s u(t) cos(arg_s(t)), arg_s and a_s the series' nominal harmonic (or its current
+motion when a phase modulation is already in the model: `current_motion`), u(t) = r (t − t_mid)
 or m cos(2π f_m t + ψ) shared by all series (parameters counted once: 1 or 3); fitted by
-Levenberg-Marquardt on all carrying series with each series' free nuisance profiled out. The
-series reported are those where the term is individually significant.
+Levenberg-Marquardt on all carrying series with each series' free nuisance profiled out. On a
+tied series the term's part along the carrier is left out: the LDS's harmonic holds it
+(`Carriers.visible`). The series reported are those where the term is individually significant.
+Scan and fit are shared with `frequency_modulation` (`_modulation.ModulationEffect`).
 """
 
 from __future__ import annotations
@@ -26,151 +29,63 @@ import math
 
 import numpy as np
 
-from .._base import Context, Effect, Proposal, State
-from ._common_b import Carriers, chi2_p_value, one_sided, param, scan_p_value
+from .._base import Context
+from ._common_b import param
+from ._modulation import ModulationEffect, depth_and_phase
 
 __all__ = ["AmplitudeModulation", "EFFECT"]
 
-P_MAX = 1e-3  # weaker signatures cannot pass the search's Bonferroni (α = 0.01 over ~10 effects)
-F_MAX_HZ = 0.2
-KINDS = 2
 
-
-def modulation_band(ctx: Context) -> tuple[float, float]:
-    """Modulation frequencies scanned: from 2/duration to 0.2 Hz (and well below f0)."""
-    return 2.0 / ctx.duration_s, min(F_MAX_HZ, ctx.f0_hz / 4)
-
-
-def _linear_term(it, theta, jac, ctx):
-    x = it.a * it.cos * (ctx.series[it.i].t - 0.5 * ctx.duration_s)
-    m = theta[0] * x
-    return (m, x[:, None]) if jac else m
-
-
-def _sinusoidal_term(it, theta, jac, ctx):
-    t = ctx.series[it.i].t
-    al, be, f = theta
-    ph = 2 * math.pi * f * t
-    c, s = np.cos(ph), np.sin(ph)
-    x = it.a * it.cos
-    m = x * (al * c + be * s)
-    if not jac:
-        return m
-    return m, np.stack([x * c, x * s, x * 2 * math.pi * t * (-al * s + be * c)], axis=1)
-
-
-class AmplitudeModulation(Effect):
+class AmplitudeModulation(ModulationEffect):
     id = "amplitude_modulation"
     meaning = (
         "the deflection amplitude changes during the record alike on every plate (fatigue, load controller)"
     )
-    min_cycles = 50.0
+    demodulation = "in_phase"
+    trend = False
 
-    def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
-        if self.cannot_tell(ctx) is not None:
-            return []
-        car = Carriers.cached(ctx, states)
-        if not car.items:
-            return []
-        out = []
-        t_mid = 0.5 * ctx.duration_s
+    def linear_shape(self, ctx: Context, t: np.ndarray) -> np.ndarray:
+        return t - 0.5 * ctx.duration_s
 
-        # linear: a shared relative rate
-        stat, r0, _ = car.linear_stat("in_phase", lambda t: t - t_mid)
-        p_lin = min(1.0, KINDS * chi2_p_value(stat, 1))
-        if p_lin < P_MAX:
-            prop = self._linear(ctx, states, car, r0, p_lin)
-            if prop is not None:
-                out.append(prop)
+    def linear_term(self, ctx, it, theta, jac):
+        x = it.a * it.cos * self.linear_shape(ctx, ctx.series[it.i].t)
+        m = theta[0] * x
+        return (m, x[:, None]) if jac else m
 
-        # sinusoidal: the peak of the combined in-phase spectrum
-        f_lo, f_hi = modulation_band(ctx)
-        if f_hi > f_lo:
-            freq, power, n_ind, grid, q = car.scan("in_phase", f_lo, f_hi)
-            if power.size:
-                j = int(np.argmax(power))
-                p_sin = min(1.0, KINDS * scan_p_value(power[j], n_ind))
-                if p_sin < P_MAX:
-                    df = freq[1] - freq[0] if freq.size > 1 else 1.0 / ctx.duration_s
-                    f_pk, p_pk, n_pk = car.refine_peak(grid, q, float(freq[j]), df)
-                    if one_sided(p_pk, car.power_at("quadrature", f_pk)):
-                        return out  # a line on one side of f0 (extra_periodic), not a modulation
-                    prop = self._sinusoidal(ctx, states, car, f_pk, n_pk, q, p_sin)
-                    if prop is not None:
-                        out.append(prop)
-        return out
+    def sinusoidal_term(self, ctx, it, theta, jac):
+        t = ctx.series[it.i].t
+        al, be, f = theta
+        ph = 2 * math.pi * f * t
+        c, s = np.cos(ph), np.sin(ph)
+        x = it.a * it.cos
+        m = x * (al * c + be * s)
+        if not jac:
+            return m
+        return m, np.stack([x * c, x * s, x * 2 * math.pi * t * (-al * s + be * c)], axis=1)
 
-    def _linear(self, ctx, states, car, r0, p_value):
-        def term(it, th, jac):
-            return _linear_term(it, th, jac, ctx)
-
-        res = car.fit(term, np.array([r0]))
-        if not res.converged:
-            return None
-        kept, new, gains = car.proposal_states(states, term, res.theta, self.id, 1)
-        if not kept:
-            return None
-        r, sr = float(res.theta[0]), math.sqrt(max(res.cov[0, 0], 0.0))
-        plates = sorted({ctx.series[i].plate for i in kept})
+    def linear_report(self, ctx, r, sr, plates):
         change = r * ctx.duration_s
-        return Proposal(
-            effect=self.id,
-            series=kept,
-            states=new,
-            n_params=1,
-            p_value=p_value,
-            parameters={"relative_rate_per_s": param(r, sr)},
-            t_start=0.0,
-            t_end=ctx.duration_s,
-            band_hz=[ctx.f0_hz - 1.0 / ctx.duration_s, ctx.f0_hz + 1.0 / ctx.duration_s],
-            explanation=(
-                f"The deflection amplitude {'grows' if r > 0 else 'shrinks'} steadily by "
-                f"{100 * abs(change):.1f} % over the record ({100 * 3600 * abs(r):.1f} ± "
-                f"{100 * 3600 * sr:.1f} % per hour), alike on plate(s) {', '.join(map(str, plates))}: "
-                "the beam softening under fatigue or the load controller drifting."
-            ),
-            detail={"kind": "linear", "loglik_gain": {ctx.series[i].key: float(g) for i, g in gains.items()}},
+        return (
+            {"relative_rate_per_s": param(r, sr)},
+            [ctx.f0_hz - 1.0 / ctx.duration_s, ctx.f0_hz + 1.0 / ctx.duration_s],
+            f"The deflection amplitude {'grows' if r > 0 else 'shrinks'} steadily by "
+            f"{100 * abs(change):.1f} % over the record ({100 * 3600 * abs(r):.1f} ± "
+            f"{100 * 3600 * sr:.1f} % per hour), alike on plate(s) {', '.join(map(str, plates))}: "
+            "the beam softening under fatigue or the load controller drifting.",
+            {"kind": "linear"},
         )
 
-    def _sinusoidal(self, ctx, states, car, f_pk, n_pk, q, p_value):
-        def term(it, th, jac):
-            return _sinusoidal_term(it, th, jac, ctx)
-
-        al0, be0 = 2 * n_pk.real / q, -2 * n_pk.imag / q
-        res = car.fit(term, np.array([al0, be0, f_pk]))
-        f_lo, f_hi = modulation_band(ctx)
-        al, be, f = res.theta
-        if not (res.converged and 0.5 * f_lo <= f <= 1.5 * f_hi):
-            return None
-        kept, new, gains = car.proposal_states(states, term, res.theta, self.id, 3)
-        if not kept:
-            return None
-        m = math.hypot(al, be)
-        g = np.array([al, be]) / max(m, 1e-300)
-        sm = math.sqrt(max(g @ res.cov[:2, :2] @ g, 0.0))
-        sf = math.sqrt(max(res.cov[2, 2], 0.0))
-        psi = math.atan2(-be, al)
-        plates = sorted({ctx.series[i].plate for i in kept})
-        return Proposal(
-            effect=self.id,
-            series=kept,
-            states=new,
-            n_params=3,
-            p_value=p_value,
-            parameters={"depth": param(m, sm), "freq_hz": param(f, sf)},
-            t_start=0.0,
-            t_end=ctx.duration_s,
-            band_hz=[ctx.f0_hz - f, ctx.f0_hz + f],
-            explanation=(
-                f"The deflection amplitude swings by ±{100 * m:.1f} % every {1 / f:.0f} s "
-                f"({f:.4f} Hz), alike on plate(s) {', '.join(map(str, plates))}: the load controller "
-                "or the hydraulic supply modulates the load."
-            ),
-            detail={
-                "kind": "sinusoidal",
-                "phase_rad": psi,
-                "loglik_gain": {ctx.series[i].key: float(g) for i, g in gains.items()},
-            },
+    def sinusoidal_report(self, ctx, theta, cov, plates):
+        al, be, f = theta
+        m, sm = depth_and_phase(theta, cov)
+        sf = math.sqrt(max(cov[2, 2], 0.0))
+        return (
+            {"depth": param(m, sm), "freq_hz": param(f, sf)},
+            [ctx.f0_hz - f, ctx.f0_hz + f],
+            f"The deflection amplitude swings by ±{100 * m:.1f} % every {1 / f:.0f} s "
+            f"({f:.4f} Hz), alike on plate(s) {', '.join(map(str, plates))}: the load controller "
+            "or the hydraulic supply modulates the load.",
+            {"kind": "sinusoidal", "phase_rad": math.atan2(-be, al)},
         )
 
 

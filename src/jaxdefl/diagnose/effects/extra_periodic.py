@@ -11,7 +11,9 @@ the peak's p-value is corrected for the number of frequencies scanned.
 
 Model: y += a_s cos(2π f t) + b_s sin(2π f t), f shared by all series, (a_s, b_s) per series;
 f refined by variable projection (optimistix Levenberg-Marquardt). Series whose own evidence
-does not pay for their two amplitudes are left out of the proposal.
+does not pay for their two amplitudes are left out of the proposal. Reported ``amplitude_mm``:
+the median amplitude over the z series carrying the line (over the axis with most series when
+no z series does); the other axes' medians are in the detail.
 """
 
 from __future__ import annotations
@@ -147,7 +149,15 @@ class ExtraPeriodic(Effect):
             g = np.array([a, b]) / max(amp, 1e-300)
             amp_sig.append(math.sqrt(max(g @ np.asarray(covs[j])[:2, :2] @ g, 0.0)))
         plates = sorted({ctx.series[i].plate for i in kept})
-        amp_med = float(np.median(amps))
+        # one amplitude per axis: a vibration moves the scene more along some axes than others, so
+        # a median over mixed axes describes none of them; reported: the depth axis's (the one the
+        # camera measures best), or the axis with most series carrying the line
+        axes = [ctx.series[i].axis for i in kept]
+        by_axis = {ax: [a for a, x in zip(amps, axes, strict=True) if x == ax] for ax in sorted(set(axes))}
+        main = "z" if "z" in by_axis else max(by_axis, key=lambda ax: len(by_axis[ax]))
+        on_main = [x == main for x in axes]
+        amp_med = float(np.median(np.asarray(amps)[on_main]))
+        amp_sig_med = float(np.median(np.asarray(amp_sig)[on_main]))
         half = max(3 * sigma_f, 0.5 / ctx.duration_s) if np.isfinite(sigma_f) else 1.0 / ctx.duration_s
         return Proposal(
             effect=self.id,
@@ -157,17 +167,22 @@ class ExtraPeriodic(Effect):
             p_value=p_value,
             parameters={
                 "freq_hz": {"value": f_hat, "sigma": sigma_f if np.isfinite(sigma_f) else None},
-                "amplitude_mm": {"value": amp_med, "sigma": float(np.median(amp_sig))},
+                "amplitude_mm": {"value": amp_med, "sigma": amp_sig_med},
             },
             t_start=0.0,
             t_end=ctx.duration_s,
             band_hz=[f_hat - half, f_hat + half],
             explanation=(
                 f"A periodic motion at {f_hat:.4f} Hz ({f_hat / ctx.f0_hz:.3f} × the loading frequency, "
-                f"not one of its harmonics) moves {len(plates)} plate(s) by about {amp_med:.3f} mm: a "
+                f"not one of its harmonics) moves {len(plates)} plate(s) by about {amp_med:.3f} mm along "
+                f"{main}: a "
                 "vibration of the pump, the camera mount or the floor that the nominal model leaves out."
             ),
-            detail={"amplitudes_mm": {ctx.series[i].key: float(a) for i, a in zip(kept, amps, strict=True)}},
+            detail={
+                "amplitudes_mm": {ctx.series[i].key: float(a) for i, a in zip(kept, amps, strict=True)},
+                "median_amplitude_by_axis_mm": {ax: float(np.median(v)) for ax, v in by_axis.items()},
+                "amplitude_axis": main,
+            },
         )
 
 

@@ -20,8 +20,9 @@ camera shifting every plate alike, too little on each plate alone. Both proposal
 search; BIC decides.
 
 Model term: y += δ_s H(t − t_j), t_j shared by the series it touches, δ_s per series: 1 + S
-parameters (common mode: t_j and one δ, 2 parameters). One jump per proposal: the search calls
-again after accepting one.
+parameters (common mode: t_j and one δ, 2 parameters). A series keeps a per-series jump when its
+own evidence pays for δ_s and for being chosen among the S series scanned (log n + 2 log S in
+−2 log L). One jump per proposal: the search calls again after accepting one.
 
 Plausible magnitudes: 0.1-2 mm for ToF integration-time changes; 1-10 mm for structured-light
 session jumps (thesis Table 6.21), less on the centroids of large plates.
@@ -116,9 +117,12 @@ class LevelJump(Effect):
         p_value = combined_p(
             stat.max(axis=1), 1, n_cand, total=float(total.max()), dof_total=len(idx), n_scan_total=n_cand
         )
+        # choosing which of S series jump costs log S per series kept (extended BIC): without it
+        # one series in a few dozen passes the plain BIC at the split another series found
+        margin = 2.0 * math.log(len(idx))
         best = None
         for m in {int(np.argmax(total)), int(np.argmax(sparse))}:
-            cand = self._at(ctx, states, idx, lo + m)
+            cand = self._at(ctx, states, idx, lo + m, margin)
             if cand is not None and (best is None or cand[0] > best[0]):
                 best = cand
         if best is None:
@@ -128,7 +132,7 @@ class LevelJump(Effect):
         rows = [idx.index(i) for i in kept]
         m_ref = lo + int(np.argmax(stat[rows].sum(axis=0)))
         if m_ref != m:
-            again = self._at(ctx, states, kept, m_ref)
+            again = self._at(ctx, states, kept, m_ref, margin)
             if again is not None and again[0] >= best[0]:
                 best = again
         score, m, kept, fits = best
@@ -212,8 +216,9 @@ class LevelJump(Effect):
             detail={"mode": "common"},
         )
 
-    def _at(self, ctx: Context, states: list[State], idx: list[int], m: int):
-        """Fit a jump after frame m on each series; keep those that pay. (score, m, kept, fits)."""
+    def _at(self, ctx: Context, states: list[State], idx: list[int], m: int, margin: float):
+        """Fit a jump after frame m on each series; keep those whose evidence pays for the jump
+        and for being chosen (``margin``, in units of −2 log L). (score, m, kept, fits)."""
         fits = {}
         score = 0.0
         for i in idx:
@@ -229,7 +234,7 @@ class LevelJump(Effect):
             beta = np.linalg.solve(gtg, gw.T @ (s.y - st.mean))
             new = updated(st, self.id, 1, mean=st.mean + g @ beta)
             d_ll = gain(ctx, i, st, new)
-            if keep_series(d_ll, 1, s.n):
+            if keep_series(d_ll, 1, s.n, margin):
                 r = s.y - new.mean
                 s2 = float(np.sum(w * r * r) / max(int((w > 0).sum()) - g.shape[1], 1))
                 sd = math.sqrt(max(s2 * float(np.linalg.pinv(gtg)[0, 0]), 0.0))

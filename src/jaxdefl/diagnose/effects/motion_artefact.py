@@ -29,11 +29,18 @@ import math
 import numpy as np
 
 from .._base import Context, Effect, Proposal, State
-from ._common_b import TiedModel, chi2_p_value, motion_parameters, param, tap_response, tied_proposal_states
+from ._common_b import (
+    AMBIGUOUS_CHI2,
+    TiedModel,
+    chi2_p_value,
+    motion_parameters,
+    param,
+    tap_response,
+    tied_proposal_states,
+)
 
 __all__ = ["MotionArtefact", "EFFECT"]
 
-AMBIGUOUS_CHI2 = 10.0  # the gain loss must beat a pure phase shift by this much to be called resolved
 P_MAX = 1e-3  # weaker signatures cannot pass the search's Bonferroni (α = 0.01 over ~10 effects)
 
 

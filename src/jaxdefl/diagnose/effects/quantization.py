@@ -20,8 +20,10 @@ nominal offset is itself biased by the quantisation; the camera's levels o_s = �
 refitted offset) come out alike on every plate when the levels are the camera's (reported:
 their circular mean).
 
-Model term: mean = q·round((h − φ_s)/q) + φ_s plus the free nuisance refitted; q shared, φ_s per
-series (1 + S parameters). Only where the motion spans more than a step (q < 2A).
+Model term: mean = q·round((h' − φ_s)/q) + φ_s + c_s, h' the current model with its free
+nuisance refitted inside the rounding (`_inside`: the nominal harmonic fitted to a staircase is
+biased), c_s the offset; q shared, φ_s per series (1 + S parameters). Only where the motion spans
+more than a step (q < 2A).
 
 Plausible magnitudes: q of 0.3-20 mm for structured light; its residual RMS is q/√12.
 """
@@ -42,6 +44,8 @@ Q_MAX_MM = 20.0
 BINS_PER_STEP = 16
 N_OFFSET = 48
 N_REFINE = 17
+N_INSIDE = 12
+N_OUTER = 3
 
 
 def saw(x: np.ndarray) -> np.ndarray:
@@ -56,6 +60,7 @@ class _Binned:
     """A series' weighted residual binned by the model value h (bin width ``width``)."""
 
     def __init__(self, h: np.ndarray, r: np.ndarray, w: np.ndarray, width: float):
+        self.width = width
         lo = float(h.min())
         b = np.floor((h - lo) / width).astype(np.int64)
         m = int(b.max()) + 1
@@ -103,6 +108,133 @@ class _Binned:
         # RSS(r − d⊥) − RSS(r) = −2 d⊥·R0 + Σ W d⊥²
         drss = -2 * dp @ self.R0 + np.sum(self.W * dp * dp, axis=1)
         return (-drss / self.s2).reshape(q.size, o.size)
+
+
+def _inside(
+    ctx: Context, i: int, st: State, h: np.ndarray, q: float, phi: float
+) -> tuple[np.ndarray, np.ndarray, float]:
+    """The staircase of series i with its free nuisance refitted inside the rounding: (h', mean
+    = q·round((h' − φ)/q) + φ + c, the outer offset c).
+
+    The nominal harmonic was fitted to the quantised data, so its amplitude and phase are biased
+    by the staircase (by up to a fifth when the motion spans one or two steps). Refitting the
+    nuisance outside the rounding leaves the steps at the wrong phases of every cycle: a residual
+    periodic at f0, reported as harmonic_distortion and aliased extra_periodic lines. Inside,
+    h' = h + nuisance·β by Gauss-Newton on the exact staircase, its derivative along each
+    nuisance column a central difference over ±q/4 (the staircase's slope seen at the scale of a
+    step: the mean slope is far from 1 when the motion spans few steps, and a plain fixed point
+    oscillates), halving steps that do not lower the residual.
+    """
+    s = ctx.series[i]
+    nu = ctx.nuisance(i)
+    w = weights(st)
+    one = np.ones((s.n, 1))
+    d = 0.25 * q
+
+    def rss(hh):
+        stair = staircase(hh, q, phi)
+        beta, _, fitted = lstsq(one, s.y - stair, w)
+        return float(np.sum(w * (s.y - stair - fitted) ** 2)), stair + fitted, float(beta[0])
+
+    best = (h, *rss(h))
+    for _ in range(N_INSIDE):
+        jac = np.stack(
+            [(staircase(h + d * c, q, phi) - staircase(h - d * c, q, phi)) / (2 * d) for c in nu.T], axis=1
+        )
+        beta = lstsq(jac, s.y - staircase(h, q, phi), w)[0]
+        lam = 1.0
+        while lam > 0.1:
+            trial = h + lam * (nu @ beta)
+            cand = rss(trial)
+            if cand[0] < best[1]:
+                break
+            lam *= 0.5
+        else:
+            break
+        h, best = trial, (trial, *cand)
+        if float(np.max(np.abs(lam * (nu @ beta)))) < 1e-3 * q:
+            break
+    return best[0], best[2], best[3]
+
+
+def _joint(ctx: Context, states: list[State], use: list[int], h: dict, q: float, phi: dict):
+    """Gauss-Newton on the shared step q and every series' nuisance inside the rounding.
+
+    A step and the motion's amplitude scaled alike put the steps at the same instants; only the
+    levels tell them apart, so the grid in q and the per-series refit (`_inside`) converge slowly
+    along that valley, and a step off by 2 % leaves a periodic residual of levels (taken as
+    harmonic_distortion). Here both move at once: each series' levels are counted from the one
+    nearest its motion (L_s ≡ φ_s mod q, so that q moves the few levels the motion crosses, not
+    the ~10³ down to 0 mm), the derivatives are central differences over a quarter step at the
+    extreme level, the nuisance is eliminated series by series (Schur complement), and steps that
+    do not lower the summed weighted RSS are halved (the normal equations weigh each series by
+    1/σ̂², so that σ_q is the step's standard error).
+
+    Returns (q, σ_q from the Gauss-Newton information, {i: (L_s, h', mean, outer offset)}).
+    """
+    data = {}
+    for i in use:
+        s = ctx.series[i]
+        nu = ctx.nuisance(i)
+        w = weights(states[i])
+        level = phi[i] + q * float(np.round((np.median(h[i]) - phi[i]) / q))
+        data[i] = (s.y, w, nu, level)
+
+    def evaluate(hs, qq):
+        out, chi = {}, 0.0
+        for i in use:
+            y, w, _, level = data[i]
+            stair = staircase(hs[i], qq, level)
+            c = float(np.sum(w * (y - stair)) / max(float(w.sum()), 1e-300))
+            rss = float(np.sum(w * (y - stair - c) ** 2))
+            s2 = rss / max(int((w > 0).sum()) - 1, 1) or 1e-300
+            out[i] = (stair + c, c, s2)
+            chi += rss
+        return chi, out
+
+    chi, fit = evaluate(h, q)
+    info = 0.0
+    for _ in range(N_INSIDE):
+        info = grad = 0.0
+        parts = {}
+        for i in use:
+            y, w, nu, level = data[i]
+            hi = h[i]
+            ww = w / fit[i][2]
+            k_max = max(float(np.max(np.abs(np.round((hi - level) / q)))), 1.0)
+            d, dq = 0.25 * q, 0.25 * q / k_max
+            cols = [
+                (staircase(hi + d * c, q, level) - staircase(hi - d * c, q, level)) / (2 * d) for c in nu.T
+            ]
+            jac = np.stack([*cols, np.ones_like(hi)], axis=1)
+            jq = (staircase(hi, q + dq, level) - staircase(hi, q - dq, level)) / (2 * dq)
+            r = y - staircase(hi, q, level)
+            jw = jac * ww[:, None]
+            a_inv = np.linalg.pinv(jw.T @ jac)
+            b, g = jw.T @ r, jw.T @ jq
+            info += float(np.sum(ww * jq * jq) - g @ a_inv @ g)
+            grad += float(np.sum(ww * jq * r) - g @ a_inv @ b)
+            parts[i] = (a_inv, b, g, nu)
+        step_q = grad / info if info > 0 else 0.0
+        lam = 1.0
+        while lam > 0.1:
+            qn = q + lam * step_q
+            hn = {
+                i: h[i] + lam * (nu @ (a_inv @ (b - g * step_q))[: nu.shape[1]])
+                for i, (a_inv, b, g, nu) in parts.items()
+            }
+            chi_n, fit_n = evaluate(hn, qn)
+            if chi_n < chi:
+                break
+            lam *= 0.5
+        else:
+            break
+        small = chi - chi_n <= 1e-9 * chi
+        q, h, chi, fit = qn, hn, chi_n, fit_n
+        if small:
+            break
+    sig_q = 1.0 / math.sqrt(info) if info > 0 else None
+    return q, sig_q, {i: (data[i][3], h[i], fit[i][0], fit[i][1]) for i in use}
 
 
 class Quantization(Effect):
@@ -166,39 +298,49 @@ class Quantization(Effect):
 
         The nominal offset is itself biased by the quantisation, so the staircase's phase is free
         per series; the camera's absolute levels o_s = φ_s + c_s (c_s the refitted offset) should
-        then agree between plates.
+        then agree between plates. So is the nominal amplitude, and a step measured on a scaled
+        h is scaled alike: the grid and the refit of h inside the rounding (`_inside`) alternate
+        (``N_OUTER`` times), the grid binning the residual by the refitted h.
         """
-        nu0 = 1.0 / q0
-        qs = 1.0 / (nu0 + np.linspace(-d_nu, d_nu, N_REFINE))
         fr = np.arange(N_OFFSET) / N_OFFSET  # fractions of q
         use = [i for i in idx if spans[i] > q0]
         if not use:
             return None
-        gains = np.zeros((len(use), qs.size, N_OFFSET))
-        for j, i in enumerate(use):
-            for a, q in enumerate(qs):
-                gains[j, a] = bins[i].staircase_gain(np.array([q]), fr * q)[0]
         logn_all = math.log(sum(ctx.series[i].n for i in use))
-        per = gains.max(axis=2).sum(axis=0)
-        a = int(np.argmax(per))
-        q = float(qs[a])
-        sig_q = None
-        if 0 < a < qs.size - 1:
-            d2 = (per[a - 1] - 2 * per[a] + per[a + 1]) / ((qs[a + 1] - qs[a - 1]) / 2) ** 2
-            if d2 < 0:
-                sig_q = math.sqrt(2.0 / -d2)
+        width = next(iter(bins.values())).width
+        h = {i: states[i].mean for i in use}
+        q = q0
+        for outer in range(N_OUTER):
+            if outer:
+                bins = {i: _Binned(h[i], ctx.series[i].y - h[i], weights(states[i]), width) for i in use}
+            qs = 1.0 / (1.0 / q + np.linspace(-d_nu, d_nu, N_REFINE))
+            gains = np.zeros((len(use), qs.size, N_OFFSET))
+            for j, i in enumerate(use):
+                for a, qa in enumerate(qs):
+                    gains[j, a] = bins[i].staircase_gain(np.array([qa]), fr * qa)[0]
+            per = gains.max(axis=2).sum(axis=0)
+            a = int(np.argmax(per))
+            q = float(qs[a])
+            sig_q = None
+            if 0 < a < qs.size - 1:
+                d2 = (per[a - 1] - 2 * per[a] + per[a + 1]) / ((qs[a + 1] - qs[a - 1]) / 2) ** 2
+                if d2 < 0:
+                    sig_q = math.sqrt(2.0 / -d2)
+            phi = {}
+            for j, i in enumerate(use):
+                phi[i] = float(fr[int(np.argmax(gains[j, a]))] * q)
+                h[i] = _inside(ctx, i, states[i], h[i], q, phi[i])[0]
+        q, sig_joint, fits = _joint(ctx, states, use, h, q, phi)
+        sig_q = sig_joint if sig_joint is not None else sig_q
         new, kept_gain, levels = {}, {}, {}
-        for j, i in enumerate(use):
+        for i in use:
             st = states[i]
-            s = ctx.series[i]
-            phi = float(fr[int(np.argmax(gains[j, a]))] * q)
-            stair = staircase(st.mean, q, phi)
-            beta, _, fitted = lstsq(ctx.nuisance(i), s.y - stair, weights(st))
-            cand = updated(st, self.id, 1, mean=stair + fitted)
+            phi, _, mean, offset = fits[i]
+            cand = updated(st, self.id, 1, mean=mean)
             g = gain(ctx, i, st, cand)
-            if keep_series(g, 1, s.n):
+            if keep_series(g, 1, ctx.series[i].n):
                 new[i], kept_gain[i] = cand, g
-                levels[i] = float((phi + beta[0]) % q)
+                levels[i] = float((phi + offset) % q)
         if not new:
             return None
         kept = sorted(new)

@@ -18,6 +18,11 @@ offset free, (δ, ε) shared by all tied series (one camera clock). Three varian
 offset only (``offset_s``), rate only (``rate_ppm``) and both — and BIC picks. A tap spread T
 already in the model (`motion_artefact`) is re-estimated jointly at no parameter cost. The
 camera's untied series (x, y, z without an LDS) are not touched: their own harmonic absorbs it.
+
+Against `motion_artefact`: on a ToF camera, early stamps and sequential taps both make the camera
+lead the LDS; only the taps' gain loss tells them apart. A clock offset whose lead a tap spread of
+at most a frame period gives, with the gain loss unresolved (`AMBIGUOUS_CHI2`), is not proposed:
+the camera's own mechanism is, and its report says a clock would explain it alike.
 """
 
 from __future__ import annotations
@@ -27,7 +32,15 @@ import math
 import numpy as np
 
 from .._base import Context, Effect, Proposal, State
-from ._common_b import PPM, TiedModel, chi2_p_value, motion_parameters, param, tied_proposal_states
+from ._common_b import (
+    AMBIGUOUS_CHI2,
+    PPM,
+    TiedModel,
+    chi2_p_value,
+    motion_parameters,
+    param,
+    tied_proposal_states,
+)
 
 __all__ = ["TimingError", "EFFECT"]
 
@@ -81,6 +94,8 @@ class TimingError(Effect):
             p_value = chi2_p_value(delta, len(own))
             if not (res.converged and p_value < P_MAX):
                 continue
+            if 1 in own and self._taps_explain(ctx, model, res, own, extra, period):
+                continue
             kept, new_states, gains = tied_proposal_states(ctx, states, model, res.theta, self.id, len(own))
             if not kept:
                 continue
@@ -129,6 +144,30 @@ class TimingError(Effect):
                 )
             )
         return out
+
+    @staticmethod
+    def _taps_explain(ctx: Context, model: TiedModel, res, own: list[int], extra: list[int], period: float):
+        """Whether a ToF camera's tap spread explains the fitted clock offset as well.
+
+        Sequential taps sample after the frame's stamp: the camera leads the LDS by arg H/ω ≈
+        mean tap offset × T, as early stamps would. When the lead is within what a spread of at
+        most a frame period gives and the gain loss that tells them apart is not resolved
+        (`AMBIGUOUS_CHI2`), the camera's own mechanism is proposed (`motion_artefact`, whose
+        report says a clock offset would do alike), not both.
+        """
+        if ctx.sensor != "tof" or extra:
+            return False
+        d = float(res.theta[1])
+        mean_tap = float(np.mean(ctx.tap_offsets))
+        if not (d < 0 and -d <= mean_tap * period):
+            return False
+        theta = model.current.copy()
+        theta[0] = -d / mean_tap
+        theta[2] = res.theta[2]
+        free = [0] + [j for j in own if j != 1]
+        bounds = [(0.0, 3 * period)] + [(-1e5, 1e5)] * (len(free) - 1)
+        taps = model.fit(theta, free, bounds=bounds)
+        return taps.converged and taps.chi2 <= res.chi2 + AMBIGUOUS_CHI2
 
 
 EFFECT = TimingError()

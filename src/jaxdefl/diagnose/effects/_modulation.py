@@ -1,0 +1,152 @@
+"""The shared scan and fit of `amplitude_modulation` and `frequency_modulation`.
+
+Both are a slow shared function u(t) acting on the loading motion of every carrying series; they
+differ in the demodulation that sees it (in phase for the amplitude, quadrature for the phase),
+in the model term and in what is reported. `ModulationEffect` holds what is common: the linear
+kind's χ²₁ test and the sinusoidal kind's scan of the combined demodulated spectrum between
+2/duration and 0.2 Hz (each doubled for the two kinds tried), the rejection of a line on one side
+of f0 (`extra_periodic`), the Levenberg-Marquardt fit over all carriers (`Carriers.fit`) and the
+selection of the series that keep the term. Subclasses give the terms and the reports.
+"""
+
+from __future__ import annotations
+
+import abc
+import math
+
+import numpy as np
+
+from .._base import Context, Effect, Proposal, State
+from ._common_b import Carriers, chi2_p_value, one_sided, scan_p_value
+
+__all__ = ["ModulationEffect", "modulation_band", "depth_and_phase", "P_MAX", "KINDS"]
+
+P_MAX = 1e-3  # weaker signatures cannot pass the search's Bonferroni (α = 0.01 over ~10 effects)
+F_MAX_HZ = 0.2
+KINDS = 2
+
+
+def modulation_band(ctx: Context) -> tuple[float, float]:
+    """Modulation frequencies scanned: from 2/duration to 0.2 Hz (and well below f0)."""
+    return 2.0 / ctx.duration_s, min(F_MAX_HZ, ctx.f0_hz / 4)
+
+
+class ModulationEffect(Effect):
+    """A shared slow modulation of the loading motion, linear or sinusoidal in time.
+
+    Class attributes: ``demodulation`` ("in_phase" or "quadrature": the one that sees it; the
+    other is its twin), ``trend`` (the scans also project a phase trend out of the tied series).
+    """
+
+    demodulation: str = ""
+    trend: bool = False
+    min_cycles = 50.0
+
+    @property
+    def twin(self) -> str:
+        return "quadrature" if self.demodulation == "in_phase" else "in_phase"
+
+    @abc.abstractmethod
+    def linear_shape(self, ctx: Context, t: np.ndarray) -> np.ndarray:
+        """u(t) of the linear kind per unit parameter, as the demodulation sees it."""
+
+    @abc.abstractmethod
+    def linear_term(self, ctx: Context, it, theta: np.ndarray, jac: bool):
+        """The linear kind's term on carrier ``it`` (and its Jacobian when ``jac``)."""
+
+    @abc.abstractmethod
+    def sinusoidal_term(self, ctx: Context, it, theta: np.ndarray, jac: bool):
+        """The sinusoidal kind's term, θ = (cosine, sine coefficient, f_m)."""
+
+    @abc.abstractmethod
+    def linear_report(self, ctx: Context, value: float, sigma: float, plates: list[int]):
+        """(parameters, band_hz, explanation, detail) of a fitted linear kind."""
+
+    @abc.abstractmethod
+    def sinusoidal_report(self, ctx: Context, theta: np.ndarray, cov: np.ndarray, plates: list[int]):
+        """(parameters, band_hz, explanation, detail) of a fitted sinusoidal kind."""
+
+    def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
+        if self.cannot_tell(ctx) is not None:
+            return []
+        car = Carriers.cached(ctx, states)
+        if not car.items:
+            return []
+        out = []
+        stat, x0, _ = car.linear_stat(
+            self.demodulation, lambda t: self.linear_shape(ctx, t), trend=self.trend
+        )
+        p_lin = min(1.0, KINDS * chi2_p_value(stat, 1))
+        if p_lin < P_MAX:
+            prop = self._linear(ctx, states, car, x0, p_lin)
+            if prop is not None:
+                out.append(prop)
+        f_lo, f_hi = modulation_band(ctx)
+        if f_hi > f_lo:
+            freq, power, n_ind, grid, q = car.scan(self.demodulation, f_lo, f_hi, trend=self.trend)
+            if power.size:
+                j = int(np.argmax(power))
+                p_sin = min(1.0, KINDS * scan_p_value(power[j], n_ind))
+                if p_sin < P_MAX:
+                    df = freq[1] - freq[0] if freq.size > 1 else 1.0 / ctx.duration_s
+                    f_pk, p_pk, n_pk = car.refine_peak(grid, q, float(freq[j]), df)
+                    if one_sided(p_pk, car.power_at(self.twin, f_pk)):
+                        return out  # a line on one side of f0 (extra_periodic), not a modulation
+                    prop = self._sinusoidal(ctx, states, car, f_pk, n_pk, q, p_sin)
+                    if prop is not None:
+                        out.append(prop)
+        return out
+
+    def _proposal(self, ctx, kept, new, gains, n_params, p_value, report) -> Proposal:
+        parameters, band, explanation, detail = report
+        detail["loglik_gain"] = {ctx.series[i].key: float(g) for i, g in gains.items()}
+        return Proposal(
+            effect=self.id,
+            series=kept,
+            states=new,
+            n_params=n_params,
+            p_value=p_value,
+            parameters=parameters,
+            t_start=0.0,
+            t_end=ctx.duration_s,
+            band_hz=band,
+            explanation=explanation,
+            detail=detail,
+        )
+
+    def _linear(self, ctx, states, car, x0, p_value) -> Proposal | None:
+        def term(it, th, jac):
+            return self.linear_term(ctx, it, th, jac)
+
+        res = car.fit(term, np.array([x0]))
+        if not res.converged:
+            return None
+        kept, new, gains = car.proposal_states(states, term, res.theta, self.id, 1)
+        if not kept:
+            return None
+        plates = sorted({ctx.series[i].plate for i in kept})
+        value, sigma = float(res.theta[0]), math.sqrt(max(res.cov[0, 0], 0.0))
+        report = self.linear_report(ctx, value, sigma, plates)
+        return self._proposal(ctx, kept, new, gains, 1, p_value, report)
+
+    def _sinusoidal(self, ctx, states, car, f_pk, n_pk, q, p_value) -> Proposal | None:
+        def term(it, th, jac):
+            return self.sinusoidal_term(ctx, it, th, jac)
+
+        res = car.fit(term, np.array([2 * n_pk.real / q, -2 * n_pk.imag / q, f_pk]))
+        f_lo, f_hi = modulation_band(ctx)
+        if not (res.converged and 0.5 * f_lo <= res.theta[2] <= 1.5 * f_hi):
+            return None
+        kept, new, gains = car.proposal_states(states, term, res.theta, self.id, 3)
+        if not kept:
+            return None
+        plates = sorted({ctx.series[i].plate for i in kept})
+        report = self.sinusoidal_report(ctx, res.theta, res.cov, plates)
+        return self._proposal(ctx, kept, new, gains, 3, p_value, report)
+
+
+def depth_and_phase(theta: np.ndarray, cov: np.ndarray) -> tuple[float, float]:
+    """(depth, σ) of a sinusoid a cos + b sin from its coefficients and their covariance."""
+    m = math.hypot(theta[0], theta[1])
+    g = np.array([theta[0], theta[1]]) / max(m, 1e-300)
+    return m, math.sqrt(max(float(g @ cov[:2, :2] @ g), 0.0))
