@@ -13,18 +13,17 @@ The astropy + scipy loop is timed on --loop-sample windows per round and scaled 
 rounds alternate jaxdefl, the loop and nifty-ls. The persistent JIT cache is off unless --cache,
 so the first call shows the real compile time.
 
-Measured (`python experiments/bench_fit.py --loop-sample 400`, 2 cores, 2026-11-23 10:51 UTC,
-the machine shared with other jobs at load 5, so every figure is inflated, the single-threaded
-loop and the multi-threaded nifty-ls far more than jaxdefl):
+Measured (`python experiments/bench_fit.py --loop-sample 300 --rounds 3`, 2 cores, quiet machine
+at load 0.1-1.3, 2026-11-23 13:48 UTC), two runs:
 
-    run  jaxdefl steady  first call (compile)  loop (scaled)  nifty-ls  speed-up  nifty-ls/jaxdefl
-    1    1.136 s         3.626 s (2.49 s)      60.93 s        39.6 s    53.6x     34.9
-    2    1.137 s         3.085 s (1.95 s)      57.34 s        81.0 s    50.4x     71.3
+    run  steady (best of 3)  first call (compile)  rounds: speed-up vs loop   median  nifty-ls/jaxdefl
+    1    0.621 s             4.716 s (4.09 s)      38.6x, 32.5x, 36.8x        36.8x   2.67-3.11
+    2    0.574 s             -                     39.6x, 33.5x, 35.2x        35.2x   2.14-2.95
 
-Earlier, on a quiet machine: jaxdefl 0.563 s, loop 12.26 s (21.8x). Back to back under the same
-load, the CPU time of `estimate_windows` on W went from 1.185 s (before: Horner sincos, exact
-peak by per-frame sines, 3-5 Gauss-Newton steps) to 0.917 s (-23 %), which puts a quiet-machine
-speed-up near 28x: the 30x target is not yet shown on a quiet machine.
+Per round jaxdefl took 0.58-0.73 s, the loop (scaled) 20.2-25.7 s, nifty-ls 1.56-1.91 s. What
+took it from ~29x to ~36x: Gauss-Newton in groups of 64 windows under `lax.map` (the loop state
+stays in L2; 1.5x less CPU for the fit) and one Gauss-Newton step from the linear fit's own sines
+and cosines (2 optimistix evaluations per window instead of 3).
 """
 
 from __future__ import annotations
