@@ -110,7 +110,13 @@ def fit_harmonic(t, y, w, omega0, rtol=RTOL, atol=ATOL, max_steps=MAX_STEPS):
     # Solve in units of standard deviations: parameters scaled by their approximate σ (linear
     # fit covariance; Fisher information A²/2 Σ w t² for ω) and residuals by the noise σ, so
     # that the tolerances mean "a step below 1e-2 σ" for every window, short or long.
-    noise = jnp.sqrt(jnp.maximum(jnp.sum(w * r_lin**2) / jnp.maximum(n - 3, 1), 1e-300))
+    # The noise is that of the residual after the start step, from the same sums (linearised:
+    # Σ w (r − J δ)² = Σ w r² − δ·Jᵀr): the residual at the periodogram's frequency holds the
+    # misfit of the frequency too, which on nearly noise-free data would loosen the tolerances.
+    rss_lin = jnp.sum(w * r_lin**2)
+    rss = jnp.where(near, rss_lin - step @ jtr0, rss_lin)
+    rss = jnp.maximum(rss, 1e-20 * rss_lin)
+    noise = jnp.sqrt(jnp.maximum(rss / jnp.maximum(n - N_PARAMS, 1), 1e-300))
     sig_lin = noise * jnp.sqrt(jnp.abs(jnp.diag(jnp.linalg.inv(gtg))))
     amp0 = jnp.maximum(jnp.hypot(lin[0], lin[1]), 1e-300)
     sig_om = noise / (amp0 * jnp.sqrt(0.5 * jnp.sum(w * t**2)))
