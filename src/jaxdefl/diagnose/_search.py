@@ -432,6 +432,12 @@ def run_diagnosis(
             states[i] = chosen.proposal.states[i]
         cache.pop(chosen.proposal.effect, None)
         screen(chosen.proposal.effect)  # the same effect may be there twice (a second line, jump)
+        # An effect that proposed nothing has no cached change to re-score: it looks again at
+        # once (a staircase hidden under a drift, say), or a lesser effect would take its
+        # structure first. When nothing else passes, the last round then skips it.
+        for eid in usable:
+            if not cache.get(eid) and not current(eid):
+                screen(eid)
         fresh_round = False
 
     if noise_free:  # whiteness of rounding errors says nothing of the physics
