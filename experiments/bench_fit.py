@@ -14,13 +14,17 @@ rounds alternate jaxdefl, the loop and nifty-ls. The persistent JIT cache is off
 so the first call shows the real compile time.
 
 Measured (`python experiments/bench_fit.py --loop-sample 300 --rounds 3`, 2 cores, quiet machine
-at load 0.1-1.3, 2026-11-23 13:48 UTC), two runs:
+at load 0.1-2.6, 2026-11-23 13:48-14:13 UTC), five runs:
 
-    run  steady (best of 3)  first call (compile)  rounds: speed-up vs loop   median  nifty-ls/jaxdefl
-    1    0.621 s             4.716 s (4.09 s)      38.6x, 32.5x, 36.8x        36.8x   2.67-3.11
-    2    0.574 s             -                     39.6x, 33.5x, 35.2x        35.2x   2.14-2.95
+    run  steady (best of 3)  compile   rounds: speed-up vs loop   median
+    1    0.621 s             4.09 s    38.6x, 32.5x, 36.8x        36.8x
+    2    0.574 s             -         39.6x, 33.5x, 35.2x        35.2x
+    3    0.632 s             5.59 s    32.0x, 31.6x, 34.5x        32.0x   (runs 3-5: after the
+    4    0.687 s             5.31 s    29.2x, 30.0x, 34.3x        30.0x    scaling-noise fix)
+    5    0.667 s             -         33.7x, 34.0x, 29.3x        33.7x
 
-Per round jaxdefl took 0.58-0.73 s, the loop (scaled) 20.2-25.7 s, nifty-ls 1.56-1.91 s. What
+Median over the 15 rounds 33.7x; nifty-ls periodogram alone / jaxdefl 2.1-3.3.
+Per round jaxdefl took 0.58-0.75 s, the loop (scaled) 19.2-25.7 s, nifty-ls 1.56-2.10 s. What
 took it from ~29x to ~36x: Gauss-Newton in groups of 64 windows under `lax.map` (the loop state
 stays in L2; 1.5x less CPU for the fit) and one Gauss-Newton step from the linear fit's own sines
 and cosines (2 optimistix evaluations per window instead of 3).
