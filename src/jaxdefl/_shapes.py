@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 
-__all__ = ["bucket", "pow2_at_least"]
+__all__ = ["bucket", "pow2_at_least", "pow2_at_most"]
 
 
 def bucket(n: int) -> int:
@@ -18,3 +18,8 @@ def bucket(n: int) -> int:
 
 def pow2_at_least(n: int) -> int:
     return 1 << max(0, math.ceil(math.log2(max(n, 1))))
+
+
+def pow2_at_most(n: int) -> int:
+    """The largest power of two <= max(n, 1)."""
+    return 1 << int(math.log2(max(n, 1)))

@@ -15,8 +15,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, Ti
 from . import __version__
 from ._errors import ConfigError, JaxdeflError
 from .fit import Estimates, estimate_windows
-from .io import read_reference, read_trajectory, write_trajectory
-from .io.trajectory import _load_frame
+from .io import load_table, read_reference, read_trajectory, write_trajectory
 from .series import make_windows, windows_like
 
 __all__ = ["compare_with_reference", "demo", "estimate_table", "fit_file", "fit_reference"]
@@ -370,8 +369,8 @@ def diagnose_file(
         if val is not None:
             facts[key] = val
     # the tables as read: `run_diagnosis` validates them (once; validation sorts every row)
-    df = _load_frame(traj)
-    ref = _load_frame(reference) if reference is not None else None
+    df = load_table(traj)
+    ref = load_table(reference) if reference is not None else None
 
     def on_round(r: int, eid: str | None) -> None:
         console.print(f"round {r + 1}: " + (f"located [bold]{eid}[/bold]" if eid else "nothing more to add"))

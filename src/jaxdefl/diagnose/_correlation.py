@@ -76,7 +76,7 @@ def frame_correlation(ctx: Context, states: list[State]) -> FrameCorrelation:
         index[i] = (s.axis, len(by_axis.setdefault(s.axis, [])))
         by_axis[s.axis].append(i)
     matrix = {}
-    n_frames = int(max(int(s.k.max()) for s in ctx.series)) + 1 if ctx.series else 0
+    n_frames = max(int(s.k.max()) for s in ctx.series) + 1 if ctx.series else 0
     for axis, members in by_axis.items():
         m = len(members)
         diffs = np.full((n_frames, m), np.nan)
@@ -89,10 +89,10 @@ def frame_correlation(ctx: Context, states: list[State]) -> FrameCorrelation:
         ok = np.isfinite(diffs)
         z = np.where(ok, diffs, 0.0)
         okf = ok.astype(np.float64)
+        # Raw moments over the frames both series have: differences have mean ~0.
         count = okf.T @ okf
-        # centred per pair would need pair-wise means; differences have mean ~0, so use raw moments
         cross = z.T @ z
-        sq = (z**2).T @ okf  # Σ over common frames of column i's squares, pair (i, j)
+        sq = (z**2).T @ okf  # (i, j): Σ of series i's squares over the frames j also has
         with np.errstate(invalid="ignore", divide="ignore"):
             r = cross / np.sqrt(sq * sq.T)
         r = np.where((count >= _MIN_PAIRS) & np.isfinite(r), r, 0.0)

@@ -9,7 +9,6 @@ status and NaNs, never an exception.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from functools import partial
 
@@ -20,7 +19,7 @@ import numpy as np
 import optimistix as optx
 
 from .. import _jax  # noqa: F401
-from .._shapes import bucket, pow2_at_least
+from .._shapes import bucket, pow2_at_least, pow2_at_most
 from .._sincos import sincos
 from ..series import Windows
 
@@ -215,11 +214,6 @@ def _width(a: np.ndarray, s: int) -> np.ndarray:
     return np.concatenate([a, np.zeros((a.shape[0], s - a.shape[1]), a.dtype)], axis=1)
 
 
-def _pow2_below(n: int) -> int:
-    """The largest power of two <= max(n, 1)."""
-    return 1 << int(math.log2(max(1, n)))
-
-
 def fit_harmonics(
     w: Windows,
     freq0_hz: np.ndarray,
@@ -266,8 +260,8 @@ def fit_harmonics(
         # Valid samples come first in every row; pad the sample axis to a shape bucket and
         # the batch to a power of two so that few shapes are ever compiled.
         s_pad = bucket(s_used)
-        chunk = min(pow2_at_least(rows.size), _pow2_below(_CHUNK_CELLS // s_pad))
-        group = min(chunk, _pow2_below(_GROUP_CELLS // s_pad))
+        chunk = min(pow2_at_least(rows.size), pow2_at_most(_CHUNK_CELLS // s_pad))
+        group = min(chunk, pow2_at_most(_GROUP_CELLS // s_pad))
         for c0 in range(0, rows.size, chunk):
             sel = rows[c0 : c0 + chunk]
             pad = np.concatenate([sel, np.repeat(sel[:1], chunk - sel.size)])

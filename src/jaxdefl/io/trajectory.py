@@ -20,7 +20,7 @@ import pandas as pd
 
 from .._errors import InputError
 
-__all__ = ["read_trajectory", "read_reference", "write_trajectory", "validate_trajectory"]
+__all__ = ["load_table", "read_trajectory", "read_reference", "write_trajectory", "validate_trajectory"]
 
 _LENGTH_MM = {"mm": 1.0, "m": 1000.0, "cm": 10.0, "um": 1e-3, "µm": 1e-3, "micron": 1e-3}
 _TIME_S = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6}
@@ -44,7 +44,8 @@ def _parse_header(name: str, path: Path) -> tuple[str, float]:
     return base, table[unit]
 
 
-def _load_frame(path: Path) -> pd.DataFrame:
+def load_table(path: Path) -> pd.DataFrame:
+    """A CSV or Parquet table as read, not yet validated (`validate_trajectory` does that)."""
     path = Path(path)
     if not path.exists():
         raise InputError(f"{path}: file not found")
@@ -165,13 +166,13 @@ def validate_trajectory(
 def read_trajectory(path: Path | str) -> pd.DataFrame:
     """Read and validate a trajectory table (CSV or Parquet); see `validate_trajectory`."""
     path = Path(path)
-    return validate_trajectory(_load_frame(path), path)
+    return validate_trajectory(load_table(path), path)
 
 
 def read_reference(path: Path | str) -> pd.DataFrame:
     """Read and validate a reference (LDS) table: ``t``, ``plate``, ``z`` (+ optional segment)."""
     path = Path(path)
-    return validate_trajectory(_load_frame(path), path)
+    return validate_trajectory(load_table(path), path)
 
 
 def write_trajectory(df: pd.DataFrame, path: Path | str) -> None:

@@ -25,7 +25,7 @@ import scipy.fft
 
 from .. import _jax  # noqa: F401
 from .._errors import ConfigError
-from .._shapes import bucket, pow2_at_least
+from .._shapes import bucket, pow2_at_least, pow2_at_most
 from .._sincos import sincos
 from ..series import Windows
 from .fap import false_alarm_probability, n_independent
@@ -241,7 +241,7 @@ def _peaks_grid(w: Windows, rows, out, fmin, fmax, oversampling, keep, search_dt
         raise ConfigError(f"--fmin/--fmax: the band {f_lo:g}..{f_hi:g} Hz holds fewer than 3 frequencies")
     n_freq = j_hi - j_lo + 1
     per_chunk = max(1, _CHUNK_CELLS // n_fft)
-    chunk = min(pow2_at_least(len(rows)), 1 << int(math.log2(per_chunk)))
+    chunk = min(pow2_at_least(len(rows)), pow2_at_most(per_chunk))
     keep_set = set(keep)
     for c0 in range(0, len(rows), chunk):
         sel = rows[c0 : c0 + chunk]
