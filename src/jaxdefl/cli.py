@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import signal
 import sys
+import threading
+import warnings
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
-from ._errors import ConfigError, JaxdeflError
+from ._errors import ConfigError, Interrupted, JaxdeflError
 
 app = typer.Typer(
     add_completion=False,
@@ -182,20 +185,72 @@ def demo(
     pipeline.demo(out, duration_s=duration, seed=seed)
 
 
+def _on_signal(signum, frame) -> None:
+    # later signals are ignored so that the clean-up of the first one runs to its end
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    raise Interrupted(signum)
+
+
+def _interrupted_message(err: Interrupted, argv: list[str]) -> str:
+    cmd = next((a for a in argv if not a.startswith("-")), "")
+    if cmd == "run":
+        return f"interrupted ({err}): finished units are kept; run the same command again to resume"
+    return f"interrupted ({err}): no output was written; earlier outputs are as they were"
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Console entry point: one-line errors, exit 2 for bad config/arguments, 1 otherwise."""
+    """Console entry point: one-line errors; exit 2 for bad config/arguments, 1 for failures,
+    130/143 when interrupted by SIGINT/SIGTERM (temporary files removed, outputs untouched)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    _state["debug"] = "--debug" in argv
+    in_main = threading.current_thread() is threading.main_thread()
+    previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)} if in_main else {}
+    for s in previous:
+        signal.signal(s, _on_signal)
     try:
-        app(args=argv, standalone_mode=False)
+        with warnings.catch_warnings():
+            if not _state["debug"]:
+                # numeric warnings (NaN windows, empty slices) are reported as statuses instead
+                warnings.simplefilter("ignore", RuntimeWarning)
+            return _run(argv)
+    except Interrupted as err:
+        print(f"jaxdefl: {_interrupted_message(err, argv)}", file=sys.stderr)
+        return err.exit_code
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+
+
+def _run(argv: list[str]) -> int:
+    try:
+        rv = app(args=argv, standalone_mode=False)
     except JaxdeflError as err:
         if _state["debug"]:
             raise
         print(f"jaxdefl: error: {err}", file=sys.stderr)
         return err.exit_code
+    except KeyboardInterrupt:  # a SIGINT that arrived before the handler was installed
+        raise Interrupted(signal.SIGINT) from None
     except typer.Exit as ex:
         return ex.exit_code
     except (typer.BadParameter, typer.Abort) as err:  # pragma: no cover - click handles most
         print(f"jaxdefl: error: {err}", file=sys.stderr)
         return 2
+    except OSError as err:
+        if _state["debug"]:
+            raise
+        where = f"{err.filename}: " if err.filename else ""
+        print(f"jaxdefl: error: {where}{err.strerror or err}", file=sys.stderr)
+        return 1
+    except MemoryError:
+        if _state["debug"]:
+            raise
+        print(
+            "jaxdefl: error: out of memory (use shorter windows, fewer plates or a smaller --step)",
+            file=sys.stderr,
+        )
+        return 1
     except Exception as err:  # click usage errors
         import click
 
@@ -206,6 +261,9 @@ def main(argv: list[str] | None = None) -> int:
             raise
         print(f"jaxdefl: error: {type(err).__name__}: {err}", file=sys.stderr)
         return 1
+    # typer hands back an Exit's code (its own KeyboardInterrupt handling returns 130)
+    if isinstance(rv, int) and not isinstance(rv, bool) and rv != 0:
+        return rv
     return 0
 
 

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-import json
+import shutil
+import tempfile
 import time
 from contextlib import contextmanager
 from pathlib import Path
@@ -16,7 +17,8 @@ from . import __version__
 from ._errors import ConfigError, JaxdeflError
 from .fit import Estimates, estimate_windows
 from .io import load_table, read_reference, read_trajectory, write_trajectory
-from .series import make_windows, windows_like
+from .io.output import TABLE_SUFFIXES, Outputs
+from .series import check_window_plan, make_windows, windows_like
 
 __all__ = ["compare_with_reference", "demo", "estimate_table", "fit_file", "fit_reference"]
 
@@ -114,14 +116,52 @@ def compare_with_reference(cam: pd.DataFrame, ref: pd.DataFrame) -> pd.DataFrame
     return out[COMPARISON_COLUMNS]
 
 
-def check_uncertainty(est: Estimates, out: Path, n_posterior: int, seed: int = 0) -> pd.DataFrame:
-    """Honesty flags of every window (OUT stem + _uncertainty.csv) and, for ``n_posterior``
-    windows, emcee posteriors against the linearised σ's (_posterior.csv and .png)."""
+def _check_fit_settings(window_s, step_s, fmin_hz, fmax_hz, oversampling, fap_max, posterior) -> None:
+    """Every `fit` argument checked before any input is read (one line naming the flag)."""
+
+    def bad(flag: str, expected: str, got) -> ConfigError:
+        return ConfigError(f"{flag}: expected {expected}, got {got:g}")
+
+    finite = lambda v: v is None or np.isfinite(v)  # noqa: E731
+    for flag, v in (
+        ("--window", window_s),
+        ("--step", step_s),
+        ("--fmin", fmin_hz),
+        ("--fmax", fmax_hz),
+        ("--oversampling", oversampling),
+        ("--fap-max", fap_max),
+    ):
+        if not finite(v):
+            raise bad(flag, "a finite number", v)
+    if window_s is not None and not window_s > 0:
+        raise bad("--window", "a positive length in s", window_s)
+    if step_s is not None and window_s is None:
+        raise ConfigError("--step: needs --window")
+    if step_s is not None and not step_s > 0:
+        raise bad("--step", "a positive length in s", step_s)
+    if fmin_hz is not None and fmin_hz < 0:
+        raise bad("--fmin", "a frequency >= 0 Hz", fmin_hz)
+    if fmax_hz is not None and not fmax_hz > 0:
+        raise bad("--fmax", "a positive frequency in Hz", fmax_hz)
+    if fmin_hz is not None and fmax_hz is not None and not fmin_hz < fmax_hz:
+        raise ConfigError(f"--fmin/--fmax: expected fmin < fmax, got {fmin_hz:g} and {fmax_hz:g}")
+    if not oversampling >= 1:
+        raise bad("--oversampling", "a factor >= 1", oversampling)
+    if not 0 < fap_max <= 1:
+        raise bad("--fap-max", "a probability in (0, 1]", fap_max)
+    if posterior is not None and posterior < 0:
+        raise bad("--posterior", "a number of windows >= 0", posterior)
+
+
+def uncertainty_tables(
+    est: Estimates, n_posterior: int, seed: int = 0
+) -> tuple[pd.DataFrame, pd.DataFrame | None]:
+    """Honesty flags of every window and, for ``n_posterior`` windows (a seeded sample), emcee
+    posteriors against the linearised σ's. Returns (uncertainty table, posterior table or None)."""
     from .uncertainty import (
         debiased_amplitude,
         honesty_features,
         honesty_flags,
-        plot_posterior_vs_linearised,
         posterior_table,
         rice_interval,
     )
@@ -149,33 +189,58 @@ def check_uncertainty(est: Estimates, out: Path, n_posterior: int, seed: int = 0
         amplitude_rice_hi95_mm=hi,
     )
     unc.loc[flags == "not_fitted", ["trust_amplitude", "trust_f0"]] = "none"
-    write_estimates(unc, out.with_name(out.stem + "_uncertainty.csv"))
-    if n_posterior > 0:
-        post = posterior_table(est, n_posterior, seed=seed)
-        write_estimates(post, out.with_name(out.stem + "_posterior.csv"))
-        if len(post):
-            plot_posterior_vs_linearised(post, out.with_name(out.stem + "_posterior.png"))
+    post = posterior_table(est, n_posterior, seed=seed) if n_posterior > 0 else None
     n_bad = int(((flags != "ok") & (flags != "not_fitted")).sum())
     console.print(
         f"  uncertainty: {n_bad} of {len(flags)} windows flagged (linearised σ not to be trusted there)"
     )
+    return unc, post
+
+
+def write_uncertainty(outs: Outputs, unc: pd.DataFrame, post: pd.DataFrame | None, paths: dict) -> None:
+    """Stage the uncertainty table, the posterior table and its figure (see `uncertainty_tables`)."""
+    from .uncertainty import plot_posterior_vs_linearised
+
+    outs.table(paths["uncertainty"], unc)
+    if post is not None:
+        outs.table(paths["posterior"], post)
+        if len(post):
+            outs.stage(paths["posterior_png"], lambda tmp: plot_posterior_vs_linearised(post, tmp))
+
+
+def check_uncertainty(est: Estimates, out: Path, n_posterior: int, seed: int = 0) -> pd.DataFrame:
+    """Honesty flags (OUT stem + _uncertainty.csv) and, for ``n_posterior`` windows, emcee
+    posteriors against the linearised σ's (_posterior.csv and .png), written together."""
+    unc, post = uncertainty_tables(est, n_posterior, seed=seed)
+    with Outputs() as outs:
+        write_uncertainty(outs, unc, post, companions(Path(out)))
     return unc
 
 
-def _sidecar(path: Path, **settings) -> None:
+def settings_record(**settings) -> dict:
     """The effective settings beside an output, so every result says how it was made."""
-    meta = {
-        "jaxdefl_version": __version__,
-        "written": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
-        **settings,
-    }
-    path.with_suffix(".json").write_text(json.dumps(meta, indent=2, default=str) + "\n")
+    return {"jaxdefl_version": __version__, "written": time.strftime("%Y-%m-%dT%H:%M:%S%z"), **settings}
 
 
 def write_estimates(table: pd.DataFrame, path: Path) -> None:
-    """Estimates CSV with full float64 precision (epoch t_start survives to the microsecond)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    table.to_csv(path, index=False, float_format="%.10g")
+    """One estimates table, atomically (CSV or Parquet by the suffix; times to the microsecond)."""
+    with Outputs() as outs:
+        outs.table(path, table)
+
+
+def companions(out: Path) -> dict[str, Path]:
+    """The files `fit` writes beside OUT (same stem; tables in OUT's format)."""
+    out = Path(out)
+    suffix = out.suffix if out.suffix.lower() in TABLE_SUFFIXES else ".csv"
+    stem = lambda tag, sfx=suffix: out.with_name(out.stem + tag + sfx)  # noqa: E731
+    return {
+        "sidecar": out.with_suffix(".json"),
+        "reference": stem("_reference"),
+        "comparison": stem("_comparison"),
+        "uncertainty": stem("_uncertainty"),
+        "posterior": stem("_posterior"),
+        "posterior_png": stem("_posterior", ".png"),
+    }
 
 
 def fit_file(
@@ -191,36 +256,74 @@ def fit_file(
     reference: Path | None = None,
     posterior: int | None = None,
 ) -> tuple[pd.DataFrame, pd.DataFrame | None]:
-    """`jaxdefl fit`: read, estimate, write OUT (and OUT stem + _reference/_comparison.csv)."""
+    """`jaxdefl fit`: read, estimate, write OUT (and OUT stem + _reference/_comparison/... beside).
+
+    Order: every argument is checked, the outputs are planned (none may be an input or another
+    output), the inputs are read and checked against each other, everything is computed, and only
+    then are all outputs committed together (`jaxdefl.io.output.Outputs`).
+    """
     t0 = time.perf_counter()
+    traj, out = Path(traj), Path(out)
+    _check_fit_settings(window_s, step_s, fmin_hz, fmax_hz, oversampling, fap_max, posterior)
+    outs = Outputs(inputs=[traj, reference])
+    outs.reserve(out, "--out", suffixes=TABLE_SUFFIXES)
+    paths = companions(out)
+    outs.reserve(paths["sidecar"], "the settings sidecar (--out with .json)")
+    if reference is not None:
+        outs.reserve(paths["reference"], "the reference estimates")
+        outs.reserve(paths["comparison"], "the comparison table")
+    if posterior is not None:
+        outs.reserve(paths["uncertainty"], "the uncertainty table")
+        if posterior > 0:
+            outs.reserve(paths["posterior"], "the posterior table")
+            outs.reserve(paths["posterior_png"], "the posterior figure")
+
     df = read_trajectory(traj)
     if axes is None:
         axes = tuple(a for a in ("z", "x", "y") if a in df.columns)
-    kw = dict(fmin_hz=fmin_hz, fmax_hz=fmax_hz, oversampling=oversampling, fap_max=fap_max)
-    est = estimate_table(df, axes=axes, window_s=window_s, step_s=step_s, **kw)
-    out = Path(out)
-    tab = est.table
-    write_estimates(tab, out)
-    _sidecar(
-        out,
-        command="fit",
-        posterior=posterior,
-        trajectory=str(traj),
-        window_s=window_s,
-        step_s=step_s,
-        axes=list(axes),
-        reference=str(reference) if reference else None,
-        **kw,
-    )
-    comparison = None
+    ref = None
     if reference is not None:
         ref = read_reference(reference)
-        ref_est = fit_reference(ref, est, **kw)
-        write_estimates(ref_est.table, out.with_name(out.stem + "_reference.csv"))
-        comparison = compare_with_reference(tab, ref_est.table)
-        write_estimates(comparison, out.with_name(out.stem + "_comparison.csv"))
+        shared = np.intersect1d(ref["plate"].unique(), df["plate"].unique())
+        if not shared.size:
+            raise ConfigError(
+                f"--reference {reference}: no plate of the reference ({_plates(ref)}) "
+                f"is in {traj} ({_plates(df)})"
+            )
+        if "z" not in axes:
+            raise ConfigError("--reference: compares the z axis; --axes must include z")
+    check_window_plan(df, axes, window_s, step_s, source=str(traj))
+
+    kw = dict(fmin_hz=fmin_hz, fmax_hz=fmax_hz, oversampling=oversampling, fap_max=fap_max)
+    est = estimate_table(df, axes=axes, window_s=window_s, step_s=step_s, **kw)
+    tab = est.table
+    comparison = ref_tab = unc = post = None
+    if ref is not None:
+        ref_tab = fit_reference(ref, est, **kw).table
+        comparison = compare_with_reference(tab, ref_tab)
     if posterior is not None:
-        check_uncertainty(est, out, posterior)
+        unc, post = uncertainty_tables(est, posterior)
+
+    with outs:
+        outs.table(out, tab)
+        outs.json(
+            paths["sidecar"],
+            settings_record(
+                command="fit",
+                posterior=posterior,
+                trajectory=str(traj),
+                window_s=window_s,
+                step_s=step_s,
+                axes=list(axes),
+                reference=str(reference) if reference else None,
+                **kw,
+            ),
+        )
+        if ref_tab is not None:
+            outs.table(paths["reference"], ref_tab)
+            outs.table(paths["comparison"], comparison)
+        if unc is not None:
+            write_uncertainty(outs, unc, post, paths)
     counts = tab["status"].value_counts().to_dict()
     console.print(
         f"[bold]jaxdefl fit[/]: {len(tab)} windows in {time.perf_counter() - t0:.1f} s -> {out} "
@@ -233,6 +336,11 @@ def fit_file(
                 f"Δf0 = {r['delta_f0_hz']:+.2e} Hz"
             )
     return tab, comparison
+
+
+def _plates(df: pd.DataFrame) -> str:
+    p = np.sort(df["plate"].unique())
+    return "plates " + ", ".join(map(str, p[:8].tolist())) + (" ..." if p.size > 8 else "")
 
 
 def run_file(config: Path, out: Path, scheduler: str = "none") -> pd.DataFrame:
@@ -248,8 +356,15 @@ def run_file(config: Path, out: Path, scheduler: str = "none") -> pd.DataFrame:
         f"({int(units['skipped'].sum())} reused) in {time.perf_counter() - t0:.1f} s "
         f"-> {Path(out) / 'report.md'}"
     )
-    for r in units[units["status"] != "ok"].itertuples():
+    failed = units[units["status"] != "ok"]
+    for r in failed.itertuples():
         console.print(f"  [red]failed[/] {r.unit}: {r.reason}")
+    if len(failed):
+        first = failed.iloc[0]
+        raise JaxdeflError(
+            f"{len(failed)} of {len(units)} units failed (first: {first['unit']}: {first['reason']}); "
+            f"the others are in {Path(out) / 'report.md'}"
+        )
     return units
 
 
@@ -273,14 +388,37 @@ def _demo_recording(out: Path, duration_s: float, seed: int):
     return sim
 
 
-def demo(out: Path, duration_s: float = 120.0, seed: int = 1) -> None:
-    """The main job on the built-in default: frames -> trajectories -> fits -> report in ``out``."""
+def demo(out: Path, duration_s: float = 120.0, seed: int = 1) -> Path:
+    """The main job on the built-in default: frames -> trajectories -> fits -> report in ``out``.
+
+    Returns the report's path."""
+
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out}: is a file; expected a directory")
+    if not (np.isfinite(duration_s) and duration_s > 0):
+        raise ConfigError(f"--duration: expected a positive duration in s, got {duration_s:g}")
+    out.mkdir(parents=True, exist_ok=True)
+    # everything is made in a staging directory inside OUT and renamed into place at the end:
+    # an interrupted demo leaves the previous report whole
+    staging = Path(tempfile.mkdtemp(dir=out, prefix=".jaxdefl-tmp-demo-"))
+    outs = Outputs()
+    try:
+        report = _demo_into(staging, duration_s, seed)
+        for p in sorted(staging.iterdir()):
+            outs.adopt(out / p.name, p)
+        outs.commit()
+    finally:
+        outs.discard()
+        shutil.rmtree(staging, ignore_errors=True)
+    return out / report.name
+
+
+def _demo_into(out: Path, duration_s: float, seed: int) -> Path:
     from .frames import extract_recording
     from .io.recording import open_recording
     from .report.summary import write_demo_report
 
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     console.print(
         f"[bold]jaxdefl demo[/]: simulating {duration_s:.0f} s of Experiment II day 1 "
@@ -321,7 +459,10 @@ def demo(out: Path, duration_s: float = 120.0, seed: int = 1) -> None:
         uncertainty,
         timings=dict(simulate_s=t_sim, extract_s=t_extract, fit_whole_s=t_whole, fit_windows_s=t_windowed),
     )
-    console.print(f"[bold]jaxdefl demo[/]: report in {report} ({time.perf_counter() - t0:.1f} s)")
+    console.print(
+        f"[bold]jaxdefl demo[/]: report in {out.parent / report.name} ({time.perf_counter() - t0:.1f} s)"
+    )
+    return report
 
 
 def _camera_facts(config: Path | None) -> dict:
@@ -360,6 +501,10 @@ def diagnose_file(
     from .diagnose import run_diagnosis
     from .report.diagnosis import write_diagnosis_report
 
+    traj, out = Path(traj), Path(out)
+    outs = Outputs(inputs=[traj, reference, config])
+    outs.reserve(out, "--out", suffixes=(".json",))
+    outs.reserve(out.with_suffix(".md"), "the diagnosis report")
     facts = _camera_facts(config)
     for key, val in (
         ("sensor", sensor),
@@ -368,6 +513,14 @@ def diagnose_file(
     ):
         if val is not None:
             facts[key] = val
+    if facts.get("frame_rate_hz") is not None and not (
+        np.isfinite(facts["frame_rate_hz"]) and facts["frame_rate_hz"] > 0
+    ):
+        raise ConfigError(f"--frame-rate: expected a positive rate in Hz, got {facts['frame_rate_hz']:g}")
+    if facts.get("modulation_mhz") is not None and not (
+        np.isfinite(facts["modulation_mhz"]) and facts["modulation_mhz"] > 0
+    ):
+        raise ConfigError(f"--modulation-mhz: expected a positive frequency, got {facts['modulation_mhz']:g}")
     # the tables as read: `run_diagnosis` validates them (once; validation sorts every row)
     df = load_table(traj)
     ref = load_table(reference) if reference is not None else None
@@ -396,10 +549,9 @@ def diagnose_file(
         "segment": segment,
         "effects": list(effects) if effects else None,
     }
-    out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(d, indent=2, default=str) + "\n")
-    written = write_diagnosis_report(diag, d, out, figures=figures)
+    with outs:
+        outs.json(out, d)
+        written = write_diagnosis_report(diag, d, out, outs, figures=figures)
     names = ", ".join(e["id"] for e in d["effects"]) or "none"
     console.print(
         f"effects: {names}; unexplained: {len(d['unexplained'])}; RMS {d['nominal']['rms_mm']:.4f} -> "

@@ -254,6 +254,8 @@ class Context:
         sensor: "tof", "structured_light" or None; frame_rate_hz, modulation_mhz: sensor facts
             (frame_rate_hz measured from the table when not given).
         tap_offsets: the ToF tap offsets (fractions of the frame period), default evenly spread.
+        left_out: series not diagnosed, each ``{"plate", "axis", "status", "n"}`` (status
+            ``too_few_samples`` or ``value_out_of_range``, as in the estimates table).
     """
 
     series: list[Series]
@@ -270,6 +272,7 @@ class Context:
     frame_rate_hz: float | None = None
     modulation_mhz: float | None = None
     tap_offsets: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75)
+    left_out: tuple[dict, ...] = ()
     _nuisance: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @property

@@ -10,6 +10,7 @@ import pandas as pd
 
 from .._errors import ConfigError, InputError
 from ..fit import estimate_windows
+from ..fit.estimate import MAX_ABS_VALUE_MM
 from ..io import validate_trajectory
 from ..series import make_windows
 from ..series.windows import frame_clock, windows_like
@@ -115,14 +116,22 @@ def build_context(
 
     series: list[Series] = []
     frees: list[Harmonic] = []
+    left_out: list[dict] = []
     for plate, g in df.groupby("plate", sort=True):
         t = g["t"].to_numpy() - t0
         k = np.rint(t / dt).astype(np.int64)
         for axis in axes:
             y = g[axis].to_numpy()
             ok = np.isfinite(y)
+            if (np.abs(y[ok]) > MAX_ABS_VALUE_MM).any():
+                notes.append(f"plate {plate} {axis}: values beyond {MAX_ABS_VALUE_MM:g} mm, left out")
+                left_out.append(
+                    dict(plate=int(plate), axis=axis, status="value_out_of_range", n=int(ok.sum()))
+                )
+                continue
             if ok.sum() < MIN_SAMPLES:
                 notes.append(f"plate {plate} {axis}: {int(ok.sum())} samples, left out")
+                left_out.append(dict(plate=int(plate), axis=axis, status="too_few_samples", n=int(ok.sum())))
                 continue
             s = Series(int(plate), axis, t[ok], y[ok], k[ok])
             h = free.get((int(plate), axis))
@@ -140,6 +149,11 @@ def build_context(
         ref = validate_trajectory(
             reference.reset_index(drop=True), reference_source, required=("t", "plate", "z")
         )
+        if not np.isin(ref["plate"].unique(), df["plate"].unique()).any():
+            raise ConfigError(
+                f"{reference_source}: no plate of the reference "
+                f"({', '.join(map(str, sorted(ref['plate'].unique())[:8]))}) is in {source}"
+            )
         ref = ref[(ref["t"] >= t0 + t_all[0]) & (ref["t"] <= t0 + t_all[-1])]
         cam_plates = {s.plate for s in series if s.axis == "z"}
         ref = ref[ref["plate"].isin(cam_plates)]
@@ -208,5 +222,6 @@ def build_context(
         frame_rate_hz=float(frame_rate_hz) if frame_rate_hz else 1.0 / float(dt),
         modulation_mhz=modulation_mhz,
         tap_offsets=tuple(tap_offsets) if tap_offsets is not None else (0.0, 0.25, 0.5, 0.75),
+        left_out=tuple(left_out),
     )
     return ctx, states, notes

@@ -201,6 +201,7 @@ class Diagnosis:
                 "unexplained": self.unexplained(),
                 "final": self._summary(self.final, self.tests_final),
                 "cannot_tell": self.cannot_tell,
+                "left_out": list(self.ctx.left_out),
                 "notes": self.notes,
                 "seconds": self.seconds,
             }

@@ -40,7 +40,11 @@ STATUSES = (
     "too_few_cycles",
     "no_significant_peak",
     "did_not_converge",
+    "value_out_of_range",
 )
+# A deflection beyond 1000 km is a logger's sentinel or a corrupt cell, not a measurement; its
+# square would overflow the sums of the fit. Such a window gets a status, its neighbours go on.
+MAX_ABS_VALUE_MM = 1e9
 
 
 @dataclass(frozen=True)
@@ -71,7 +75,8 @@ def estimate_windows(
     Statuses: ``too_few_samples`` (fewer than the windowing's minimum), ``too_few_cycles`` (the
     peak frequency times the window span is below ``min_cycles``), ``no_significant_peak``
     (false-alarm probability above ``fap_max``), ``did_not_converge`` (Gauss-Newton failed or
-    gave non-finite numbers), else ``converged``.
+    gave non-finite numbers), ``value_out_of_range`` (a value beyond MAX_ABS_VALUE_MM), else
+    ``converged``.
 
     Args:
         block: most windows per periodogram/fit call; ``on_block(k)`` is called after each
@@ -80,6 +85,8 @@ def estimate_windows(
     """
     b = len(w)
     status = w.table["status"].to_numpy(dtype=object).copy()
+    wild = (np.abs(np.where(w.mask, w.y, 0.0)) > MAX_ABS_VALUE_MM).any(axis=1)
+    status[(status == "converged") & wild] = "value_out_of_range"
     todo = np.flatnonzero((status == "converged") & (w.mask.sum(axis=1) > N_PARAMS + 1))
     status[(status == "converged") & (w.mask.sum(axis=1) <= N_PARAMS + 1)] = "too_few_samples"
     nan = np.full(b, np.nan)

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .._errors import InputError
+from .._errors import ConfigError, InputError
 from .pipeline import PlateGeometry, Scene, SceneError, calibrate_scene, detect_chunk
 from .track import Tracker
 
@@ -170,11 +170,17 @@ def extract_to_table(recording: Path, out: Path, realtime: bool = False, chunk_f
     Raises:
         InputError: a missing, corrupt, truncated or inconsistent recording, or no plates found.
     """
+    from ..io.output import TABLE_SUFFIXES, Outputs
     from ..io.recording import open_recording
     from ..io.trajectory import write_trajectory
 
     if chunk_frames < 1:
-        raise InputError(f"--chunk-frames: expected an integer >= 1, got {chunk_frames}")
+        raise ConfigError(f"--chunk-frames: expected an integer >= 1, got {chunk_frames}")
+    outs = Outputs(inputs=[recording])
+    outs.reserve(out, "--out", suffixes=TABLE_SUFFIXES)
+    if Path(out).resolve().is_relative_to(Path(recording).resolve()):
+        raise ConfigError(f"--out {out}: lies inside the recording {recording}; choose another place")
     rec = open_recording(recording)
     df = extract_recording(rec, realtime=realtime, chunk_frames=chunk_frames)
-    write_trajectory(df, out)
+    with outs:
+        write_trajectory(df, out, outs)

@@ -143,6 +143,13 @@ def _open_zarr(path: Path) -> Recording:
     try:
         g = zarr.open_group(str(path), mode="r")
     except Exception as err:  # zarr raises several types for a non-store
+        for meta in ("zarr.json", ".zgroup", ".zattrs"):
+            f = path / meta
+            if f.is_file():
+                try:
+                    json.loads(f.read_text())
+                except (ValueError, OSError, UnicodeDecodeError):
+                    raise InputError(f"{f}: not valid JSON (a corrupt Zarr metadata file)") from None
         raise _err(path, f"not a readable Zarr group ({type(err).__name__})") from None
     attrs = dict(g.attrs)
     keys = set(g.array_keys())

@@ -86,7 +86,7 @@ def validate_trajectory(
 
     Raises:
         InputError: missing columns, non-numeric values, unknown units, missing or non-integer
-            plate numbers, empty plates, timestamps repeated with other values or going backwards.
+            plate numbers, timestamps repeated with other values or going backwards.
     """
     path = Path(str(path))
     renamed: dict[str, str] = {}
@@ -154,12 +154,8 @@ def validate_trajectory(
                 f"t={float(out['t'].iat[j + 1])!r} of row {out['_row'].iat[j]} with different values"
             )
         out = out.drop(index=np.flatnonzero(rep) + 1).reset_index(drop=True)
-    finite = np.isfinite(out[axes].to_numpy()).any(axis=1)
-    counts = pd.Series(finite).groupby([out["segment"], out["plate"]]).sum()
-    empty = counts[counts == 0]
-    if len(empty):
-        seg, pl = empty.index[0]
-        raise InputError(f"{path}: plate {pl} (segment {seg!r}) has no valid samples in {', '.join(axes)}")
+    # A plate without one valid sample stays: its windows get the status too_few_samples, and
+    # the other plates are fitted (one bad plate never stops the rest).
     return out.drop(columns="_row")
 
 
@@ -175,12 +171,15 @@ def read_reference(path: Path | str) -> pd.DataFrame:
     return validate_trajectory(load_table(path), path)
 
 
-def write_trajectory(df: pd.DataFrame, path: Path | str) -> None:
-    """Write a trajectory table; CSV keeps t to the microsecond and lengths to 0.1 µm."""
-    path = Path(path)
+def write_trajectory(df: pd.DataFrame, path: Path | str, outs=None) -> None:
+    """Write a trajectory table atomically, CSV or Parquet by the suffix; CSV keeps t to the
+    microsecond and lengths to the nanometre (``%.6f``). With ``outs`` (an
+    `jaxdefl.io.output.Outputs`) the table is only staged, to be committed with the others."""
+    from .output import Outputs
+
     cols = [c for c in ("segment", "t", "plate", "x", "y", "z") if c in df.columns]
-    if path.suffix.lower() in (".parquet", ".pq"):
-        df[cols].to_parquet(path, index=False)
+    if outs is not None:
+        outs.table(path, df[cols], float_format="%.6f")
         return
-    # %.6f keeps epoch seconds to the microsecond and lengths to the nanometre.
-    df[cols].to_csv(path, index=False, float_format="%.6f")
+    with Outputs() as own:
+        own.table(path, df[cols], float_format="%.6f")

@@ -151,15 +151,15 @@ def diagnosis_markdown(d: dict, figures: list[str]) -> str:
     return "\n".join(lines)
 
 
-def write_diagnosis_report(diag, d: dict, out_json: Path, figures: bool = True) -> list[Path]:
-    """Write OUT.md and a figure per effect (OUT_<k>_<effect>.png) beside OUT.json."""
+def write_diagnosis_report(diag, d: dict, out_json: Path, outs, figures: bool = True) -> list[Path]:
+    """Stage OUT.md and a figure per effect (OUT_<k>_<effect>.png) beside OUT.json in ``outs``
+    (a `jaxdefl.io.output.Outputs`: they are committed together with OUT.json)."""
     out_json = Path(out_json)
     paths = []
     if figures:
         for k, a in enumerate(diag.accepted):
-            paths.append(
-                plot_effect(diag, k, out_json.with_name(f"{out_json.stem}_{k + 1}_{a.proposal.effect}.png"))
-            )
+            final = out_json.with_name(f"{out_json.stem}_{k + 1}_{a.proposal.effect}.png")
+            paths.append(outs.stage(final, lambda tmp, k=k: plot_effect(diag, k, tmp)))
     md = out_json.with_suffix(".md")
-    md.write_text(diagnosis_markdown(d, [p.name for p in paths]))
+    outs.text(md, diagnosis_markdown(d, [p.name for p in paths]))
     return [md, *paths]

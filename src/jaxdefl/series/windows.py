@@ -21,6 +21,7 @@ __all__ = [
     "make_windows",
     "windows_like",
     "frame_clock",
+    "check_window_plan",
     "STATUS_OK",
     "STATUS_FEW_SAMPLES",
 ]
@@ -247,3 +248,54 @@ def windows_like(ref: pd.DataFrame, like: pd.DataFrame, min_samples: int = 16) -
     if not series:
         raise ConfigError("--reference: no plate of the reference table is in the trajectory table")
     return _pack(series, min_samples)
+
+
+# Windows shorter than this many frame intervals hold too few samples for a harmonic (4
+# parameters) and, cut from a long table, come in numbers that exhaust memory.
+MIN_WINDOW_FRAMES = 8
+# The padded batch (t, y, mask, k: 8 bytes each, plus the periodogram's and the fit's working
+# copies) must fit in this budget; past it the window settings are refused before any work.
+MAX_BATCH_BYTES = 4 << 30
+
+
+def check_window_plan(
+    df: pd.DataFrame,
+    axes: tuple[str, ...],
+    window_s: float | None,
+    step_s: float | None,
+    source: str = "the table",
+) -> None:
+    """Refuse window settings that cannot give a fit or would not fit in memory, before any work.
+
+    Raises:
+        ConfigError: a window shorter than MIN_WINDOW_FRAMES frame intervals (median spacing of
+            the table's timestamps), or a padded batch larger than MAX_BATCH_BYTES.
+    """
+    if window_s is None:
+        return
+    step_s = window_s if step_s is None else step_s
+    t = df["t"].to_numpy()
+    same = (df["plate"].to_numpy()[1:] == df["plate"].to_numpy()[:-1]) & (
+        df["segment"].to_numpy()[1:] == df["segment"].to_numpy()[:-1]
+    )
+    d = np.diff(t)[same]
+    d = d[d > 0]
+    if not d.size:
+        return
+    dt = float(np.median(d))
+    if window_s < MIN_WINDOW_FRAMES * dt:
+        raise ConfigError(
+            f"--window {window_s:g}: shorter than {MIN_WINDOW_FRAMES} frame intervals of {source} "
+            f"(median spacing {dt:.6g} s); expected at least {MIN_WINDOW_FRAMES * dt:.6g} s"
+        )
+    n_series = df.groupby(["segment", "plate"], sort=False).ngroups * max(1, len(axes))
+    span = float(df.groupby("segment", sort=False)["t"].agg(lambda s: s.max() - s.min()).max())
+    n_windows = max(1.0, np.floor((span + dt - window_s) / step_s + 1))
+    samples = min(window_s, span + dt) / dt + 1
+    need = 8 * 8 * n_series * n_windows * samples
+    if need > MAX_BATCH_BYTES:
+        raise ConfigError(
+            f"--window {window_s:g} --step {step_s:g}: {int(n_series * n_windows):,} windows of "
+            f"~{int(samples):,} samples from {source} would need ~{need / 2**30:.0f} GiB; "
+            f"expected at most {MAX_BATCH_BYTES / 2**30:.0f} GiB (use a longer --step)"
+        )

@@ -339,10 +339,14 @@ def load_config(path: Path | str, session: str | None = None) -> SimConfig:
     path = Path(path)
     if not path.exists():
         raise ConfigError(f"{path}: file not found")
+    if not path.is_file():
+        raise ConfigError(f"{path}: is a directory; expected a simulation config file (TOML)")
     try:
         raw = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as err:
         raise ConfigError(f"{path}: not valid TOML ({err})") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise ConfigError(f"{path}: cannot be read as a TOML text file ({type(err).__name__})") from None
     return config_from_dict(raw, str(path), session)
 
 

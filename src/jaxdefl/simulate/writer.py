@@ -12,13 +12,13 @@ Output directory:
 from __future__ import annotations
 
 import json
-import shutil
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from .._errors import ConfigError
+from ..io.output import Outputs
 from .config import SimConfig, load_config
 from .lds import LDS_BLOCK_S, frame_clock, lds_block, truth_table
 from .scene import kinematics, pixel_model
@@ -174,26 +174,35 @@ def simulate_to_dir(
     Raises:
         ConfigError: a bad config file or a negative duration.
     """
-    import zarr
-    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
-
     cfg = load_config(config_path, session)
     duration = _check_duration(cfg, duration_s)
     seed = cfg.recording.seed if seed is None else int(seed)
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out}: is a file; expected a directory")
+    outs = Outputs(inputs=[config_path])
+    for name in ("config.json", "recording.zarr", "truth.csv", "lds.csv"):
+        outs.reserve(out / name, f"--out {out}: {name}")
+    with outs:
+        _write_recording(cfg, outs, out, duration, seed, progress)
+    return out
+
+
+def _write_recording(cfg: SimConfig, outs: Outputs, out: Path, duration: float, seed: int, progress: bool):
+    """Render and write everything to the temporary paths of ``outs`` (committed by the caller)."""
+    import zarr
+    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
     effective = cfg.to_dict()
     effective["recording"]["duration_s"] = duration
     effective["recording"]["seed"] = seed
-    (out / "config.json").write_text(json.dumps(effective, indent=2))
+    outs.text(out / "config.json", json.dumps(effective, indent=2))
 
     idx, t = frame_clock(cfg, duration, seed)
     rend = _Renderer(cfg, seed, duration)
     h, w = rend.intr.height, rend.intr.width
     chunk = cfg.recording.chunk_frames
-    store = out / "recording.zarr"
-    if store.exists():
-        shutil.rmtree(store)
+    store = outs.path(out / "recording.zarr")
     root = zarr.open_group(str(store), mode="w")
     root.attrs.update(rend.facts())
     frames = root.create_array(
@@ -218,7 +227,7 @@ def simulate_to_dir(
     frames.attrs.update(units="mm")
     stamps.attrs.update(units="s since 1970-01-01 (UTC)")
 
-    truth_path, lds_path = out / "truth.csv", out / "lds.csv"
+    truth_path, lds_path = outs.path(out / "truth.csv"), outs.path(out / "lds.csv")
     _append_csv(truth_table(cfg, t[:0]), truth_path, True)
     nblocks = int(np.ceil(duration / LDS_BLOCK_S))
     _append_csv(lds_block(cfg, seed, 0, 0.0), lds_path, True)
@@ -249,4 +258,3 @@ def simulate_to_dir(
         _append_csv(lds_block(cfg, seed, lds_done, duration), lds_path, False)
         lds_done += 1
     root.attrs["n_frames"] = int(len(idx))
-    return out
