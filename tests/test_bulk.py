@@ -80,7 +80,7 @@ def test_bad_units_get_reasons_and_the_rest_finishes(tmp_path):
     assert units.loc["day01-cam2", "status"] == "ok" and units.loc["day02-cam2", "status"] == "ok"
     assert "nowhere.csv: file not found" in units.loc["day07-cam2", "reason"]
     assert "row 2 column 'z': expected a number" in units.loc["day08-cam2", "reason"]
-    assert "has no valid samples" in units.loc["day09-cam2", "reason"]
+    assert "no plate and axis could be fitted (too_few_samples)" in units.loc["day09-cam2", "reason"]
     assert "day07-cam2" in (tmp_path / "out" / "report.md").read_text()
 
 

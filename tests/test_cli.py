@@ -65,10 +65,10 @@ def test_bad_input_is_one_line_and_exit_2(recording, capsys):
     "args, message",
     [
         (["--axes", "z,w"], "--axes: expected a comma list of z, x, y; got 'z,w'"),
-        (["--window", "-3"], "--window: expected a positive length in s, got -3.0"),
+        (["--window", "-3"], "--window: expected a positive length in s, got -3"),
         (["--step", "5"], "--step: needs --window"),
-        (["--window", "10", "--step", "0"], "--step: expected a positive length in s, got 0.0"),
-        (["--fap-max", "0"], "--fap-max: expected a probability in (0, 1], got 0.0"),
+        (["--window", "10", "--step", "0"], "--step: expected a positive length in s, got 0"),
+        (["--fap-max", "0"], "--fap-max: expected a probability in (0, 1], got 0"),
     ],
 )
 def test_bad_arguments_exit_2(recording, capsys, args, message):
@@ -91,7 +91,8 @@ def test_reference_without_common_plates(recording, capsys):
         ]
     )
     assert code == 2
-    assert "no plate of the reference table" in capsys.readouterr().err
+    assert "no plate of the reference (plates 99) is in" in capsys.readouterr().err
+    assert not (recording / "e.csv").exists()
 
 
 def test_axes_default_to_the_columns_present_and_missing_ones_are_errors(tmp_path, capsys):

@@ -86,10 +86,12 @@ def test_exact_duplicates_are_dropped(tmp_path):
     assert df["t"].tolist() == [0.0, 0.05]
 
 
-def test_empty_plate(tmp_path):
+def test_empty_plate_stays_for_a_status(tmp_path):
+    # a plate without one valid sample is kept: its windows get too_few_samples, the rest are fitted
     p = _csv(tmp_path, "t,plate,z\n0,1,1\n0,2,\n0.05,2,nan\n")
-    with pytest.raises(InputError, match=r"plate 2 \(segment '0'\) has no valid samples in z"):
-        read_trajectory(p)
+    df = read_trajectory(p)
+    assert sorted(df["plate"].unique()) == [1, 2]
+    assert df.loc[df["plate"] == 2, "z"].isna().all()
 
 
 def test_nan_means_missing(tmp_path):

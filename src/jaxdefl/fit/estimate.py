@@ -166,7 +166,8 @@ def _span(w: Windows) -> np.ndarray:
     n = w.mask.sum(axis=1)
     lo = np.where(w.mask, w.t, np.inf).min(axis=1)
     hi = np.where(w.mask, w.t, -np.inf).max(axis=1)
-    return np.where(n > 1, (hi - lo) * n / np.maximum(n - 1, 1), 0.0)
+    span = np.where(n > 1, hi - lo, 0.0)  # an empty window's inf - inf never reaches arithmetic
+    return span * n / np.maximum(n - 1, 1)
 
 
 def _merge_fits(b: int, parts: list[tuple[np.ndarray, HarmonicFit]]) -> HarmonicFit:
