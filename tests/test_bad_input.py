@@ -1,0 +1,448 @@
+"""Bad and awkward inputs: every case asserts the exit code, a one-line message that names the
+file, row, key or flag, and that no output was created and no existing file changed.
+
+Interrupts: SIGINT/SIGTERM sent at random moments of `fit`, `diagnose`, `extract` and `run` never
+leave a truncated or half-committed output and never exit 0 while the command was still working.
+"""
+
+from __future__ import annotations
+
+import errno
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from jaxdefl.cli import main
+from jaxdefl.io import read_trajectory, write_trajectory
+from jaxdefl.synthetic import harmonic_experiment
+
+TMP = ".jaxdefl-tmp-"
+
+
+def snapshot(root: Path) -> dict[str, bytes]:
+    """Every file under ``root`` (relative name -> bytes): nothing created, nothing changed."""
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def no_temporaries(root: Path) -> bool:
+    return not [p for p in root.rglob(f"{TMP}*")]
+
+
+@pytest.fixture(scope="module")
+def tables(tmp_path_factory):
+    d = tmp_path_factory.mktemp("bad")
+    traj, lds = harmonic_experiment(duration_s=60.0, seed=11)
+    traj = traj[traj["plate"].isin([3, 5, 7])]
+    write_trajectory(traj, d / "traj.csv")
+    write_trajectory(lds[lds["plate"].isin([5, 7])], d / "lds.csv")
+    return d
+
+
+@pytest.fixture
+def work(tables, tmp_path):
+    """A directory with the tables and a previous good fit (EST.csv + EST.json)."""
+    for name in ("traj.csv", "lds.csv"):
+        (tmp_path / name).write_bytes((tables / name).read_bytes())
+    assert main(["fit", str(tmp_path / "traj.csv"), "--out", str(tmp_path / "EST.csv")]) == 0
+    return tmp_path
+
+
+def run_cli(args, capsys) -> tuple[int, list[str]]:
+    capsys.readouterr()
+    code = main([str(a) for a in args])
+    err = [line for line in capsys.readouterr().err.splitlines() if line.startswith("jaxdefl: ")]
+    return code, err
+
+
+def assert_refused(work, capsys, args, message, code=2):
+    before = snapshot(work)
+    got, err = run_cli(args, capsys)
+    assert got == code, err
+    assert len(err) == 1, err
+    assert message in err[0], err[0]
+    assert "np.float64" not in err[0] and "Traceback" not in err[0]
+    assert snapshot(work) == before
+    assert no_temporaries(work)
+
+
+# -- arguments are checked before anything is written ------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "extra, message",
+    [
+        (["--posterior", "-3"], "--posterior: expected a number of windows >= 0, got -3"),
+        (["--window", "1e-5"], "--window 1e-05: shorter than 8 frame intervals"),
+        (["--window", "nan"], "--window: expected a finite number, got nan"),
+        (["--window", "30", "--step", "1e-6"], "would need"),
+        (["--oversampling", "0.5"], "--oversampling: expected a factor >= 1, got 0.5"),
+        (["--fmin", "2", "--fmax", "1"], "--fmin/--fmax: expected fmin < fmax, got 2 and 1"),
+        (["--fap-max", "2"], "--fap-max: expected a probability in (0, 1], got 2"),
+    ],
+)
+def test_fit_bad_arguments_leave_previous_outputs(work, capsys, extra, message):
+    assert_refused(work, capsys, ["fit", work / "traj.csv", "--out", work / "EST.csv", *extra], message)
+
+
+def test_fit_bad_reference_is_refused_before_writing(work, capsys):
+    args = ["fit", work / "traj.csv", "--out", work / "EST.csv", "--reference"]
+    assert_refused(work, capsys, [*args, work / "missing.csv"], "missing.csv: file not found")
+    pd.DataFrame({"t": [1.7e9, 1.7e9 + 1], "plate": [99, 99], "z": [0.0, 1.0]}).to_csv(
+        work / "other.csv", index=False
+    )
+    assert_refused(work, capsys, [*args, work / "other.csv"], "no plate of the reference (plates 99)")
+
+
+def test_output_collisions_are_refused(work, capsys):
+    traj = work / "traj.csv"
+    assert_refused(work, capsys, ["fit", traj, "--out", traj], "is an input of this command")
+    assert_refused(work, capsys, ["fit", traj, "--out", work / "est.json"], "expected a name ending in .csv")
+    # EST.csv's sidecar is EST.json: an input named EST.json must not be overwritten by it
+    (work / "x.json").write_text("{}")
+    (work / "x.csv").write_bytes(traj.read_bytes())
+    assert_refused(work, capsys, ["fit", work / "x.json", "--out", work / "x.csv"], "x.json")
+    assert_refused(work, capsys, ["diagnose", traj, "--out", work / "d.md"], "--out " + str(work / "d.md"))
+    assert_refused(
+        work,
+        capsys,
+        ["fit", traj, "--out", work / "traj_in.csv", "--reference", work / "traj_in_reference.csv"],
+        "traj_in_reference.csv: is an input of this command",
+    )
+    (work / "E_reference.csv").write_bytes(traj.read_bytes())
+    assert_refused(
+        work,
+        capsys,
+        ["fit", work / "E_reference.csv", "--out", work / "E.csv", "--reference", work / "lds.csv"],
+        "is an input of this command",
+    )
+
+
+def test_parquet_out_is_parquet(work, capsys):
+    code, _ = run_cli(["fit", work / "traj.csv", "--out", work / "e.parquet", "--window", "20"], capsys)
+    assert code == 0
+    pq = pd.read_parquet(work / "e.parquet")
+    assert run_cli(["fit", work / "traj.csv", "--out", work / "e.csv", "--window", "20"], capsys)[0] == 0
+    csv = pd.read_csv(work / "e.csv")
+    assert list(pq.columns) == list(csv.columns)
+    np.testing.assert_allclose(pq["amplitude_mm"], csv["amplitude_mm"], rtol=1e-9)
+
+
+# -- epoch precision --------------------------------------------------------------------------
+
+
+def test_epoch_times_keep_microseconds_and_the_phase_rebuilds(tmp_path, capsys):
+    """t_start 1700000000.123456 survives the CSV; the model rebuilt from the file's t_mid,
+    f0, A, phase and offset matches the fit's own residual level on the data."""
+    traj, _ = harmonic_experiment(duration_s=60.0, seed=5, t0=1700000000.123456, dropout=0.0)
+    traj = traj[traj["plate"] == 7]
+    write_trajectory(traj, tmp_path / "t.csv")
+    assert run_cli(["fit", tmp_path / "t.csv", "--out", tmp_path / "e.csv", "--axes", "z"], capsys)[0] == 0
+    text = (tmp_path / "e.csv").read_text()
+    assert "1700000000.123456" in text
+    e = pd.read_csv(tmp_path / "e.csv").iloc[0]
+    back = read_trajectory(tmp_path / "t.csv")
+    assert abs(e["t_start"] - back["t"].min()) < 1e-6
+    t_mid = 0.5 * (e["t_start"] + e["t_end"])
+    model = e["offset_mm"] + e["amplitude_mm"] * np.cos(
+        2 * np.pi * e["f0_hz"] * (back["t"].to_numpy() - t_mid) - e["phase_rad"]
+    )
+    rms = np.sqrt(np.mean((back["z"].to_numpy() - model) ** 2))
+    assert rms < 1.05 * e["sigma_residual_mm"]
+
+
+# -- one bad plate or window never stops the rest ---------------------------------------------
+
+
+def test_a_plate_without_valid_z_gets_a_status(work, capsys):
+    df = pd.read_csv(work / "traj.csv")
+    one = pd.DataFrame(
+        {"segment": [df["segment"].iloc[0]], "t": [df["t"].iloc[0]], "plate": [42], "z": [np.nan]}
+    )
+    pd.concat([df, one]).to_csv(work / "t2.csv", index=False)
+    assert run_cli(["fit", work / "t2.csv", "--out", work / "e2.csv"], capsys)[0] == 0
+    e = pd.read_csv(work / "e2.csv")
+    assert set(e.loc[e["plate"] == 42, "status"]) == {"too_few_samples"}
+    assert (e.loc[(e["plate"] != 42) & (e["axis"] == "z"), "status"] == "converged").all()
+    code, err = run_cli(["diagnose", work / "t2.csv", "--out", work / "d2.json", "--no-figures"], capsys)
+    assert code == 0, err
+    d = json.loads((work / "d2.json").read_text())
+    assert {"plate": 42, "axis": "z", "status": "too_few_samples", "n": 0} in d["left_out"]
+
+
+def test_an_overflowing_value_is_a_window_status(work, capsys):
+    df = pd.read_csv(work / "traj.csv")
+    i = df.index[df["plate"] == 5][50]
+    df.loc[i, "z"] = 1e308
+    df.to_csv(work / "big.csv", index=False)
+    assert run_cli(["fit", work / "big.csv", "--out", work / "e3.csv", "--window", "20"], capsys)[0] == 0
+    e = pd.read_csv(work / "e3.csv").set_index(["plate", "axis", "window"])
+    assert e.loc[(5, "z", 0), "status"] == "value_out_of_range"
+    assert e.loc[(5, "z", 1), "status"] == "converged" and e.loc[(7, "z", 0), "status"] == "converged"
+    code, err = run_cli(["diagnose", work / "big.csv", "--out", work / "d3.json", "--no-figures"], capsys)
+    assert code == 0, err
+    left = json.loads((work / "d3.json").read_text())["left_out"]
+    assert any(x["plate"] == 5 and x["axis"] == "z" and x["status"] == "value_out_of_range" for x in left)
+
+
+def test_diagnose_refuses_a_reference_with_no_shared_plate(work, capsys):
+    pd.DataFrame({"t": [1.7e9, 1.7e9 + 1], "plate": [99, 99], "z": [0.0, 1.0]}).to_csv(
+        work / "other.csv", index=False
+    )
+    args = ["diagnose", work / "traj.csv", "--out", work / "d.json", "--reference", work / "other.csv"]
+    assert_refused(work, capsys, args, "other.csv: no plate of the reference (99)")
+
+
+# -- files that cannot be read, commands that cannot finish -----------------------------------
+
+
+def test_simulate_with_a_directory_as_config(tmp_path, capsys):
+    (tmp_path / "cfgdir").mkdir()
+    assert_refused(
+        tmp_path, capsys, ["simulate", tmp_path / "cfgdir", "--out", tmp_path / "o"], "cfgdir: is a directory"
+    )
+
+
+def test_extract_with_a_corrupt_zarr_json(tmp_path, capsys):
+    store = tmp_path / "r.zarr"
+    store.mkdir()
+    (store / "zarr.json").write_text("{garbage")
+    assert_refused(
+        tmp_path, capsys, ["extract", store, "--out", tmp_path / "t.csv"], "zarr.json: not valid JSON"
+    )
+
+
+def test_extract_refuses_output_in_the_recording_or_a_bad_suffix(tmp_path, capsys):
+    store = tmp_path / "r.zarr"
+    store.mkdir()
+    assert_refused(
+        tmp_path, capsys, ["extract", store, "--out", store / "t.csv"], "lies inside the recording"
+    )
+    assert_refused(
+        tmp_path, capsys, ["extract", store, "--out", tmp_path / "t.json"], "expected a name ending"
+    )
+
+
+def test_run_exits_1_when_a_unit_failed(tmp_path, capsys):
+    traj, lds = harmonic_experiment(duration_s=30.0, seed=2)
+    write_trajectory(traj[traj["plate"].isin([5, 7])], tmp_path / "traj1.csv")
+    (tmp_path / "c.toml").write_text(
+        '[campaign]\nname = "t"\n[processing]\nwindow_s = 15.0\n'
+        '[[recording]]\nday = 1\ncamera = "cam2"\ncycles = 1\ntrajectories = "traj1.csv"\n'
+        '[[recording]]\nday = 2\ncamera = "cam2"\ncycles = 2\ntrajectories = "nowhere.csv"\n'
+    )
+    code, err = run_cli(["run", tmp_path / "c.toml", "--out", tmp_path / "o"], capsys)
+    assert code == 1
+    assert len(err) == 1 and "1 of 2 units failed (first: day02-cam2" in err[0] and "nowhere.csv" in err[0]
+    assert (tmp_path / "o" / "report.md").exists()
+
+
+def test_a_full_disk_keeps_the_previous_outputs(work, capsys, monkeypatch):
+    """ENOSPC while a temporary file is written: exit 1, the output named, nothing replaced."""
+    real = Path.write_bytes
+
+    def full(self, data):
+        if self.name.startswith(TMP):
+            real(self, data[: len(data) // 3])
+            raise OSError(errno.ENOSPC, "No space left on device", str(self))
+        return real(self, data)
+
+    monkeypatch.setattr(Path, "write_bytes", full)
+    assert_refused(
+        work,
+        capsys,
+        ["fit", work / "traj.csv", "--out", work / "EST.csv", "--window", "20"],
+        f"{work / 'EST.csv'}: cannot write (No space left on device)",
+        code=1,
+    )
+
+
+# -- fuzz: any table content ends in a status or a one-line error -----------------------------
+
+CELLS = st.one_of(
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.integers(-(10**20), 10**20),
+    st.sampled_from(["", "nan", "abc", "1e308", "-0", "1,5", " 3 ", "True", "2024-01-01"]),
+)
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(rows=st.lists(st.tuples(CELLS, st.sampled_from([1, 2, 2.5, "x", ""]), CELLS), min_size=0, max_size=40))
+def test_fuzzed_tables_end_in_a_status_or_one_line(tmp_path, capsys, rows):
+    d = tmp_path / f"f{abs(hash(str(rows))) % 10**9}"
+    d.mkdir()
+    lines = ["t,plate,z"] + [",".join(str(c) for c in r) for r in rows]
+    (d / "t.csv").write_text("\n".join(lines) + "\n")
+    before = snapshot(d)
+    code, err = run_cli(["fit", d / "t.csv", "--out", d / "e.csv"], capsys)
+    assert code in (0, 2), err
+    if code == 2:
+        assert len(err) == 1 and str(d / "t.csv") in err[0], err
+        assert snapshot(d) == before
+    else:
+        e = pd.read_csv(d / "e.csv")
+        assert set(e["status"]) <= {
+            "converged",
+            "too_few_samples",
+            "too_few_cycles",
+            "no_significant_peak",
+            "did_not_converge",
+            "value_out_of_range",
+        }
+    assert no_temporaries(d)
+
+
+# -- interrupts -------------------------------------------------------------------------------
+
+
+def _interrupt(args, cwd: Path, delay: float, sig=signal.SIGINT):
+    """Start the CLI, send ``sig`` after ``delay`` s; returns (exit code, stderr, sent in time)."""
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "jaxdefl.cli", *map(str, args)],
+        cwd=cwd,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
+    time.sleep(delay)
+    running = proc.poll() is None
+    if running:
+        proc.send_signal(sig)
+    _, err = proc.communicate(timeout=300)
+    return proc.returncode, err.decode(), running
+
+
+def _check_interrupt(work: Path, args, outputs: list[str], delays, sig=signal.SIGINT):
+    expected = 128 + int(sig)
+    for delay in delays:
+        before = snapshot(work)
+        code, err, sent = _interrupt(args, work, delay, sig)
+        after = snapshot(work)
+        assert no_temporaries(work), delay
+        if not sent:  # finished before the signal: a normal run
+            assert code == 0, err
+            continue
+        if code == 0:
+            # the signal landed after the outputs were committed, in the last instants of the
+            # exit: the outputs must then be whole (they are read back)
+            for name in outputs:
+                assert name in after
+            continue
+        assert code == expected, (delay, code, err)
+        lines = [x for x in err.splitlines() if x.startswith("jaxdefl: ")]
+        assert lines and "interrupted" in lines[-1], err
+        for name in outputs:  # untouched: the previous version, byte for byte, or still absent
+            assert after.get(name) == before.get(name), (delay, name)
+
+
+def test_sigint_during_fit_never_half_commits(work):
+    rng = np.random.default_rng(0)
+    _check_interrupt(
+        work,
+        [
+            "fit",
+            "traj.csv",
+            "--out",
+            "EST.csv",
+            "--window",
+            "10",
+            "--reference",
+            "lds.csv",
+            "--posterior",
+            "1",
+        ],
+        ["EST.csv", "EST.json", "EST_reference.csv", "EST_comparison.csv", "EST_uncertainty.csv"],
+        delays=sorted(rng.uniform(0.5, 8.0, 3)),
+    )
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_interrupts_at_random_moments_of_every_command(work, sig):
+    rng = np.random.default_rng(int(sig))
+    assert main(["diagnose", str(work / "traj.csv"), "--out", str(work / "D.json"), "--no-figures"]) == 0
+    _check_interrupt(
+        work,
+        [
+            "fit",
+            "traj.csv",
+            "--out",
+            "EST.csv",
+            "--window",
+            "10",
+            "--reference",
+            "lds.csv",
+            "--posterior",
+            "2",
+        ],
+        ["EST.csv", "EST.json", "EST_reference.csv", "EST_comparison.csv", "EST_uncertainty.csv"],
+        delays=sorted(rng.uniform(0.3, 10.0, 5)),
+        sig=sig,
+    )
+    _check_interrupt(
+        work,
+        ["diagnose", "traj.csv", "--out", "D.json"],
+        ["D.json", "D.md"],
+        delays=sorted(rng.uniform(0.3, 12.0, 4)),
+        sig=sig,
+    )
+    # extract: a small simulated recording
+    from jaxdefl.simulate import simulate_to_dir
+
+    cfg = Path(__file__).resolve().parents[1] / "configs" / "exp2_tof_3hz.toml"
+    simulate_to_dir(cfg, work / "sim", duration_s=20.0, progress=False)
+    assert main(["extract", str(work / "sim" / "recording.zarr"), "--out", str(work / "T.csv")]) == 0
+    _check_interrupt(
+        work,
+        ["extract", "sim/recording.zarr", "--out", "T.csv"],
+        ["T.csv"],
+        delays=sorted(rng.uniform(0.3, 8.0, 4)),
+        sig=sig,
+    )
+    _check_interrupt(
+        work,
+        ["simulate", str(cfg), "--out", "sim", "--duration", "20"],
+        ["sim/truth.csv", "sim/lds.csv", "sim/config.json"],
+        delays=sorted(rng.uniform(0.3, 8.0, 3)),
+        sig=sig,
+    )
+
+
+@pytest.mark.slow
+def test_sigint_during_run_exits_130_and_resumes(tmp_path):
+    from test_bulk import make_campaign
+
+    cfg = make_campaign(tmp_path, days=6, duration_s=30.0)
+    out = tmp_path / "o"
+    env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "jaxdefl.cli", "run", str(cfg), "--out", str(out)],
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.PIPE,
+    )
+    deadline = time.time() + 240
+    while time.time() < deadline:
+        if len(list(out.glob("units/*/manifest.json"))) >= 2:
+            break
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err.decode()
+    assert "run the same command again to resume" in err.decode()
+    done = {p.parent.name for p in out.glob("units/*/manifest.json")}
+    assert 2 <= len(done) < 6
+    assert not list(out.rglob(f"{TMP}*"))
+    assert main(["run", str(cfg), "--out", str(out)]) == 0
+    units = pd.read_csv(out / "units.csv").set_index("unit")
+    assert all(units.loc[u, "skipped"] for u in done)
