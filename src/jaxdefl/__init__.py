@@ -1,6 +1,8 @@
 """jaxdefl: dynamic deflection of structures from range cameras."""
 
-from . import _jax  # noqa: F401  (float64 before any kernel is traced)
+# JAX is set up (float64, compilation cache) by `jaxdefl._jax`, imported by every module that
+# builds kernels: importing the package alone stays light, so the CLI starts (and installs its
+# signal handlers) before JAX is loaded.
 from ._errors import ConfigError, InputError, JaxdeflError
 
 __version__ = "0.1.0"

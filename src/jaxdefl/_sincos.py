@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
+from . import _jax  # noqa: F401  (float64 set-up)
+
 __all__ = ["sincos"]
 
 _TWO_OVER_PI = 0.63661977236758134308

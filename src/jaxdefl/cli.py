@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import signal
 import sys
-import threading
 import warnings
 from pathlib import Path
 from typing import Annotated
@@ -12,6 +11,7 @@ from typing import Annotated
 import typer
 
 from ._errors import ConfigError, Interrupted, JaxdeflError
+from ._signals import check_interrupt, committed_under_signal, handle_signals
 
 app = typer.Typer(
     add_completion=False,
@@ -185,17 +185,12 @@ def demo(
     pipeline.demo(out, duration_s=duration, seed=seed)
 
 
-def _on_signal(signum, frame) -> None:
-    # later signals are ignored so that the clean-up of the first one runs to its end
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    raise Interrupted(signum)
-
-
 def _interrupted_message(err: Interrupted, argv: list[str]) -> str:
     cmd = next((a for a in argv if not a.startswith("-")), "")
     if cmd == "run":
         return f"interrupted ({err}): finished units are kept; run the same command again to resume"
+    if committed_under_signal():
+        return f"interrupted ({err}) while the outputs were committed: they are whole and new"
     return f"interrupted ({err}): no output was written; earlier outputs are as they were"
 
 
@@ -204,22 +199,17 @@ def main(argv: list[str] | None = None) -> int:
     130/143 when interrupted by SIGINT/SIGTERM (temporary files removed, outputs untouched)."""
     argv = list(sys.argv[1:] if argv is None else argv)
     _state["debug"] = "--debug" in argv
-    in_main = threading.current_thread() is threading.main_thread()
-    previous = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)} if in_main else {}
-    for s in previous:
-        signal.signal(s, _on_signal)
     try:
-        with warnings.catch_warnings():
+        with handle_signals(), warnings.catch_warnings():
             if not _state["debug"]:
                 # numeric warnings (NaN windows, empty slices) are reported as statuses instead
                 warnings.simplefilter("ignore", RuntimeWarning)
-            return _run(argv)
+            code = _run(argv)
+            check_interrupt()  # a signal whose exception was lost (see jaxdefl._signals)
+            return code
     except Interrupted as err:
         print(f"jaxdefl: {_interrupted_message(err, argv)}", file=sys.stderr)
         return err.exit_code
-    finally:
-        for s, h in previous.items():
-            signal.signal(s, h)
 
 
 def _run(argv: list[str]) -> int:

@@ -20,6 +20,7 @@ from rich.progress import (
 
 from .. import __version__
 from .._errors import ConfigError
+from .._signals import check_interrupt
 from .campaign import Campaign
 from .store import digest_text
 from .units import estimate_unit, unit_inputs
@@ -101,6 +102,7 @@ def run_campaign(
         task = bar.add_task("estimating recordings", total=len(recs))
         if scheduler == "none":
             for rec, inp in zip(recs, inputs, strict=True):
+                check_interrupt()  # finished units are kept; the rest waits for a rerun
                 manifests.append(estimate_unit(rec, campaign.processing, out, config_hash, inp))
                 _release_memory()
                 bar.advance(task)
@@ -123,12 +125,14 @@ def run_campaign(
                     for rec, inp in zip(recs, inputs, strict=True)
                 ]
                 for fut in as_completed(futs):
+                    check_interrupt()
                     manifests.append(fut.result())
                     bar.advance(task)
             finally:
                 client.close()
                 if cluster is not None:
                     cluster.close()
+    check_interrupt()
     manifests.sort(key=lambda m: m["unit"])
     units = pd.DataFrame(
         [

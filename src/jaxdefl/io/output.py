@@ -30,6 +30,7 @@ import numpy as np
 import pandas as pd
 
 from .._errors import ConfigError, JaxdeflError
+from .._signals import check_interrupt, note_commit_under_signal
 
 __all__ = [
     "TABLE_SUFFIXES",
@@ -227,6 +228,7 @@ class Outputs:
 
     def commit(self) -> list[Path]:
         """fsync every staged output, then rename them all into place with signals held."""
+        check_interrupt()  # never commit once a signal arrived (its exception may have been lost)
         staged = list(self._staged.items())
         try:
             for _, tmp in staged:
@@ -234,20 +236,23 @@ class Outputs:
         except OSError as err:
             self.discard()
             raise JaxdeflError(f"{err.filename or tmp}: cannot write ({err.strerror or err})") from None
+        old: list[Path] = []
         with signals_held():
-            old: list[Path] = []
-            for final, tmp in staged:
-                if tmp.is_dir() and final.exists():
-                    # a directory cannot replace another in one rename: move the old one aside
-                    aside = final.parent / f"{_TMP_PREFIX}{self._token}-old-{final.name}"
-                    os.replace(final, aside)
-                    old.append(aside)
-                os.replace(tmp, final)
-            for d in {f.parent for f, _ in staged}:
-                _fsync_dir(d)
-            self._staged.clear()
-        for p in old:
-            _remove(p)
+            try:
+                for final, tmp in staged:
+                    if tmp.is_dir() and final.exists():
+                        # a directory cannot replace another in one rename: move the old one aside
+                        aside = final.parent / f"{_TMP_PREFIX}{self._token}-old-{final.name}"
+                        os.replace(final, aside)
+                        old.append(aside)
+                    os.replace(tmp, final)
+                for d in {f.parent for f, _ in staged}:
+                    _fsync_dir(d)
+                self._staged.clear()
+            finally:
+                for p in old:
+                    _remove(p)
+            note_commit_under_signal()
         return [f for f, _ in staged]
 
     def discard(self) -> None:

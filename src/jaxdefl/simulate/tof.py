@@ -283,6 +283,8 @@ def phase_from_samples(c):
     """Amplitude (eq. 3.6) and phase in [0, 2 pi) (eq. 3.7, four-quadrant) from samples (..., 4)."""
     import jax.numpy as jnp
 
+    from .. import _jax  # noqa: F401  (float64 set-up)
+
     re = c[..., 0] - c[..., 2]
     im = c[..., 3] - c[..., 1]
     amp = jnp.sqrt(re * re + im * im) / 2
@@ -300,6 +302,8 @@ def _kernel(correlated: bool = True):
         return _KERNELS[name]
     import jax
     import jax.numpy as jnp
+
+    from .. import _jax  # noqa: F401  (float64 set-up)
 
     def one_frame(key, defl, dx, dy, m):
         # defl, dx, dy: (4,) at the four tap times
