@@ -1,15 +1,19 @@
-"""SIGINT and SIGTERM: the command stops at once, or at the next safe point, and never commits.
+"""SIGINT and SIGTERM: the command stops at its next safe point, and never commits after one.
 
-The CLI installs `on_signal` for the length of a command. It records the signal and raises
-`Interrupted` where the interpreter happens to be. That raise can be lost: Python drops
-exceptions raised in garbage-collection callbacks and ``__del__`` methods (JAX runs one on
-every collection). The record cannot be lost, so the places that make work permanent look at it
-first: `jaxdefl.io.output.Outputs.commit` refuses to commit, the bulk runner stops before its next
-unit, and the CLI never exits 0 once a signal arrived.
+The CLI installs the handler for the length of a command. The handler only records the signal:
+raising from a signal handler lands wherever the interpreter happens to be, and there it is
+either lost (Python drops exceptions raised in garbage-collection callbacks and ``__del__``;
+JAX runs one on every collection) or fatal (inside a C++ callback of XLA, an exception aborts
+the process). Long loops call `check_interrupt` between their steps (fit blocks, diagnosis
+rounds, frame chunks, bulk units), `jaxdefl.io.output.Outputs` calls it before every write and
+before its commit, and the CLI never exits 0 once a signal arrived. A second signal is an
+insistence: the default action ends the process at once (temporary files may stay behind under
+their hidden names; outputs are never partial, since only a commit renames them into place).
 """
 
 from __future__ import annotations
 
+import os
 import signal
 import threading
 from contextlib import contextmanager
@@ -55,11 +59,11 @@ def committed_under_signal() -> bool:
 
 
 def _on_signal(signum, frame) -> None:
+    if _received:  # the second one: end now, by the signal's default action
+        signal.signal(signum, signal.SIG_DFL)
+        os.kill(os.getpid(), signum)
+        return
     _received.append(signum)
-    # later signals are ignored so that the clean-up of the first one runs to its end
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
-    signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    raise Interrupted(signum)
 
 
 @contextmanager

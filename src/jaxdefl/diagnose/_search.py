@@ -25,6 +25,7 @@ import pandas as pd
 from threadpoolctl import threadpool_limits
 
 from .._errors import ConfigError
+from .._signals import check_interrupt
 from ._base import Context, Proposal, State, loglik, rms_equivalent
 from ._context import build_context
 from ._correlation import FrameCorrelation, frame_correlation
@@ -419,6 +420,7 @@ def run_diagnosis(
                 break
         if on_round is not None:
             on_round(len(rounds) - 1, chosen.proposal.effect if chosen else None)
+        check_interrupt()
         if chosen is None:
             if fresh_round:
                 break

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from .._signals import check_interrupt
 from ..series import Windows
 from ..spectral import Periodogram, lomb_peaks
 from .harmonic import N_PARAMS, HarmonicFit, fit_harmonics
@@ -135,6 +136,7 @@ def estimate_windows(
             fit_parts.append((rows, f))
             if on_block is not None:
                 on_block(rows.size)
+            check_interrupt()
     fit = _merge_fits(b, fit_parts)
     periodogram = Periodogram(
         per["freq_hz"],

@@ -12,6 +12,7 @@ import numpy as np
 import pandas as pd
 
 from .._errors import ConfigError, InputError
+from .._signals import check_interrupt
 from .pipeline import PlateGeometry, Scene, SceneError, calibrate_scene, detect_chunk
 from .track import Tracker
 
@@ -156,6 +157,7 @@ def extract_recording(
     ) as bar:
         task = bar.add_task(rec.path.name, total=rec.n_frames)
         for ch in rec.chunks(chunk_frames):
+            check_interrupt()
             cents, plates = ex.run(ch.frames, ch.amplitude)
             parts.append(_table(ch.t, cents, plates, rec.segment))
             bar.advance(task, len(ch.t))

@@ -184,6 +184,7 @@ class Outputs:
         Raises:
             JaxdeflError: the write failed (a full disk, no permission), naming ``final``.
         """
+        check_interrupt()
         final = Path(final)
         tmp = self.path(final)
         try:

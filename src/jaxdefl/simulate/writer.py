@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from .._errors import ConfigError
+from .._signals import check_interrupt
 from ..io.output import Outputs
 from .config import SimConfig, load_config
 from .lds import LDS_BLOCK_S, frame_clock, lds_block, truth_table
@@ -242,6 +243,7 @@ def _write_recording(cfg: SimConfig, outs: Outputs, out: Path, duration: float, 
     ) as bar:
         task = bar.add_task(f"{cfg.camera.sensor} {cfg.recording.segment}", total=len(idx))
         for s in range(0, len(idx), chunk):
+            check_interrupt()
             fi, ti = idx[s : s + chunk], t[s : s + chunk]
             r, a = rend.render(fi, ti)
             frames.append(r, axis=0)

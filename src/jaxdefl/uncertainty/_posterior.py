@@ -31,6 +31,7 @@ import numpy as np
 
 from .. import _jax  # noqa: F401
 from .._errors import ConfigError
+from .._signals import check_interrupt
 from .._sincos import sincos
 from ..fit import Estimates
 
@@ -233,6 +234,7 @@ def sample_posteriors(
     x0 = _initial_ball(rng, theta0, cov, n_walkers)
     out = {k: [] for k in ("a", "f", "tau", "acc", "neff", "ok")}
     for c0 in range(0, rows.size, chunk):
+        check_interrupt()
         sl = slice(c0, c0 + chunk)
         chains, accs = _SAMPLERS[sampler](tuple(d[sl] for d in data), x0[sl], rng, n_steps)
         for chain, acc in zip(chains, accs, strict=True):
