@@ -363,15 +363,16 @@ def _check_interrupt(work: Path, old_args, args, outputs: list[str], delays, sig
         _restore(work, baseline, outputs)
         code, err, sent = _interrupt(args, work, delay, sig)
         after = snapshot(work)
-        assert no_temporaries(work), delay
+        assert no_temporaries(work), (delay, args, list(work.rglob(f"{TMP}*")))
         old = [after.get(n) == baseline.get(n) for n in outputs]
         new = [_whole_and_new(after, ref, n) for n in outputs]
         assert all(old) or all(new), (delay, old, new, err)
         if not sent or code == 0:  # finished before the signal
             assert all(new), (delay, sent, code, old, new, err)
             continue
-        if code == -int(sig):  # killed before the handler was installed: nothing was done
-            assert all(old) and "jaxdefl" not in err, (delay, err)
+        if code == -int(sig):
+            # killed by the signal's default action, outside the command (before the CLI
+            # installed its handler, or after it returned): outputs all old or all new (above)
             continue
         assert code == expected, (delay, code, err)
         lines = [x for x in err.splitlines() if x.startswith("jaxdefl: ")]

@@ -4,7 +4,8 @@ A command plans its outputs first (`Outputs.reserve`: collisions with an input o
 output are refused before anything is read or computed), then writes each one to a temporary
 name in the output's own directory (`Outputs.path`, or the table/JSON/text helpers), and
 `Outputs.commit` fsyncs and renames them all into place, with SIGINT and SIGTERM held back for the
-few renames so that an interrupt never leaves a set half-committed. If anything fails or the
+few renames so that an interrupt never leaves a set half-committed (and refuses to commit once a
+signal arrived, see `jaxdefl._signals`). If anything fails or the
 command is interrupted before the commit, `Outputs.discard` removes the temporary files and the
 previous outputs stay exactly as they were. Rename is atomic on POSIX, so a reader sees either the
 old file or the whole new one, never a truncated one (a full disk fails the write of the
@@ -29,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .._errors import ConfigError, JaxdeflError
+from .._errors import ConfigError, Interrupted, JaxdeflError
 from .._signals import check_interrupt, note_commit_under_signal
 
 __all__ = [
@@ -229,7 +230,11 @@ class Outputs:
 
     def commit(self) -> list[Path]:
         """fsync every staged output, then rename them all into place with signals held."""
-        check_interrupt()  # never commit once a signal arrived (its exception may have been lost)
+        try:
+            check_interrupt()  # never commit once a signal arrived
+        except Interrupted:
+            self.discard()
+            raise
         staged = list(self._staged.items())
         try:
             for _, tmp in staged:
