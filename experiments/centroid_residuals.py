@@ -22,8 +22,8 @@ from pathlib import Path
 
 import pandas as pd
 
+from jaxdefl.fit import estimate_table
 from jaxdefl.io import read_trajectory, write_trajectory
-from jaxdefl.pipeline import estimate_table
 from jaxdefl.simulate import load_config, measured_centroids, render_frames
 from jaxdefl.simulate.tof import TABLE_6_2_MM, TABLE_6_7_MM, TABLE_6_12_RESIDUAL_MM, TABLE_6_17_RESIDUAL_MM
 
@@ -38,7 +38,7 @@ def residuals(config: str, session: str, duration_s: float | None, seed: int = 5
     with tempfile.TemporaryDirectory() as tmp:
         path = Path(tmp) / "traj.csv"
         write_trajectory(df, path)
-        est = estimate_table(read_trajectory(path), axes=("z",), progress=False).table
+        est = estimate_table(read_trajectory(path), axes=("z",)).table
     est = est[est.status == "converged"]
     return est.set_index("plate").sigma_residual_mm, len(t)
 

@@ -85,11 +85,11 @@ def test_plates_found_and_centroid_noise(simulated, realtime):
 
 
 def test_fitted_deflection(simulated):
-    from jaxdefl.pipeline import estimate_table
+    from jaxdefl.fit import estimate_table
 
     name, cfg, rec, truth, ref, visible = simulated
     df = extract_recording(rec, realtime=True, chunk_frames=256, progress=False)
-    est = estimate_table(df[df.plate.isin(visible)], axes=("z",), progress=False).table
+    est = estimate_table(df[df.plate.isin(visible)], axes=("z",)).table
     t_mid = 0.5 * (df.t.min() + df.t.max())
     cycles = cfg.recording.cycles_at_start + cfg.loading.frequency_hz * (t_mid - cfg.t0_s)
     a_mid = float(midspan_amplitude_mm(cfg, cycles))

@@ -17,7 +17,7 @@ import pandas as pd
 import pytest
 
 from jaxdefl.io import read_trajectory, write_trajectory
-from jaxdefl.pipeline import estimate_table
+from jaxdefl.fit import estimate_table
 from jaxdefl.simulate import load_config, measured_centroids, render_frames
 from jaxdefl.simulate.tof import (
     TABLE_6_2_MM,
@@ -37,7 +37,7 @@ def _fit_residuals(df: pd.DataFrame, tmp_path: Path) -> pd.Series:
     write_trajectory(df, path)
     # fap_max=1: the residual σ is measured whether or not a short, noisy record's peak is
     # significant (Experiment I's 500 frames at 40 Hz hold 12 loading cycles under 4 mm noise)
-    est = estimate_table(read_trajectory(path), axes=("z",), fap_max=1.0, progress=False).table
+    est = estimate_table(read_trajectory(path), axes=("z",), fap_max=1.0).table
     est = est[est.status == "converged"]
     return est.set_index("plate").sigma_residual_mm
 

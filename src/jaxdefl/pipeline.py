@@ -15,32 +15,14 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, Ti
 
 from . import __version__
 from ._errors import ConfigError, JaxdeflError
-from .fit import Estimates, estimate_windows
+from .fit import Estimates, compare_with_reference, estimate_windows, fit_reference
 from .io import load_table, read_reference, read_trajectory, write_trajectory
 from .io.output import TABLE_SUFFIXES, Outputs
-from .series import check_window_plan, make_windows, windows_like
+from .series import check_window_plan
 
-__all__ = ["compare_with_reference", "demo", "estimate_table", "fit_file", "fit_reference"]
+__all__ = ["demo", "diagnose_file", "fit_file", "run_file"]
 
 console = Console(stderr=True)
-
-COMPARISON_COLUMNS = [
-    "segment",
-    "window",
-    "t_start",
-    "t_end",
-    "plate",
-    "f0_hz",
-    "f0_ref_hz",
-    "delta_f0_hz",
-    "sigma_delta_f0_hz",
-    "amplitude_mm",
-    "amplitude_ref_mm",
-    "delta_amplitude_mm",
-    "sigma_delta_amplitude_mm",
-    "status",
-    "status_ref",
-]
 
 
 @contextmanager
@@ -61,59 +43,13 @@ def _progress(total: int, label: str, enabled: bool):
         yield lambda k: bar.advance(task, k)
 
 
-def estimate_table(
-    df: pd.DataFrame,
-    axes: tuple[str, ...] = ("z", "x", "y"),
-    window_s: float | None = None,
-    step_s: float | None = None,
-    fmin_hz: float | None = None,
-    fmax_hz: float | None = None,
-    oversampling: float = 5.0,
-    fap_max: float = 0.01,
-    keep: tuple[int, ...] = (),
-    progress: bool = True,
-) -> Estimates:
-    """Windows of a validated trajectory table, estimated (see `jaxdefl.fit.estimate_windows`)."""
-    if not 0 < fap_max <= 1:
-        raise ConfigError(f"--fap-max: expected a probability in (0, 1], got {fap_max}")
-    w = make_windows(df, axes=axes, window_s=window_s, step_s=step_s)
+def _estimate(df: pd.DataFrame, progress: bool = True, **kw) -> Estimates:
+    """`jaxdefl.fit.estimate_table` with a progress bar when there is enough work to watch."""
+    from .fit import windows_for
+
+    w = windows_for(df, **{k: kw.pop(k) for k in ("axes", "window_s", "step_s") if k in kw})
     with _progress(len(w), "fitting windows", progress) as advance:
-        return estimate_windows(
-            w,
-            fmin_hz=fmin_hz,
-            fmax_hz=fmax_hz,
-            oversampling=oversampling,
-            fap_max=fap_max,
-            keep=keep,
-            on_block=advance,
-        )
-
-
-def fit_reference(ref: pd.DataFrame, camera: Estimates, **kw) -> Estimates:
-    """The same estimation on a reference (LDS) table, over the camera's z windows."""
-    w = windows_like(ref, camera.windows.table)
-    return estimate_windows(w, **kw)
-
-
-def compare_with_reference(cam: pd.DataFrame, ref: pd.DataFrame) -> pd.DataFrame:
-    """Thesis-style differences camera - reference (ΔA, Δf0) per segment, window and plate."""
-    keys = ["segment", "window", "plate"]
-    c = cam[cam["axis"] == "z"]
-    m = c.merge(ref, on=keys, suffixes=("", "_ref"))
-    out = pd.DataFrame({k: m[k] for k in keys})
-    out.insert(2, "t_start", m["t_start"])
-    out.insert(3, "t_end", m["t_end"])
-    out["f0_hz"] = m["f0_hz"]
-    out["f0_ref_hz"] = m["f0_hz_ref"]
-    out["delta_f0_hz"] = m["f0_hz"] - m["f0_hz_ref"]
-    out["sigma_delta_f0_hz"] = np.hypot(m["sigma_f0_hz"], m["sigma_f0_hz_ref"])
-    out["amplitude_mm"] = m["amplitude_mm"]
-    out["amplitude_ref_mm"] = m["amplitude_mm_ref"]
-    out["delta_amplitude_mm"] = m["amplitude_mm"] - m["amplitude_mm_ref"]
-    out["sigma_delta_amplitude_mm"] = np.hypot(m["sigma_amplitude_mm"], m["sigma_amplitude_mm_ref"])
-    out["status"] = m["status"]
-    out["status_ref"] = m["status_ref"]
-    return out[COMPARISON_COLUMNS]
+        return estimate_windows(w, on_block=advance, **kw)
 
 
 def _check_fit_settings(window_s, step_s, fmin_hz, fmax_hz, oversampling, fap_max, posterior) -> None:
@@ -295,7 +231,7 @@ def fit_file(
     check_window_plan(df, axes, window_s, step_s, source=str(traj))
 
     kw = dict(fmin_hz=fmin_hz, fmax_hz=fmax_hz, oversampling=oversampling, fap_max=fap_max)
-    est = estimate_table(df, axes=axes, window_s=window_s, step_s=step_s, **kw)
+    est = _estimate(df, axes=axes, window_s=window_s, step_s=step_s, **kw)
     tab = est.table
     comparison = ref_tab = unc = post = None
     if ref is not None:
@@ -435,12 +371,12 @@ def _demo_into(out: Path, duration_s: float, seed: int) -> Path:
     truth = read_trajectory(sim / "truth.csv")
     t1 = time.perf_counter()
     traj_v = read_trajectory(out / "trajectories.csv")
-    whole = estimate_table(traj_v, keep=tuple(range(3 * traj_v["plate"].nunique())))
+    whole = _estimate(traj_v, keep=tuple(range(3 * traj_v["plate"].nunique())))
     t_whole = time.perf_counter() - t1
     t1 = time.perf_counter()
-    windowed = estimate_table(traj_v, window_s=30.0)
+    windowed = _estimate(traj_v, window_s=30.0)
     t_windowed = time.perf_counter() - t1
-    true_fit = estimate_table(truth, axes=("z",), progress=False)
+    true_fit = _estimate(truth, axes=("z",), progress=False)
     ref = fit_reference(lds, whole)
     comparison = compare_with_reference(whole.table, ref.table)
     write_estimates(whole.table, out / "estimates_whole.csv")

@@ -144,7 +144,7 @@ def simulate_unit(rec: Recording, out_dir: Path) -> dict:
 def extract_unit(rec: Recording, out_dir: Path, part: int, start: int, stop: int, sim_manifest: dict) -> dict:
     """Plates of frames ``start .. stop`` of a simulated recording -> ``ext-.../part.csv``."""
     from ..frames import Extractor
-    from ..frames.extract import _table
+    from ..frames.extract import centroid_table
     from ..io.recording import open_recording
 
     spec = rec.simulate
@@ -171,7 +171,7 @@ def extract_unit(rec: Recording, out_dir: Path, part: int, start: int, stop: int
         for s in range(start, stop, 256):
             t, fr, amp = rec_z._read(s, min(stop, s + 256))
             cents, plates = ex.run(fr, amp)
-            parts.append(_table(t, cents, plates, rec_z.segment))
+            parts.append(centroid_table(t, cents, plates, rec_z.segment))
         df = pd.concat(parts, ignore_index=True)
         atomic_write_text(unit_dir / "part.csv", df.to_csv(index=False, float_format="%.6f"))
         status, reason, names = "ok", "", ["part.csv"]
@@ -200,9 +200,9 @@ def _run_all(calls: list[tuple], scheduler: str, bar, task) -> list[dict]:
         return out
     from dask.distributed import wait
 
-    from .runner import _client
+    from .scheduling import connect
 
-    client, cluster = _client(scheduler)
+    client, cluster = connect(scheduler)
     try:
         futs = [client.submit(fn, *args, pure=False) for fn, *args in calls]
         for f in futs:
@@ -223,11 +223,11 @@ def ensure_simulated(campaign, out: Path, scheduler: str = "none", progress: boo
     estimate unit reports.
     """
     from ..io.recording import open_recording
-    from .runner import _bar, _NoBar
+    from .scheduling import NoBar, progress_bar
 
     out = Path(out)
     recs = list(campaign.recordings)
-    with _bar() if progress else _NoBar() as bar:
+    with progress_bar() if progress else NoBar() as bar:
         task = bar.add_task("simulating recordings", total=len(recs))
         sims = _run_all([(simulate_unit, r, out) for r in recs], scheduler, bar, task)
         calls, owner = [], []

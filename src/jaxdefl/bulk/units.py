@@ -57,8 +57,8 @@ def estimate_unit(
     (when a reference is given) under ``out_dir/units/<day-camera>/``. A failure (missing or
     invalid file, no valid samples) is recorded in the manifest with its reason; it never raises.
     """
+    from ..fit import compare_with_reference, estimate_table, fit_reference
     from ..io import read_reference, read_trajectory
-    from ..pipeline import compare_with_reference, estimate_table, fit_reference
 
     unit_dir = Path(out_dir) / "units" / rec.unit_id
     inputs = unit_inputs(rec) if inputs is None else inputs
@@ -81,7 +81,7 @@ def estimate_unit(
             oversampling=proc.oversampling,
             fap_max=proc.fap_max,
         )
-        whole = estimate_table(traj, axes=axes, progress=False, **kw)
+        whole = estimate_table(traj, axes=axes, **kw)
         if not (whole.table["status"] == "converged").any():
             raise JaxdeflError(
                 f"{rec.trajectories}: no plate and axis could be fitted "
@@ -90,7 +90,7 @@ def estimate_unit(
         outputs = {"whole.csv": whole.table.assign(**tag)}
         if proc.window_s is not None:
             win = estimate_table(
-                traj, axes=axes, window_s=proc.window_s, step_s=proc.step_s, progress=False, **kw
+                traj, axes=axes, window_s=proc.window_s, step_s=proc.step_s, **kw
             )
             outputs["windows.csv"] = win.table.assign(**tag)
         if proc.correct_motion_artefact and rec.frame_rate_hz is not None:
@@ -99,9 +99,7 @@ def estimate_unit(
         if rec.truth is not None:
             truth = read_trajectory(rec.truth)
             truth = truth[truth["plate"].isin(traj["plate"].unique())]
-            outputs["truth.csv"] = estimate_table(truth, axes=("z",), progress=False, **kw).table.assign(
-                **tag
-            )
+            outputs["truth.csv"] = estimate_table(truth, axes=("z",), **kw).table.assign(**tag)
         if rec.lds is not None:
             if inputs.get("lds") == "missing":
                 raise JaxdeflError(f"{rec.lds}: file not found")

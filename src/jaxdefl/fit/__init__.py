@@ -2,14 +2,21 @@
 
 from .estimate import ESTIMATE_COLUMNS, STATUSES, Estimates, estimate_windows
 from .harmonic import N_PARAMS, HarmonicFit, fit_harmonic, fit_harmonics
+from .reference import COMPARISON_COLUMNS, compare_with_reference, fit_reference
+from .table import estimate_table, windows_for
 
 __all__ = [
+    "COMPARISON_COLUMNS",
     "ESTIMATE_COLUMNS",
     "N_PARAMS",
     "STATUSES",
     "Estimates",
     "HarmonicFit",
+    "compare_with_reference",
+    "estimate_table",
     "estimate_windows",
     "fit_harmonic",
     "fit_harmonics",
+    "fit_reference",
+    "windows_for",
 ]

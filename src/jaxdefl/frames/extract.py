@@ -16,7 +16,7 @@ from .._signals import check_interrupt
 from .pipeline import PlateGeometry, Scene, SceneError, calibrate_scene, detect_chunk
 from .track import Tracker
 
-__all__ = ["Extractor", "extract_frames", "extract_recording", "extract_to_table"]
+__all__ = ["Extractor", "centroid_table", "extract_frames", "extract_recording", "extract_to_table"]
 
 
 class Extractor:
@@ -81,7 +81,7 @@ class Extractor:
         return out, self.scene.plates
 
 
-def _table(t: np.ndarray, cents: np.ndarray, plates: np.ndarray, segment: str) -> pd.DataFrame:
+def centroid_table(t: np.ndarray, cents: np.ndarray, plates: np.ndarray, segment: str) -> pd.DataFrame:
     b, n, _ = cents.shape
     ok = np.isfinite(cents).all(axis=2)
     fi, pi = np.nonzero(ok)
@@ -133,7 +133,7 @@ def extract_frames(
     for s in range(0, frames.shape[0], chunk_frames):
         e = min(frames.shape[0], s + chunk_frames)
         cents, plates = ex.run(frames[s:e], None if amplitude is None else amplitude[s:e])
-        parts.append(_table(t_s[s:e], cents, plates, segment))
+        parts.append(centroid_table(t_s[s:e], cents, plates, segment))
     return _sort(pd.concat(parts, ignore_index=True))
 
 
@@ -159,7 +159,7 @@ def extract_recording(
         for ch in rec.chunks(chunk_frames):
             check_interrupt()
             cents, plates = ex.run(ch.frames, ch.amplitude)
-            parts.append(_table(ch.t, cents, plates, rec.segment))
+            parts.append(centroid_table(ch.t, cents, plates, rec.segment))
             bar.advance(task, len(ch.t))
     if not parts:
         raise InputError(f"{rec.path}: the recording has no frames")

@@ -350,7 +350,7 @@ def _kernel(correlated: bool = True):
     return block
 
 
-def _device_model(tm: ToFModel) -> dict:
+def device_model_of(tm: ToFModel) -> dict:
     import jax.numpy as jnp
 
     return dict(
@@ -396,7 +396,7 @@ def render_tof(
     import jax.numpy as jnp
 
     kern = _kernel(correlated=tm.sigma_corr_mm > 0)
-    m = device_model if device_model is not None else _device_model(tm)
+    m = device_model if device_model is not None else device_model_of(tm)
     base = jax.random.PRNGKey(seed)
     n = len(frame_index)
     rng_out = np.empty((n, tm.bg_base.shape[0]), np.float32)

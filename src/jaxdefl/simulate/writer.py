@@ -76,10 +76,10 @@ class _Renderer:
         )
         self.intr = self.pm.intr
         if cfg.camera.sensor == "sr4000":
-            from .tof import _device_model, tof_model
+            from .tof import device_model_of, tof_model
 
             self.tm = tof_model(cfg, self.pm)
-            self.dev = _device_model(self.tm)
+            self.dev = device_model_of(self.tm)
             self.kind = "range"
         else:
             from .structured_light import kinect_model

@@ -1,0 +1,87 @@
+"""Where a campaign's units run and how their progress is shown: the in-process loop's memory
+hygiene, rich progress bars, and dask.distributed clients (a LocalCluster or an address)."""
+
+from __future__ import annotations
+
+import ctypes
+import gc
+
+from rich.console import Console
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
+
+from .._errors import ConfigError
+
+__all__ = ["NoBar", "connect", "progress_bar", "release_memory"]
+
+console = Console(stderr=True)
+
+
+def release_memory() -> None:
+    """Hand freed memory back to the OS between units, so that the peak does not grow with
+    the number of units (glibc keeps freed blocks of big tables in its arenas otherwise)."""
+    gc.collect()
+    try:
+        ctypes.CDLL("libc.so.6").malloc_trim(0)
+    except (OSError, AttributeError):  # not glibc
+        pass
+
+
+def progress_bar():
+    return Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=console,
+        transient=True,
+    )
+
+
+def connect(scheduler: str):
+    """A dask.distributed client for "local[:N]" (a LocalCluster of N = 2 workers) or an address."""
+    try:
+        from dask.distributed import Client, LocalCluster
+    except ImportError as err:  # pragma: no cover - distributed is a dependency
+        raise ConfigError(f"--scheduler {scheduler}: dask.distributed is not installed ({err})") from None
+    if scheduler == "local" or scheduler.startswith("local:"):
+        n = scheduler.partition(":")[2] or "2"
+        if not n.isdigit() or int(n) < 1:
+            raise ConfigError(
+                f"--scheduler: expected local or local:N with N >= 1 workers, got {scheduler!r}"
+            )
+        cluster = LocalCluster(
+            n_workers=int(n),
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=None,
+            silence_logs=40,
+        )
+        return Client(cluster), cluster
+    try:
+        return Client(scheduler, timeout="10s"), None
+    except (OSError, TimeoutError) as err:
+        raise ConfigError(f"--scheduler: cannot reach a dask scheduler at {scheduler!r} ({err})") from None
+
+
+class NoBar:
+    """A progress bar that shows nothing (progress=False)."""
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        return False
+
+    def add_task(self, *a, **k):
+        return 0
+
+    def advance(self, *a, **k):
+        pass

@@ -1,0 +1,54 @@
+"""Trajectory tables to estimates: windowing and estimation of every segment, plate and axis."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import pandas as pd
+
+from .._errors import ConfigError
+from ..series import Windows, make_windows
+from .estimate import Estimates, estimate_windows
+
+__all__ = ["estimate_table", "windows_for"]
+
+
+def windows_for(
+    df: pd.DataFrame,
+    axes: tuple[str, ...] = ("z", "x", "y"),
+    window_s: float | None = None,
+    step_s: float | None = None,
+) -> Windows:
+    """The windows `estimate_table` fits (see `jaxdefl.series.make_windows`)."""
+    return make_windows(df, axes=axes, window_s=window_s, step_s=step_s)
+
+
+def estimate_table(
+    df: pd.DataFrame,
+    axes: tuple[str, ...] = ("z", "x", "y"),
+    window_s: float | None = None,
+    step_s: float | None = None,
+    fmin_hz: float | None = None,
+    fmax_hz: float | None = None,
+    oversampling: float = 5.0,
+    fap_max: float = 0.01,
+    keep: tuple[int, ...] = (),
+    on_block: Callable[[int], None] | None = None,
+) -> Estimates:
+    """Windows of a validated trajectory table, estimated (see `estimate_windows`).
+
+    Raises:
+        ConfigError: a false-alarm limit outside (0, 1], bad window settings or axes.
+    """
+    if not 0 < fap_max <= 1:
+        raise ConfigError(f"--fap-max: expected a probability in (0, 1], got {fap_max:g}")
+    w = windows_for(df, axes=axes, window_s=window_s, step_s=step_s)
+    return estimate_windows(
+        w,
+        fmin_hz=fmin_hz,
+        fmax_hz=fmax_hz,
+        oversampling=oversampling,
+        fap_max=fap_max,
+        keep=keep,
+        on_block=on_block,
+    )

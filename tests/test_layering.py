@@ -1,0 +1,97 @@
+"""The layering contract, read from the source (AST; no import needed).
+
+- Stages (io, series, spectral, fit, uncertainty, diagnose, simulate, frames, report) never
+  import the orchestrators (`pipeline`, `bulk`, `cli`); `bulk` never imports `pipeline` or `cli`.
+- No private name crosses a module: ``from .x import _name`` is allowed only for a package's
+  own private *modules* (``from . import _jax``), never for an underscored function or class.
+- Importing ``jaxdefl`` alone loads no JAX, torch or pandas (checked in a fresh interpreter).
+"""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+SRC = Path(__file__).resolve().parents[1] / "src" / "jaxdefl"
+STAGES = ("io", "series", "spectral", "fit", "uncertainty", "diagnose", "simulate", "frames", "report")
+ORCHESTRATORS = ("pipeline", "bulk", "cli")
+
+
+def _module(path: Path) -> str:
+    rel = path.relative_to(SRC.parent).with_suffix("")
+    parts = list(rel.parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+def _imports(path: Path):
+    """(imported module, [names], line) of every import in ``path``, relative ones resolved."""
+    tree = ast.parse(path.read_text())
+    mod = _module(path)
+    package = mod if path.name == "__init__.py" else mod.rpartition(".")[0]
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                yield a.name, [], node.lineno
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package.split(".")
+                base = base[: len(base) - (node.level - 1)]
+                target = ".".join(base + ([node.module] if node.module else []))
+            else:
+                target = node.module or ""
+            yield target, [a.name for a in node.names], node.lineno
+
+
+def _is_module(dotted: str) -> bool:
+    p = SRC.parent.joinpath(*dotted.split("."))
+    return p.with_suffix(".py").exists() or (p / "__init__.py").exists()
+
+
+FILES = sorted(SRC.rglob("*.py"))
+
+
+def _top(mod: str) -> str | None:
+    parts = mod.split(".")
+    return parts[1] if len(parts) > 1 and parts[0] == "jaxdefl" else None
+
+
+@pytest.mark.parametrize("path", FILES, ids=lambda p: str(p.relative_to(SRC)))
+def test_layers_point_one_way(path):
+    here = _top(_module(path))
+    bad = []
+    for target, _, line in _imports(path):
+        there = _top(target)
+        if there is None or there == here:
+            continue
+        if here in STAGES and there in ORCHESTRATORS:
+            bad.append(f"line {line}: stage {here} imports {target}")
+        if here == "bulk" and there in ("pipeline", "cli"):
+            bad.append(f"line {line}: bulk imports {target}")
+    assert not bad, bad
+
+
+@pytest.mark.parametrize("path", FILES, ids=lambda p: str(p.relative_to(SRC)))
+def test_no_private_names_across_modules(path):
+    bad = []
+    for target, names, line in _imports(path):
+        if not target.startswith("jaxdefl"):
+            continue
+        for n in names:
+            if n.startswith("_") and not n.startswith("__") and not _is_module(f"{target}.{n}"):
+                bad.append(f"line {line}: from {target} import {n}")
+    assert not bad, bad
+
+
+def test_importing_the_package_is_light():
+    code = (
+        "import sys, jaxdefl, jaxdefl.cli; "
+        "print(','.join(m for m in ('jax', 'torch', 'pandas', 'kornia') if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "", out.stdout
