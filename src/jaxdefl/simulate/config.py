@@ -417,7 +417,7 @@ def validate(cfg: SimConfig) -> None:
             cfg.lds.defective_plate,
         )
     # impossible geometry: a plate the camera must see lies (partly) outside the field of view
-    from .scene import plate_image_bounds
+    from .scene import plate_image_bounds  # scene depends on config only for its types
 
     for p in cam.plates:
         u0, u1, v0, v1 = plate_image_bounds(cfg, p)

@@ -20,10 +20,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .config import SimConfig
+if TYPE_CHECKING:  # the config validates geometry through this module: no import cycle
+    from .config import SimConfig
 
 __all__ = [
     "beam_shape",
