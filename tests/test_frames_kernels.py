@@ -158,7 +158,7 @@ def test_pipeline_otsu_from_mask_pixels_equals_masked_image(seed):
 def test_pipeline_erosion_box_mean_and_median_match_references():
     import torch.nn.functional as F
 
-    from jaxdefl.frames.pipeline import _box_mean, _erode3, _top_level
+    from jaxdefl.frames.pipeline import _box_mean, _erode3, top_level
 
     rng = np.random.default_rng(3)
     fg = rng.random((3, 20, 30)) < 0.8
@@ -173,5 +173,5 @@ def test_pipeline_erosion_box_mean_and_median_match_references():
     t[1, ::2] = np.nan
     t[2] = np.nan
     np.testing.assert_array_equal(
-        _top_level(t, np.arange(41)), torch.nanmedian(torch.from_numpy(t), 1).values.numpy()
+        top_level(t, np.arange(41)), torch.nanmedian(torch.from_numpy(t), 1).values.numpy()
     )

@@ -356,7 +356,7 @@ def _regions(
     return out
 
 
-def _top_level(z: np.ndarray, top_idx: np.ndarray) -> np.ndarray:
+def top_level(z: np.ndarray, top_idx: np.ndarray) -> np.ndarray:
     """Per-frame beam-top depth (B,) float64: lower median over the top-surface pixels, NaN ignored.
 
     The lower of the two middle values, as ``torch.nanmedian``; NaN for a frame without valid pixels.
@@ -561,7 +561,7 @@ def detect_chunk(scene: Scene, frames: np.ndarray, amplitude: np.ndarray | None 
     ztop = np.asarray(frames.reshape(b, -1)[:, scene.top_idx], np.float32)
     if rng:
         ztop = ztop * scene.inv_norm.reshape(-1)[scene.top_idx]
-    top = _top_level(ztop, np.arange(ztop.shape[1]))
+    top = top_level(ztop, np.arange(ztop.shape[1]))
     fg = _segment(z, amplitude, top, scene.band, scene.smooth, scene.use_amplitude, r0, r1)
     reg = _regions(fg, z, r0, scene.inv_norm, scene.xr, scene.yr, 3.0 if scene.kind == "depth" else None)
     if reg["n"] == 0:

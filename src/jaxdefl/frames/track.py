@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .pipeline import Scene, _top_level
+from .pipeline import Scene, top_level
 
 __all__ = ["Tracker"]
 
@@ -42,7 +42,7 @@ class Tracker:
         z = vals if self.inv is None else vals * self.inv
         ztop = flat[:, self.scene.top_idx]
         ztop = ztop if self.inv_top is None else ztop * self.inv_top
-        top = _top_level(ztop, np.arange(ztop.shape[1]))
+        top = top_level(ztop, np.arange(ztop.shape[1]))
         zc = z - top[:, None]  # small numbers: sums keep their precision
         valid = np.isfinite(zc)
         zc = np.where(valid, zc, 0.0)
