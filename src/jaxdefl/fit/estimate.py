@@ -14,6 +14,7 @@ from .._signals import check_interrupt
 from ..series import Windows
 from ..spectral import Periodogram, lomb_peaks
 from .harmonic import N_PARAMS, HarmonicFit, fit_harmonics
+from .models import SignalModel, fit_model, model_columns
 
 __all__ = ["ESTIMATE_COLUMNS", "STATUSES", "Estimates", "estimate_windows"]
 
@@ -70,6 +71,7 @@ def estimate_windows(
     block: int = 4096,
     on_block: Callable[[int], None] | None = None,
     workers: int | None = None,
+    model: SignalModel | None = None,
 ) -> Estimates:
     """Estimate f0, A and their σ's for every window; failures become statuses.
 
@@ -83,7 +85,11 @@ def estimate_windows(
         block: most windows per periodogram/fit call; ``on_block(k)`` is called after each
             with the number of windows done (for progress bars).
         workers: threads running blocks at once (default: one per core).
+        model: the signal model (default: the thesis' harmonic + offset); other models add
+            columns (see `jaxdefl.fit.models.model_columns`).
     """
+    if model is not None and model.is_default:
+        model = None
     b = len(w)
     status = w.table["status"].to_numpy(dtype=object).copy()
     wild = (np.abs(np.where(w.mask, w.y, 0.0)) > MAX_ABS_VALUE_MM).any(axis=1)
@@ -118,7 +124,11 @@ def estimate_windows(
             "too_few_cycles",
             np.where(insignificant, "no_significant_peak", "converged"),
         )
-        f = fit_harmonics(w, p.freq_hz, rows=rows[go], weights=weights)
+        if model is None:
+            f = fit_harmonics(w, p.freq_hz, rows=rows[go], weights=weights)
+        else:
+            search = dict(fmin_hz=fmin_hz, fmax_hz=fmax_hz, oversampling=oversampling)
+            f = fit_model(w, p, rows[go], model, weights=weights, **search)
         converged = f.converged[rows]
         return rows, p, np.where(go & ~converged, "did_not_converge", st), f
 
@@ -161,7 +171,11 @@ def estimate_windows(
     tab["offset_mm"] = fit.offset_mm
     tab["sigma_residual_mm"] = fit.sigma_residual_mm
     tab["peak_fap"] = periodogram.fap
-    return Estimates(tab[ESTIMATE_COLUMNS], w, periodogram, fit)
+    columns = ESTIMATE_COLUMNS
+    if model is not None:
+        tab, added = model_columns(tab, fit, model)
+        columns = ESTIMATE_COLUMNS + added
+    return Estimates(tab[columns], w, periodogram, fit)
 
 
 def _span(w: Windows) -> np.ndarray:
@@ -173,7 +187,8 @@ def _span(w: Windows) -> np.ndarray:
 
 
 def _merge_fits(b: int, parts: list[tuple[np.ndarray, HarmonicFit]]) -> HarmonicFit:
-    fields = HarmonicFit.__dataclass_fields__
+    cls = type(parts[0][1]) if parts else HarmonicFit
+    fields = cls.__dataclass_fields__
     out = {}
     for name in fields:
         if parts:
@@ -191,4 +206,4 @@ def _merge_fits(b: int, parts: list[tuple[np.ndarray, HarmonicFit]]) -> Harmonic
         for rows, f in parts:
             arr[rows] = getattr(f, name)[rows]
         out[name] = arr
-    return HarmonicFit(**out)
+    return cls(**out)
