@@ -60,6 +60,11 @@ def fit(
         int | None,
         typer.Option(help="Check N windows' σ's against emcee posteriors (0: honesty flags only)."),
     ] = None,
+    model: Annotated[
+        str, typer.Option(help="Signal model: harmonic (thesis) or damped (free vibration).")
+    ] = "harmonic",
+    harmonics: Annotated[int, typer.Option(help="Fit f0 and its harmonics 2 f0 .. K f0.")] = 1,
+    lines: Annotated[int, typer.Option(help="Fit N independent spectral lines (modes).")] = 1,
 ) -> None:
     """Estimate loading frequency and deflection amplitude per segment, window, plate and axis."""
     from . import pipeline
@@ -76,6 +81,9 @@ def fit(
         fap_max=fap_max,
         reference=reference,
         posterior=posterior,
+        model=model,
+        harmonics=harmonics,
+        lines=lines,
     )
 
 

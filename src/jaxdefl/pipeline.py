@@ -15,7 +15,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, Ti
 
 from . import __version__
 from ._errors import ConfigError, JaxdeflError
-from .fit import Estimates, compare_with_reference, estimate_windows, fit_reference
+from .fit import Estimates, compare_with_reference, estimate_windows, fit_reference, signal_model
 from .io import load_table, read_reference, read_trajectory, write_trajectory
 from .io.output import TABLE_SUFFIXES, Outputs
 from .series import check_window_plan
@@ -191,8 +191,14 @@ def fit_file(
     fap_max: float = 0.01,
     reference: Path | None = None,
     posterior: int | None = None,
+    model: str = "harmonic",
+    harmonics: int = 1,
+    lines: int = 1,
 ) -> tuple[pd.DataFrame, pd.DataFrame | None]:
     """`jaxdefl fit`: read, estimate, write OUT (and OUT stem + _reference/_comparison/... beside).
+
+    ``model``, ``harmonics`` and ``lines`` choose the signal model (`jaxdefl.fit.signal_model`;
+    default: the thesis' harmonic + offset).
 
     Order: every argument is checked, the outputs are planned (none may be an input or another
     output), the inputs are read and checked against each other, everything is computed, and only
@@ -201,6 +207,13 @@ def fit_file(
     t0 = time.perf_counter()
     traj, out = Path(traj), Path(out)
     _check_fit_settings(window_s, step_s, fmin_hz, fmax_hz, oversampling, fap_max, posterior)
+    # signal models other than the thesis' (the posterior check knows only the default model)
+    spec = signal_model(model, harmonics, lines)
+    if posterior is not None and not spec.is_default:
+        raise ConfigError(
+            "--posterior: checks the σ's of the default model only; drop it, or drop "
+            "--model/--harmonics/--lines"
+        )
     outs = Outputs(inputs=[traj, reference])
     outs.reserve(out, "--out", suffixes=TABLE_SUFFIXES)
     paths = companions(out)
@@ -231,11 +244,11 @@ def fit_file(
     check_window_plan(df, axes, window_s, step_s, source=str(traj))
 
     kw = dict(fmin_hz=fmin_hz, fmax_hz=fmax_hz, oversampling=oversampling, fap_max=fap_max)
-    est = _estimate(df, axes=axes, window_s=window_s, step_s=step_s, **kw)
+    est = _estimate(df, axes=axes, window_s=window_s, step_s=step_s, model=spec, **kw)
     tab = est.table
     comparison = ref_tab = unc = post = None
     if ref is not None:
-        ref_tab = fit_reference(ref, est, **kw).table
+        ref_tab = fit_reference(ref, est, model=spec, **kw).table
         comparison = compare_with_reference(tab, ref_tab)
     if posterior is not None:
         unc, post = uncertainty_tables(est, posterior)
@@ -253,6 +266,7 @@ def fit_file(
                 axes=list(axes),
                 reference=str(reference) if reference else None,
                 **kw,
+                **({} if spec.is_default else dict(model=model, harmonics=harmonics, lines=lines)),
             ),
         )
         if ref_tab is not None:
