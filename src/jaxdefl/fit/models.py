@@ -215,8 +215,13 @@ def _decay_start(spec: SignalModel, t, yc, w, omegas):
         cc = (a22 * b1 - a12 * b2) / det
         dd = (a11 * b2 - a12 * b1) / det
         amp2 = cc**2 + dd**2
-        good = good & (amp2 > 0)
-        wt = jnp.where(good, amp2 * n_seg, 0.0)
+        # inverse variance of a log amplitude: (A / σ_A)² = A² n / (2 σ²), σ² from the segment's
+        # residual; segments within 3 σ_A of the noise (whose amplitude is the noise's, and
+        # whose far times would pull the line) are left out
+        noise2 = jnp.maximum(onehot @ (yc * yc) - (cc * b1 + dd * b2), 0.0) / jnp.maximum(n_seg - 2, 1)
+        snr2 = amp2 * n_seg / (2 * jnp.maximum(noise2, 1e-300))
+        good = good & (amp2 > 0) & (snr2 > 9)
+        wt = jnp.where(good, snr2, 0.0)
         la = 0.5 * jnp.log(jnp.where(good, amp2, 1.0))
         sw = jnp.sum(wt)
         tm = jnp.sum(wt * t_seg) / jnp.maximum(sw, 1e-300)
@@ -231,7 +236,8 @@ def fit_model_window(spec: SignalModel, t, y, w, omega0, rtol=RTOL, atol=ATOL, m
     """Fit ``spec`` to one window. Arrays are (sample,); ``w`` weights (0 = masked); ``omega0``
     (line,) start angular frequencies.
 
-    Returns a dict: ``p`` (param,) with the offset E including the mean of y, ``cov`` (param,
+    Returns a dict: ``p`` (param,) with the offset E including the mean of y and time measured
+    from ``origin`` (in the time of ``t``; 0 unless damped), ``cov`` (param,
     param), variance factor ``s0sq``, residual σ ``sigma_res``, ``n``, ``steps`` and ``ok``
     (solver converged, numbers finite).
     """
@@ -243,8 +249,17 @@ def fit_model_window(spec: SignalModel, t, y, w, omega0, rtol=RTOL, atol=ATOL, m
     ybar = jnp.sum(w * y) / jnp.sum(w)
     yc = jnp.where(valid, y - ybar, 0.0)
     theta0 = omega0
+    origin = jnp.zeros(())
     if spec.damped:
-        theta0 = jnp.concatenate([omega0, _decay_start(spec, t, yc, w, omega0)])
+        lam0 = _decay_start(spec, t, yc, w, omega0)
+        theta0 = jnp.concatenate([omega0, lam0])
+        # Time origin at the centroid of the first line's energy e^{-2λt}: there the model is
+        # nearly linear in the decay over the samples that matter, where at the window's centre
+        # a decay of a few e-folds makes C and D tiny and Gauss-Newton's linearisation poor.
+        x = jnp.where(valid, -2 * lam0[0] * t, -jnp.inf)
+        e = w * jnp.exp(x - jnp.max(x))
+        origin = jnp.sum(e * t) / jnp.sum(e)
+        t = jnp.where(valid, t - origin, 0.0)
 
     # Linear least squares for the C, D, E at the start frequencies (and decays).
     _, cols0, _ = _evaluate(spec, jnp.concatenate([jnp.zeros(n_lin), theta0]), t)
@@ -287,9 +302,15 @@ def fit_model_window(spec: SignalModel, t, y, w, omega0, rtol=RTOL, atol=ATOL, m
     s0sq = jnp.sum(w * r**2) / dof
     cov = s0sq * jnp.linalg.inv(jtj)
     diag = jnp.diag(cov)
-    ok = (sol.result == optx.RESULTS.successful) & jnp.all(jnp.isfinite(p)) & jnp.all(jnp.isfinite(diag)) & jnp.all(diag >= 0)
+    ok = (
+        (sol.result == optx.RESULTS.successful)
+        & jnp.all(jnp.isfinite(p))
+        & jnp.all(jnp.isfinite(diag))
+        & jnp.all(diag >= 0)
+    )
     return dict(
         p=p.at[spec.offset_index].add(ybar),
+        origin=origin,
         cov=cov,
         s0sq=s0sq,
         sigma_res=jnp.sqrt(jnp.sum(r**2) / dof),
@@ -314,9 +335,14 @@ def _values(p, t, *, spec):
     return jax.vmap(lambda pp, tt: _evaluate(spec, pp, tt)[0])(p, t)
 
 
-def model_values(spec: SignalModel, params: np.ndarray, t: np.ndarray) -> np.ndarray:
+def model_values(
+    spec: SignalModel, params: np.ndarray, t: np.ndarray, origin_s: np.ndarray | None = None
+) -> np.ndarray:
     """The model ``spec`` with ``params`` (window, param) at times ``t`` (window, sample),
-    ``t`` relative to each window's ``t_centre`` as in `Windows.t`."""
+    ``t`` relative to each window's ``t_centre`` as in `Windows.t`, the parameters' time origin
+    at ``origin_s`` (window,) from it (`ModelFit.origin_s`; default 0)."""
+    if origin_s is not None:
+        t = t - np.asarray(origin_s)[:, None]
     return np.asarray(_values(jnp.asarray(params), jnp.asarray(t), spec=spec))
 
 
@@ -333,8 +359,11 @@ class ModelFit(HarmonicFit):
     model reads the first component; ``params``/``cov`` are its [C, D, E, ω] block.
 
     Extra attributes:
-        model_params: (window, param) every parameter, `SignalModel` order (E with the mean).
+        model_params: (window, param) every parameter, `SignalModel` order (E with the mean),
+            with time measured from ``origin_s``.
         model_cov: (window, param, param) their covariance.
+        origin_s: (window,) time origin of the parameters from the window's ``t_centre`` (0
+            unless damped: there the first component's amplitude and phase are at it too).
         line_fap: (window, line) false-alarm probability of the periodogram peak each line
             was found at.
     """
@@ -342,6 +371,7 @@ class ModelFit(HarmonicFit):
     model_params: np.ndarray
     model_cov: np.ndarray
     line_fap: np.ndarray
+    origin_s: np.ndarray
 
 
 def _solve(spec, w, rows, weights, omega0, rtol, atol, max_steps):
@@ -387,16 +417,18 @@ def fit_model(
         if not rows.size:
             break
         sub = w.select(rows)
-        resid = sub.y - model_values(part, out["p"][out["ok"]], sub.t)
+        resid = sub.y - model_values(part, out["p"][out["ok"]], sub.t, out["origin"][out["ok"]])
         sub = dataclasses.replace(sub, y=np.where(sub.mask, resid, 0.0))
-        pk = lomb_peaks(sub, fmin_hz=fmin_hz, fmax_hz=fmax_hz, oversampling=oversampling, search_dtype="float32")
+        pk = lomb_peaks(
+            sub, fmin_hz=fmin_hz, fmax_hz=fmax_hz, oversampling=oversampling, search_dtype="float32"
+        )
         omega0[rows, line] = 2 * np.pi * pk.freq_hz
         fap[rows, line] = pk.fap
         rows = rows[np.isfinite(pk.freq_hz)]
 
     p = np.full((b, n_par), np.nan)
     cov = np.full((b, n_par, n_par), np.nan)
-    scal = {k: np.full(b, np.nan) for k in ("s0sq", "sigma_res")}
+    scal = {k: np.full(b, np.nan) for k in ("s0sq", "sigma_res", "origin")}
     n = np.zeros(b, np.int64)
     steps = np.zeros(b, np.int64)
     ok = np.zeros(b, bool)
@@ -436,6 +468,7 @@ def fit_model(
         model_params=p,
         model_cov=cov,
         line_fap=fap,
+        origin_s=scal["origin"],
     )
 
 
@@ -463,8 +496,9 @@ def _by_frequency(spec: SignalModel, p, cov, fap):
 def _amp_phase(p, cov, ci, di, oi, k, dt_ref, lam_i=None, t_ref_rel=None):
     """Amplitude and phase of one component at a reference time, with σ's by the delta method.
 
-    ``dt_ref`` = t_centre - t_ref (phase: + k ω dt_ref); for a decaying component the amplitude
-    is taken at ``t_ref_rel`` = t_ref - t_centre: A exp(-λ t_ref_rel).
+    ``dt_ref`` = t_origin - t_ref (phase: + k ω dt_ref, t_origin the parameters' time origin);
+    for a decaying component the amplitude is taken at ``t_ref_rel`` = t_ref - t_origin:
+    A exp(-λ t_ref_rel).
     """
     c, d, om = p[:, ci], p[:, di], p[:, oi]
     amp = np.hypot(c, d)
@@ -513,11 +547,11 @@ def model_columns(tab: pd.DataFrame, fit: HarmonicFit, spec: SignalModel) -> tup
     tab = tab.copy()
     b, n_par = len(tab), spec.n_params
     if isinstance(fit, ModelFit):
-        p, cov, fap = fit.model_params, fit.model_cov, fit.line_fap
+        p, cov, fap, origin = fit.model_params, fit.model_cov, fit.line_fap, fit.origin_s
     else:  # no window was fitted
         p, cov = np.full((b, n_par), np.nan), np.full((b, n_par, n_par), np.nan)
-        fap = np.full((b, spec.lines), np.nan)
-    t_c = tab["t_centre"].to_numpy()
+        fap, origin = np.full((b, spec.lines), np.nan), np.zeros(b)
+    t_org = tab["t_centre"].to_numpy() + np.nan_to_num(origin)  # the parameters' time origin
     t_ref = (tab["t_start"] if spec.damped else tab["t_mid"]).to_numpy()
     added: list[str] = []
     two_pi = 2 * np.pi
@@ -525,7 +559,7 @@ def model_columns(tab: pd.DataFrame, fit: HarmonicFit, spec: SignalModel) -> tup
         line, k = spec.line_of(j), spec.multiplier(j)
         oi = spec.omega_index(line)
         li = spec.decay_index(line) if spec.damped else None
-        amp, sa, ph, sp = _amp_phase(p, cov, 2 * j, 2 * j + 1, oi, k, t_c - t_ref, li, t_ref - t_c)
+        amp, sa, ph, sp = _amp_phase(p, cov, 2 * j, 2 * j + 1, oi, k, t_org - t_ref, li, t_ref - t_org)
         tag = "" if j == 0 else f"_{j + 1}"
         new = {}
         if spec.lines > 1 and j > 0:
