@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from .._configs import not_found_hint, resolve_config
 from .._errors import ConfigError
 
 __all__ = [
@@ -336,9 +337,9 @@ def load_config(path: Path | str, session: str | None = None) -> SimConfig:
     Raises:
         ConfigError: missing or unparsable file, unknown keys, impossible values.
     """
-    path = Path(path)
+    path = resolve_config(path)
     if not path.exists():
-        raise ConfigError(f"{path}: file not found")
+        raise ConfigError(f"{path}: file not found; expected a simulation config (TOML){not_found_hint()}")
     if not path.is_file():
         raise ConfigError(f"{path}: is a directory; expected a simulation config file (TOML)")
     try:
