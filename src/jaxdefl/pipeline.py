@@ -14,6 +14,7 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from . import __version__
+from ._configs import config_dir
 from ._errors import ConfigError, JaxdeflError
 from .fit import Estimates, compare_with_reference, estimate_windows, fit_reference, signal_model
 from .io import load_table, read_reference, read_trajectory, write_trajectory
@@ -322,7 +323,6 @@ def run_file(config: Path, out: Path, scheduler: str = "none") -> pd.DataFrame:
 # demo
 
 
-CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
 DEMO_CONFIG = "exp2_tof_3hz.toml"
 
 
@@ -330,9 +330,9 @@ def _demo_recording(out: Path, duration_s: float, seed: int):
     """Simulate Experiment II day 1 (3 Hz, SR4000 at 20 Hz) into ``out/simulation``."""
     from .simulate import simulate_to_dir
 
-    cfg = CONFIG_DIR / DEMO_CONFIG
+    cfg = config_dir() / DEMO_CONFIG
     if not cfg.is_file():
-        raise JaxdeflError(f"{cfg}: the demo's simulation config is missing (run the demo from a checkout)")
+        raise JaxdeflError(f"{cfg}: the demo's simulation config is missing from the installed package")
     sim = out / "simulation"
     simulate_to_dir(cfg, sim, duration_s=duration_s, seed=seed)
     return sim
