@@ -234,20 +234,26 @@ def _width(a: np.ndarray, s: int) -> np.ndarray:
 
 
 def batch_windows(
-    fit_batch, w: Windows, rows: np.ndarray, weights: np.ndarray | None, *per_window: np.ndarray
+    fit_batch,
+    w: Windows,
+    rows: np.ndarray,
+    weights: np.ndarray | None,
+    *per_window: np.ndarray,
+    group_cells: int = _GROUP_CELLS,
 ) -> dict[str, np.ndarray]:
     """Run a batched kernel on the windows at ``rows``, chunk by chunk, in few compiled shapes.
 
     ``fit_batch(t, y, w, *per_window, group=G)`` takes (window, sample) arrays and (window, ...)
     arrays and returns a dict of (window, ...) arrays; ``per_window`` are indexed by window of
-    ``w``. Returns the dict for ``rows`` (in their order), as numpy arrays.
+    ``w``; G windows of about ``group_cells`` samples in all are solved together. Returns the
+    dict for ``rows`` (in their order), as numpy arrays.
     """
     s_used = int(w.mask[rows].sum(axis=1).max())
     # Valid samples come first in every row; pad the sample axis to a shape bucket and
     # the batch to a power of two so that few shapes are ever compiled.
     s_pad = bucket(s_used)
     chunk = min(pow2_at_least(rows.size), pow2_at_most(_CHUNK_CELLS // s_pad))
-    group = min(chunk, pow2_at_most(_GROUP_CELLS // s_pad))
+    group = min(chunk, pow2_at_most(group_cells // s_pad))
     res: dict[str, np.ndarray] = {}
     for c0 in range(0, rows.size, chunk):
         sel = rows[c0 : c0 + chunk]
