@@ -475,3 +475,53 @@ def test_damped_lines_recover_two_modes_of_a_hammer_record():
         ):
             zz = (tab[col] - v) / tab["sigma_" + col]
             assert np.sqrt(np.mean(zz**2)) < 1.6 and np.max(np.abs(zz)) < 4.5, (col, zz.tolist())
+
+
+# --------------------------------------------------------------------------------------------
+# campaigns
+
+
+def _campaign(tmp_path, processing):
+    rng = np.random.default_rng(8)
+    t = clock(rng, 90.0, 20.0, 0.03)
+    df = pd.concat(
+        pd.DataFrame(
+            dict(
+                t=t,
+                plate=p,
+                z=harmonic_series(rng, t, 3.0672, (2.4, 0.5, 0.3), (0.1, 0.2, 0.3), 0.0, 0.5, 20.0),
+            )
+        )
+        for p in (1, 2, 3)
+    )
+    write_trajectory(df, tmp_path / "traj.csv")
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(
+        f'[campaign]\nname = "m"\n[processing]\naxes = ["z"]\nwindow_s = 30.0\n{processing}\n'
+        '[[recording]]\nday = 1\ncamera = "cam2"\ntrajectories = "traj.csv"\n'
+    )
+    return cfg
+
+
+def test_campaign_processing_takes_the_model(tmp_path):
+    from jaxdefl.bulk import load_campaign, run_campaign
+
+    camp = load_campaign(_campaign(tmp_path, "harmonics = 3"))
+    assert (camp.processing.model, camp.processing.harmonics, camp.processing.lines) == ("harmonic", 3, 1)
+    units = run_campaign(camp, tmp_path / "out", progress=False)
+    assert (units["status"] == "ok").all()
+    win = pd.read_csv(next((tmp_path / "out" / "units").glob("*/windows.csv")))
+    assert {"amplitude_3_mm", "sigma_amplitude_3_mm"} <= set(win.columns)
+    assert np.allclose(win["amplitude_3_mm"], 0.3, atol=5 * win["sigma_amplitude_3_mm"].max())
+
+
+def test_campaign_model_errors_name_the_key(tmp_path):
+    from jaxdefl._errors import ConfigError
+    from jaxdefl.bulk import load_campaign
+
+    with pytest.raises(
+        ConfigError, match=r"c.toml: processing.lines: expected a whole number from 1 to 8, got 0"
+    ):
+        load_campaign(_campaign(tmp_path, "lines = 0"))
+    with pytest.raises(ConfigError, match=r"key 'processing.harmonics': expected an integer"):
+        load_campaign(_campaign(tmp_path, "harmonics = 2.5"))

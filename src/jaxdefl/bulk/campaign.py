@@ -16,6 +16,9 @@ reference_plate = 7        # the plate of the per-day tables and the fatigue cur
 plate_x_mm = [...]         # plate positions along the beam (default: 13 plates at 250 mm)
 span_mm = 3400.0           # beam span and load-point distance for the profile fit
 load_a_mm = 1200.0
+model = "harmonic"         # signal model, harmonics and lines as `jaxdefl fit` --model,
+harmonics = 1              # --harmonics and --lines (default: the thesis' harmonic + offset)
+lines = 1
 
 [[recording]]              # one per day and camera
 day = 1
@@ -56,6 +59,9 @@ class Processing:
     span_mm: float = 3400.0
     load_a_mm: float = 1200.0
     correct_motion_artefact: bool = False
+    model: str = "harmonic"
+    harmonics: int = 1
+    lines: int = 1
 
     def estimation_kwargs(self) -> dict:
         return dict(
@@ -69,7 +75,11 @@ class Processing:
         )
 
     def digest_source(self) -> str:
-        return json.dumps(asdict(self), sort_keys=True)
+        d = asdict(self)
+        if (d["model"], d["harmonics"], d["lines"]) == ("harmonic", 1, 1):
+            # the default signal model leaves the digest of configs written before it existed
+            del d["model"], d["harmonics"], d["lines"]
+        return json.dumps(d, sort_keys=True)
 
 
 @dataclass(frozen=True)
@@ -113,6 +123,9 @@ _PROC_TYPES = {
     "span_mm": (int, float),
     "load_a_mm": (int, float),
     "correct_motion_artefact": bool,
+    "model": str,
+    "harmonics": int,
+    "lines": int,
 }
 _REC_KEYS = {
     "day": int,
@@ -164,6 +177,18 @@ def load_campaign(path: Path | str) -> Campaign:
         if bad or not proc_raw["axes"]:
             raise _err(path, "processing.axes", f"expected a list of z, x, y; got {proc_raw['axes']!r}")
         proc_raw["axes"] = tuple(proc_raw["axes"])
+    if {"model", "harmonics", "lines"} & set(proc_raw):
+        from ..fit import signal_model
+
+        try:
+            signal_model(
+                proc_raw.get("model", "harmonic"), proc_raw.get("harmonics", 1), proc_raw.get("lines", 1)
+            )
+        except ConfigError as err:  # the message names the fit flag: name the key instead
+            msg = str(err)
+            for key in ("model", "harmonics", "lines"):
+                msg = msg.replace(f"--{key}", f"processing.{key}")
+            raise ConfigError(f"{path}: {msg}") from None
     if "plate_x_mm" in proc_raw:
         proc_raw["plate_x_mm"] = tuple(float(v) for v in proc_raw["plate_x_mm"])
     proc = Processing(

@@ -57,7 +57,7 @@ def estimate_unit(
     (when a reference is given) under ``out_dir/units/<day-camera>/``. A failure (missing or
     invalid file, no valid samples) is recorded in the manifest with its reason; it never raises.
     """
-    from ..fit import compare_with_reference, estimate_table, fit_reference
+    from ..fit import compare_with_reference, estimate_table, fit_reference, signal_model
     from ..io import read_reference, read_trajectory
 
     unit_dir = Path(out_dir) / "units" / rec.unit_id
@@ -80,6 +80,7 @@ def estimate_unit(
             fmax_hz=proc.fmax_hz,
             oversampling=proc.oversampling,
             fap_max=proc.fap_max,
+            model=signal_model(proc.model, proc.harmonics, proc.lines),
         )
         whole = estimate_table(traj, axes=axes, **kw)
         if not (whole.table["status"] == "converged").any():
@@ -89,9 +90,7 @@ def estimate_unit(
             )
         outputs = {"whole.csv": whole.table.assign(**tag)}
         if proc.window_s is not None:
-            win = estimate_table(
-                traj, axes=axes, window_s=proc.window_s, step_s=proc.step_s, **kw
-            )
+            win = estimate_table(traj, axes=axes, window_s=proc.window_s, step_s=proc.step_s, **kw)
             outputs["windows.csv"] = win.table.assign(**tag)
         if proc.correct_motion_artefact and rec.frame_rate_hz is not None:
             for name in list(outputs):

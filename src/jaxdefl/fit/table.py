@@ -9,6 +9,7 @@ import pandas as pd
 from .._errors import ConfigError
 from ..series import Windows, make_windows
 from .estimate import Estimates, estimate_windows
+from .models import SignalModel
 
 __all__ = ["estimate_table", "windows_for"]
 
@@ -34,6 +35,7 @@ def estimate_table(
     fap_max: float = 0.01,
     keep: tuple[int, ...] = (),
     on_block: Callable[[int], None] | None = None,
+    model: SignalModel | None = None,
 ) -> Estimates:
     """Windows of a validated trajectory table, estimated (see `estimate_windows`).
 
@@ -51,4 +53,5 @@ def estimate_table(
         fap_max=fap_max,
         keep=keep,
         on_block=on_block,
+        model=model,
     )
