@@ -99,9 +99,16 @@ def build_context(
     t_all = np.unique(df["t"].to_numpy() - t0)
     if t_all.size < MIN_SAMPLES:
         raise InputError(f"{source}: {t_all.size} timestamps, the diagnosis needs at least {MIN_SAMPLES}")
-    dt, k_all, on_clock = frame_clock(t_all)
+    # the frame grid of every spectrum: the recovered clock (robust to jitter, drop-outs and a
+    # logger's rounding), started from --frame-rate when it is given
+    dt, k_all, on_clock = frame_clock(t_all, hint=1.0 / frame_rate_hz if frame_rate_hz else None)
     if not on_clock:
         notes.append("timestamps are not on a regular frame clock; spectra use the nearest frame")
+    if frame_rate_hz and abs(dt * frame_rate_hz - 1.0) > 0.01:
+        notes.append(
+            f"the timestamps' frame interval {dt:.6g} s differs from 1/--frame-rate "
+            f"({1.0 / frame_rate_hz:.6g} s) by more than 1 %; the grids follow the timestamps"
+        )
     duration = float(t_all[-1] - t_all[0])
     n_frames = int(k_all.max()) + 1
 
@@ -119,7 +126,7 @@ def build_context(
     left_out: list[dict] = []
     for plate, g in df.groupby("plate", sort=True):
         t = g["t"].to_numpy() - t0
-        k = np.rint(t / dt).astype(np.int64)
+        k = k_all[np.searchsorted(t_all, t)]  # the frame of each stamp on the recovered clock
         for axis in axes:
             y = g[axis].to_numpy()
             ok = np.isfinite(y)
