@@ -11,7 +11,7 @@ import pandas as pd
 from .._errors import ConfigError, InputError
 from ..fit import estimate_windows
 from ..fit.estimate import MAX_ABS_VALUE_MM
-from ..io import validate_trajectory
+from ..io import timestamp_note, validate_trajectory
 from ..series import make_windows
 from ..series.windows import frame_clock, windows_like
 from ._base import Context, Harmonic, Series, State, lstsq
@@ -62,6 +62,7 @@ def build_context(
     axes: tuple[str, ...] | None = None,
     source: str = "<table>",
     reference_source: str = "--reference",
+    timestamps: str = "strict",
 ) -> tuple[Context, list[State], list[str]]:
     """Validate the tables, fit the nominal model and return (context, nominal states, notes).
 
@@ -80,7 +81,7 @@ def build_context(
         raise ConfigError(f"--frame-rate: expected a positive rate in Hz, got {frame_rate_hz}")
     if modulation_mhz is not None and not modulation_mhz > 0:
         raise ConfigError(f"--modulation-mhz: expected a positive frequency in MHz, got {modulation_mhz}")
-    df = validate_trajectory(traj.reset_index(drop=True), source)
+    df = validate_trajectory(traj.reset_index(drop=True), source, timestamps=timestamps)
     segs = [str(s) for s in df["segment"].unique()]
     if segment is None and len(segs) > 1:
         raise ConfigError(
@@ -95,6 +96,8 @@ def build_context(
         df = df[df["segment"] == segment]
     axes = tuple(a for a in ("z", "x", "y") if a in df.columns) if axes is None else axes
     notes: list[str] = []
+    if (note := timestamp_note(df.attrs.get("timestamps"))) is not None:
+        notes.append(f"{source}: {note}")
     t0 = float(df["t"].min())
     t_all = np.unique(df["t"].to_numpy() - t0)
     if t_all.size < MIN_SAMPLES:
@@ -154,8 +157,10 @@ def build_context(
     ref_harm: dict[int, Harmonic] = {}
     if reference is not None:
         ref = validate_trajectory(
-            reference.reset_index(drop=True), reference_source, required=("t", "plate", "z")
+            reference.reset_index(drop=True), reference_source, required=("t", "plate", "z"), timestamps=timestamps
         )
+        if (note := timestamp_note(ref.attrs.get("timestamps"))) is not None:
+            notes.append(f"{reference_source}: {note}")
         if not np.isin(ref["plate"].unique(), df["plate"].unique()).any():
             raise ConfigError(
                 f"{reference_source}: no plate of the reference "
