@@ -299,11 +299,13 @@ def validate_trajectory(
     back = same_series & (dt < 0)
     if back.any():
         j = int(np.flatnonzero(back)[0])
+        fwd = dt[same_series & (dt > 0)]
+        small = fwd.size > 0 and -dt[j] < float(np.median(fwd))  # neighbours swapped by jitter?
         raise InputError(
             f"{path}: row {out['_row'].iat[j + 1]}: t must increase within plate "
             f"{out['plate'].iat[j + 1]}, got t={_plain(out['t'].iat[j + 1])} after "
             f"t={_plain(out['t'].iat[j])} (row {out['_row'].iat[j]})"
-            + ("" if timestamps == "reclock" else "; if a jittered clock swaps neighbours, rerun with --timestamps reclock")
+            + ("; if a jittered clock swapped neighbours, rerun with --timestamps reclock" if small else "")
         )
     rep = same_series & (dt == 0)
     if rep.any() and timestamps == "merge":

@@ -201,6 +201,7 @@ def make_windows(
             f"--axes: the table has no column {', '.join(missing)} (it has {', '.join(df.columns)})"
         )
     series = []
+    last = (None, None)  # plates of a frame share their stamps: one clock fit for them all
     for seg, g in df.groupby("segment", sort=False):
         bounds = _bounds(g["t"].to_numpy(), window_s, step_s)
         for plate, gp in g.groupby("plate", sort=True):
@@ -209,7 +210,11 @@ def make_windows(
             # it when its stamps scatter about it (a constant offset aside: a logger restart
             # keeps its own exact grid) by at most SNAP_MAX of a frame; else its own clock is
             # fitted in `_pack`.
-            clk = fit_clock(t_all - t_all[0])
+            if last[0] is not None and np.array_equal(last[0], t_all):
+                clk = last[1]
+            else:
+                clk = fit_clock(t_all - t_all[0])
+                last = (t_all, clk)
             dt_all, k_all = clk.dt, clk.k
             resid = t_all - t_all[0] - clk.t if np.isfinite(clk.dt) else np.full(t_all.size, np.nan)
             for axis in axes:
