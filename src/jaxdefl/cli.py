@@ -201,6 +201,7 @@ def reconcile(
     ] = None,
     null_sims: Annotated[int, typer.Option(help="Simulations for the null band.")] = 20,
     seed: Annotated[int, typer.Option(help="Random seed of the simulations.")] = 0,
+    timestamps: Annotated[str, typer.Option("--timestamps", help=_TIMESTAMPS_HELP)] = "strict",
 ) -> None:
     """Compare a recording with its simulation, name the missing physics, simulate it, compare again."""
     from . import pipeline
@@ -214,6 +215,7 @@ def reconcile(
         segment=segment,
         n_null=null_sims,
         seed=seed,
+        timestamps=timestamps,
     )
 
 

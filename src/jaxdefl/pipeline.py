@@ -523,17 +523,17 @@ def diagnose_file(
 # reconcile
 
 
-def _reconcile_input(recording: Path, segment: str | None) -> pd.DataFrame:
+def _reconcile_input(recording: Path, segment: str | None, timestamps: str = "strict") -> pd.DataFrame:
     """A trajectory table as read, or a frame recording's extracted trajectories; one segment."""
     from .io import validate_trajectory
 
     if recording.suffix.lower() in (".csv", ".parquet", ".pq", ".gz", ".txt"):
-        df = read_trajectory(recording)
+        df = read_trajectory(recording, timestamps=timestamps)
     else:
         from .frames import extract_recording
         from .io.recording import open_recording
 
-        df = validate_trajectory(extract_recording(open_recording(recording)), recording)
+        df = validate_trajectory(extract_recording(open_recording(recording)), recording, timestamps=timestamps)
     segments = list(pd.unique(df["segment"]))
     if segment is None:
         if len(segments) > 1:
@@ -555,6 +555,7 @@ def reconcile_file(
     segment: str | None = None,
     n_null: int = 20,
     seed: int = 0,
+    timestamps: str = "strict",
 ) -> dict:
     """`jaxdefl reconcile`: DIR/reconcile.json, DIR/reconciled.toml, DIR/report.md and figures."""
     import json
@@ -571,13 +572,14 @@ def reconcile_file(
         raise ConfigError(f"--null-sims: expected at least 5 simulations for a 95 % band, got {n_null}")
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out}: is a file; expected a directory")
+    check_timestamp_policy(timestamps)
     cfg = load_config(config, session)  # checked before anything is read or written
     outs = Outputs(inputs=[recording, config, reference])
     names = ("reconcile.json", "reconciled.toml", "report.md", "trajectories.png", "estimates.png")
     for name in names:
         outs.reserve(out / name, f"--out {out}: {name}")
-    df = _reconcile_input(recording, segment)
-    ref = read_reference(reference) if reference is not None else None
+    df = _reconcile_input(recording, segment, timestamps)
+    ref = read_reference(reference, timestamps=timestamps) if reference is not None else None
     facts = _camera_facts(config)
     with console.status("reconciling ...") as status:
         status.update("reconcile: simulating and extracting a calibration clip ...")
