@@ -26,7 +26,7 @@ from ..series import make_windows
 from ._posterior import PosteriorSummary
 
 __all__ = [
-    "Z68", "Z95", "simulate_case", "case_coverage", "window_scores", "rice_interval",
+    "NOISES", "Z68", "Z95", "noise_series", "simulate_case", "case_coverage", "window_scores", "rice_interval",
     "debiased_amplitude",
 ]
 
@@ -34,10 +34,16 @@ Z68 = float(stats.norm.ppf(0.84))
 Z95 = float(stats.norm.ppf(0.975))
 
 
+NOISES = ("white", "ar1", "frame_common", "one_over_f")
+# Plates that share a camera frame in the ``frame_common`` noise (the thesis' 13 plates).
+FRAME_PLATES = 13
+
+
 def simulate_case(
     amplitude_mm: float, sigma_mm: float, window_s: float, dropout: float, n_windows: int,
     seed: int = 0, fs_hz: float = 20.0, f0_range_hz=(2.9, 3.1), fap_max: float = 1.0,
     band_hz: tuple[float, float] | None = (2.0, 4.0), burst_frames: float = 1.0,
+    noise: str = "white", rho: float = 0.6, jitter_s: float = 0.0,
 ) -> tuple[Estimates, dict]:
     """Estimates of ``n_windows`` independent simulated windows and their truth (f0_hz, amplitude_mm).
 
@@ -47,7 +53,16 @@ def simulate_case(
     default every window is fitted
     (``fap_max`` 1: no detection cut, so coverage is not conditioned on a noise-selected peak)
     with the periodogram searched in ``band_hz`` around the known loading frequency.
+
+    Noise of standard deviation ``sigma_mm`` (see `noise_series`): ``white``; ``ar1`` with
+    lag-1 correlation ``rho`` at the frame interval; ``frame_common``: half the variance shared
+    by the ``FRAME_PLATES`` plates of a frame and slow (AR(1), ρ 0.95, a thermal drift of the
+    camera's range), half white per plate; ``one_over_f``: density ∝ 1/f. ``jitter_s``: the
+    frames are taken on the clock but stamped with that much Gaussian jitter (the fit sees the
+    stamps).
     """
+    if noise not in NOISES:
+        raise ValueError(f"noise: expected one of {', '.join(NOISES)}, got {noise!r}")
     rng = np.random.default_rng(seed)
     n = int(round(window_s * fs_hz))
     t = np.arange(n) / fs_hz
@@ -56,14 +71,45 @@ def simulate_case(
     keep = _keep_mask(rng, n_windows, n, dropout, burst_frames)
     keep[:, 0] = keep[:, -1] = True  # every window spans its full length
     y = amplitude_mm * np.cos(2 * np.pi * f0[:, None] * t + ph[:, None])
-    y = y + sigma_mm * rng.standard_normal((n_windows, n))
+    y = y + sigma_mm * noise_series(rng, n_windows, n, noise, rho)
+    stamps = np.broadcast_to(t + 1.7e9, (n_windows, n))
+    if jitter_s > 0:
+        stamps = stamps + jitter_s * rng.standard_normal((n_windows, n))
+        stamps = np.sort(stamps, axis=1)  # a stamp never runs backwards
     plate = np.repeat(np.arange(n_windows), n).reshape(n_windows, n)
-    df = pd.DataFrame({"t": np.broadcast_to(t + 1.7e9, (n_windows, n))[keep], "plate": plate[keep],
-                       "z": 5.0 + y[keep]})
+    df = pd.DataFrame({"t": stamps[keep], "plate": plate[keep], "z": 5.0 + y[keep]})
     fmin, fmax = (None, None) if band_hz is None else band_hz
     est = estimate_windows(make_windows(validate_trajectory(df), axes=("z",)), fmin_hz=fmin,
                            fmax_hz=fmax, fap_max=fap_max)
     return est, {"f0_hz": f0, "amplitude_mm": np.full(n_windows, float(amplitude_mm))}
+
+
+def noise_series(rng: np.random.Generator, b: int, n: int, kind: str = "white", rho: float = 0.6) -> np.ndarray:
+    """(b, n) unit-variance noise of the kinds of `simulate_case`, stationary from the first sample."""
+    if kind == "white":
+        return rng.standard_normal((b, n))
+    if kind == "ar1":
+        return _ar1(rng, b, n, rho)
+    if kind == "frame_common":
+        groups = -(-b // FRAME_PLATES)
+        common = np.repeat(_ar1(rng, groups, n, 0.95), FRAME_PLATES, axis=0)[:b]
+        return np.sqrt(0.5) * common + np.sqrt(0.5) * rng.standard_normal((b, n))
+    # 1/f: white noise shaped in the frequency domain over 4 window lengths (the lowest
+    # frequencies then vary from window to window, as they do in a long record), one window kept.
+    m = 4 * n
+    f = np.fft.rfftfreq(m)
+    gain = np.where(f > 0, 1.0 / np.sqrt(np.maximum(f, 1e-12)), 0.0)
+    x = np.fft.irfft(np.fft.rfft(rng.standard_normal((b, m)), axis=1) * gain, n=m, axis=1)[:, :n]
+    two_sided = gain[0] ** 2 + 2 * np.sum(gain[1:-1] ** 2) + gain[-1] ** 2  # m even
+    return x / np.sqrt(two_sided / m)  # Parseval: the variance of x per unit white variance
+
+
+def _ar1(rng, b: int, n: int, rho: float) -> np.ndarray:
+    from scipy.signal import lfilter
+
+    e = rng.standard_normal((b, n)) * np.sqrt(1 - rho**2)
+    e[:, 0] = rng.standard_normal(b)  # stationary start
+    return lfilter([1.0], [1.0, -rho], e, axis=1)
 
 
 def _keep_mask(rng, b: int, n: int, dropout: float, burst: float) -> np.ndarray:
