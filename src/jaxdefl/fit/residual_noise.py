@@ -34,7 +34,7 @@ from scipy import stats
 from .._shapes import pow2_at_least
 from ..series import Windows
 
-__all__ = ["ResidualNoise", "harmonic_residual", "residual_noise", "LJUNG_BOX_MAX_LAG", "BAND_MIN_ORDINATES"]
+__all__ = ["ResidualNoise", "frame_positions", "harmonic_residual", "residual_noise", "LJUNG_BOX_MAX_LAG", "BAND_MIN_ORDINATES"]
 
 LJUNG_BOX_MAX_LAG = 20
 BAND_MIN_ORDINATES = 30  # half-band in Fourier bins (1/T): at least this, or √n when larger
@@ -61,9 +61,10 @@ class ResidualNoise:
     phi: np.ndarray
 
 
-def _grid_index(w: Windows, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Frame index of every sample and the sample spacing: the frame clock where the window is
-    on one, else the order of the samples (valid samples come first in a row)."""
+def frame_positions(w: Windows, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Frame index of every sample of the windows at ``rows`` (window, sample) and their sample
+    spacing (window,): the frame clock where a window is on one, else the order of the samples
+    (valid samples come first in a row)."""
     m = w.mask[rows]
     order = np.cumsum(m, axis=1) - 1
     k = np.where(m, w.k[rows], 0)
@@ -101,12 +102,14 @@ def residual_noise(
     f0_hz = np.asarray(f0_hz, float)
     n_all = w.mask.sum(axis=1)
     if rows is None:
-        rows = np.flatnonzero(np.isfinite(f0_hz) & (n_all > 8) & np.all(np.isfinite(np.where(w.mask, residual, 0)), axis=1))
+        rows = np.flatnonzero(
+            np.isfinite(f0_hz) & (n_all > 8) & np.all(np.isfinite(np.where(w.mask, residual, 0)), axis=1)
+        )
     rows = np.asarray(rows, np.int64)
     out = {k: np.full(b, np.nan) for k in ("r2", "whiteness_p", "lags", "kappa", "phi")}
     if rows.size == 0:
         return ResidualNoise(**out)
-    g_all, dt_all = _grid_index(w, rows)
+    g_all, dt_all = frame_positions(w, rows)
     frames = g_all.max(axis=1) + 1
     # Windows that need the same FFT length go together, in chunks of bounded size.
     lengths = np.array([pow2_at_least(int(f) + LJUNG_BOX_MAX_LAG + 1) for f in frames])
