@@ -34,7 +34,10 @@ from scipy import stats
 from .._shapes import pow2_at_least
 from ..series import Windows
 
-__all__ = ["ResidualNoise", "frame_positions", "harmonic_residual", "residual_noise", "LJUNG_BOX_MAX_LAG", "BAND_MIN_ORDINATES"]
+__all__ = [
+    "BAND_MIN_ORDINATES", "LJUNG_BOX_MAX_LAG", "ResidualNoise", "frame_positions", "harmonic_residual",
+    "residual_noise",
+]
 
 LJUNG_BOX_MAX_LAG = 20
 BAND_MIN_ORDINATES = 30  # half-band in Fourier bins (1/T): at least this, or √n when larger

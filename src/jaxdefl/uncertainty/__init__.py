@@ -40,9 +40,11 @@ from ._table import (
 )
 
 __all__ = [
-    "A_MAX_FACTOR", "CYCLES_MIN", "DROPOUT_MAX", "NOISES", "NOISE_MODELS", "PARAMS", "POSTERIOR_COLUMNS", "R2_MIN",
-    "SNR_MIN", "UNCERTAINTY_COLUMNS", "WHITENESS_P_MIN", "Z68", "Z95", "PosteriorSummary", "case_coverage", "ar1_log_posterior", "chain_diagnostics", "choose_windows",
-    "debiased_amplitude", "harmonic_log_posterior", "honesty_features", "honesty_flags",
-    "noise_series", "plot_coverage", "plot_posterior_vs_linearised", "posterior_table", "rice_interval",
-    "sample_posteriors", "simulate_case", "uncertainty_table", "window_scores",
+    "A_MAX_FACTOR", "CYCLES_MIN", "DROPOUT_MAX", "NOISES", "NOISE_MODELS", "PARAMS",
+    "POSTERIOR_COLUMNS", "PosteriorSummary", "R2_MIN", "SNR_MIN", "UNCERTAINTY_COLUMNS",
+    "WHITENESS_P_MIN", "Z68", "Z95", "ar1_log_posterior", "case_coverage", "chain_diagnostics",
+    "choose_windows", "debiased_amplitude", "harmonic_log_posterior", "honesty_features",
+    "honesty_flags", "noise_series", "plot_coverage", "plot_posterior_vs_linearised",
+    "posterior_table", "rice_interval", "sample_posteriors", "simulate_case", "uncertainty_table",
+    "window_scores",
 ]

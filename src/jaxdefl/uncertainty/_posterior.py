@@ -222,7 +222,8 @@ def sample_posteriors(
     dim = 5 if noise == "white" else 6
     if n_walkers < 2 * dim + 2 or n_walkers % 2:
         raise ConfigError(
-            f"n_walkers: expected an even number >= {2 * dim + 2} (2 x {dim} parameters + 2), got {n_walkers}")
+            f"n_walkers: expected an even number >= {2 * dim + 2} (2 x {dim} parameters + 2), "
+            f"got {n_walkers}")
     discard = n_steps // 4 if discard is None else discard
     if n_steps - discard < 100:
         raise ConfigError(

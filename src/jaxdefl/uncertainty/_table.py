@@ -11,7 +11,9 @@ from ._coverage import debiased_amplitude, rice_interval
 from ._flags import honesty_features, honesty_flags
 from ._posterior import sample_posteriors
 
-__all__ = ["POSTERIOR_COLUMNS", "UNCERTAINTY_COLUMNS", "choose_windows", "posterior_table", "uncertainty_table"]
+__all__ = [
+    "POSTERIOR_COLUMNS", "UNCERTAINTY_COLUMNS", "choose_windows", "posterior_table", "uncertainty_table",
+]
 
 UNCERTAINTY_COLUMNS = [
     "segment", "window", "plate", "axis", "snr", "cycles", "missing", "r2", "whiteness_p", "flag",
@@ -39,8 +41,8 @@ def uncertainty_table(estimates: Estimates) -> pd.DataFrame:
     low = np.array(["low_snr" in r for r in reasons])
     shaky = np.array([bool(r & {"low_snr", "few_cycles", "heavy_dropouts"}) for r in reasons])
     bad_model = np.array(["inadequate_model" in r for r in reasons])
-    trust_a = np.where(low, "rice_or_posterior", np.where(shaky, "posterior", "linearised"))
-    trust_f = np.where(shaky, "posterior", "linearised")
+    trust_a = np.where(low, "rice_or_posterior", np.where(shaky, "posterior", "linearised")).astype(object)
+    trust_f = np.where(shaky, "posterior", "linearised").astype(object)
     for trust in (trust_a, trust_f):
         trust[bad_model] = "inadequate_model"
         trust[flags == "not_fitted"] = "none"
