@@ -121,15 +121,15 @@ def test_residual_noise_leaves_unfitted_windows_nan():
 @pytest.mark.parametrize("config", ["exp2_tof_3hz.toml", "exp2_tof_1hz.toml"])
 def test_thesis_simulated_days_are_not_inadequate(config):
     """The simulator's Experiment II day 1 (ToF camera noise, frame-common range error, drop-outs):
-    30-s windows of every plate and axis keep trust ``linearised`` (never inadequate_model)."""
+    a 30-s window of every plate and axis keeps trust ``linearised`` (never inadequate_model)."""
     from jaxdefl.simulate import load_config, measured_centroids, render_frames
 
     cfg = load_config(CONFIGS / config, "day1")
-    t, frames, _, _ = render_frames(cfg, duration_s=60.0, seed=3)
+    t, frames, _, _ = render_frames(cfg, duration_s=30.0, seed=3)
     traj = validate_trajectory(measured_centroids(cfg, t, frames))
     est = estimate_windows(make_windows(traj, axes=("z", "x", "y"), window_s=30.0))
     unc = uncertainty_table(est)
     fitted = unc["trust_amplitude"] != "none"
-    assert fitted.sum() >= 20
+    assert fitted.sum() >= 12
     assert not (unc["trust_amplitude"] == "inadequate_model").any(), unc[unc.flag != "ok"]
     assert (est.table["r2"][fitted] > 0.5).all()

@@ -92,15 +92,15 @@ def test_low_snr_amplitude_linearised_under_covers_and_rice_helps():
 def test_low_snr_posterior_restores_coverage():
     """A/σ = 0.67 in 3 s windows (A/σ_A about 3.7): the linearised f0 interval covers about 84 %,
     the emcee posterior's (wider and non-Gaussian: it spreads over the side peaks of ω) about 95 %,
-    on the same 100 windows (binomial σ 2.2 %: at least 0.90). Its chains fail the convergence
+    on the same 60 windows (binomial σ 2.8 %: at least 0.88). Its chains fail the convergence
     diagnostics: a multi-modal ω posterior is itself the sign that σ_f0 cannot be trusted."""
-    est, truth = simulate_case(0.5, 0.75, 3.0, 0.03, 100, seed=7)
+    est, truth = simulate_case(0.5, 0.75, 3.0, 0.03, 60, seed=7)
     ok = np.flatnonzero(est.fit.converged)
-    post = sample_posteriors(est, ok, noise="white", n_walkers=16, n_steps=2000, seed=2)
+    post = sample_posteriors(est, ok, noise="white", n_walkers=16, n_steps=1200, seed=2, chunk=64)
     r = case_coverage(est, truth, post)
-    assert r["n_post"] > 95
+    assert r["n_post"] > 55
     assert r["lin_f0_95_on_post"] < 0.9
-    assert r["post_f0_95"] >= 0.9 and r["post_f0_95"] > r["lin_f0_95_on_post"] + 0.05
+    assert r["post_f0_95"] >= 0.88 and r["post_f0_95"] > r["lin_f0_95_on_post"] + 0.05
     assert r["post_a_95"] >= r["lin_a_95_on_post"]
     assert r["ratio_sigma_f0"] > 2
 
@@ -108,13 +108,13 @@ def test_low_snr_posterior_restores_coverage():
 @pytest.mark.slow
 def test_ar1_posterior_covers_under_coloured_noise():
     """AR(1) ρ 0.6 at 1 Hz, 10-s windows: the emcee posterior with the AR(1) likelihood covers A
-    and f0 (80 windows, binomial σ 2.4 %: at least 0.88), the white-likelihood one does not."""
-    est, truth = simulate_case(2.5, 0.75, 10.0, 0.03, 80, seed=21, noise="ar1", rho=0.6,
+    and f0 (40 windows, binomial σ 3.4 %: at least 0.85), the white σ's do not."""
+    est, truth = simulate_case(2.5, 0.75, 10.0, 0.03, 40, seed=21, noise="ar1", rho=0.6,
                                f0_range_hz=(0.95, 1.05), band_hz=(0.6, 1.4))
     ok = np.flatnonzero(est.fit.converged)
-    post = sample_posteriors(est, ok, noise="ar1", n_walkers=16, n_steps=1500, seed=5)
+    post = sample_posteriors(est, ok, noise="ar1", n_walkers=16, n_steps=1000, seed=5, chunk=40)
     r = case_coverage(est, truth, post)
-    assert r["post_a_95"] >= 0.88 and r["post_f0_95"] >= 0.88, r
+    assert r["post_a_95"] >= 0.85 and r["post_f0_95"] >= 0.85, r
     assert r["rho_post"] == pytest.approx(0.6, abs=0.1)
     assert r["white_a_95"] < 0.85
 
