@@ -60,6 +60,9 @@ def fit(
         int | None,
         typer.Option(help="Check N windows' σ's against emcee posteriors (0: honesty flags only)."),
     ] = None,
+    posterior_noise: Annotated[
+        str, typer.Option(help="Noise likelihood of the posteriors: ar1 (coloured, default) or white.")
+    ] = "ar1",
 ) -> None:
     """Estimate loading frequency and deflection amplitude per segment, window, plate and axis."""
     from . import pipeline
@@ -76,6 +79,7 @@ def fit(
         fap_max=fap_max,
         reference=reference,
         posterior=posterior,
+        posterior_noise=posterior_noise,
     )
 
 

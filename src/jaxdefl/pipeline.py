@@ -90,7 +90,7 @@ def _check_fit_settings(window_s, step_s, fmin_hz, fmax_hz, oversampling, fap_ma
 
 
 def uncertainty_tables(
-    est: Estimates, n_posterior: int, seed: int = 0
+    est: Estimates, n_posterior: int, seed: int = 0, noise: str = "ar1"
 ) -> tuple[pd.DataFrame, pd.DataFrame | None]:
     """Honesty flags of every window and, for ``n_posterior`` windows (a seeded sample), emcee
     posteriors against the linearised σ's. Returns (uncertainty table, posterior table or None)."""
@@ -99,7 +99,7 @@ def uncertainty_tables(
     if n_posterior < 0:
         raise ConfigError(f"--posterior: expected a number of windows >= 0, got {n_posterior}")
     unc = uncertainty_table(est)
-    post = posterior_table(est, n_posterior, seed=seed) if n_posterior > 0 else None
+    post = posterior_table(est, n_posterior, seed=seed, noise=noise) if n_posterior > 0 else None
     trust = unc[["trust_amplitude", "trust_f0"]].to_numpy()
     n_bad = int(((trust != "linearised") & (trust != "none")).any(axis=1).sum())
     n_model = int((trust[:, 0] == "inadequate_model").sum())
@@ -168,6 +168,7 @@ def fit_file(
     fap_max: float = 0.01,
     reference: Path | None = None,
     posterior: int | None = None,
+    posterior_noise: str = "ar1",
 ) -> tuple[pd.DataFrame, pd.DataFrame | None]:
     """`jaxdefl fit`: read, estimate, write OUT (and OUT stem + _reference/_comparison/... beside).
 
@@ -178,6 +179,8 @@ def fit_file(
     t0 = time.perf_counter()
     traj, out = Path(traj), Path(out)
     _check_fit_settings(window_s, step_s, fmin_hz, fmax_hz, oversampling, fap_max, posterior)
+    if posterior_noise not in ("ar1", "white"):
+        raise ConfigError(f"--posterior-noise: expected ar1 or white, got {posterior_noise!r}")
     outs = Outputs(inputs=[traj, reference])
     outs.reserve(out, "--out", suffixes=TABLE_SUFFIXES)
     paths = companions(out)
@@ -215,7 +218,7 @@ def fit_file(
         ref_tab = fit_reference(ref, est, **kw).table
         comparison = compare_with_reference(tab, ref_tab)
     if posterior is not None:
-        unc, post = uncertainty_tables(est, posterior)
+        unc, post = uncertainty_tables(est, posterior, noise=posterior_noise)
 
     with outs:
         outs.table(out, tab)
@@ -224,6 +227,7 @@ def fit_file(
             settings_record(
                 command="fit",
                 posterior=posterior,
+                posterior_noise=posterior_noise,
                 trajectory=str(traj),
                 window_s=window_s,
                 step_s=step_s,
