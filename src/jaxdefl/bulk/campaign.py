@@ -36,6 +36,7 @@ import tomllib
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+from .._configs import not_found_hint, resolve_config
 from .._errors import ConfigError
 
 __all__ = ["Campaign", "Processing", "Recording", "load_campaign"]
@@ -135,9 +136,9 @@ def load_campaign(path: Path | str) -> Campaign:
         ConfigError: unreadable TOML, unknown keys, wrong types, missing or duplicate
             recordings, non-positive windows (one line naming the file and key).
     """
-    path = Path(path)
+    path = resolve_config(path)
     if not path.is_file():
-        raise ConfigError(f"{path}: campaign file not found")
+        raise ConfigError(f"{path}: campaign file not found{not_found_hint()}")
     try:
         raw = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as err:
