@@ -67,6 +67,9 @@ def fit(
         typer.Option(help="Check N windows' σ's against emcee posteriors (0: honesty flags only)."),
     ] = None,
     timestamps: Annotated[str, typer.Option("--timestamps", help=_TIMESTAMPS_HELP)] = "strict",
+    posterior_noise: Annotated[
+        str, typer.Option(help="Noise likelihood of the posteriors: ar1 (coloured, default) or white.")
+    ] = "ar1",
 ) -> None:
     """Estimate loading frequency and deflection amplitude per segment, window, plate and axis."""
     from . import pipeline
@@ -84,6 +87,7 @@ def fit(
         reference=reference,
         posterior=posterior,
         timestamps=timestamps,
+        posterior_noise=posterior_noise,
     )
 
 
