@@ -16,6 +16,8 @@ reference_plate = 7        # the plate of the per-day tables and the fatigue cur
 plate_x_mm = [...]         # plate positions along the beam (default: 13 plates at 250 mm)
 span_mm = 3400.0           # beam span and load-point distance for the profile fit
 load_a_mm = 1200.0
+timestamps = "strict"      # or "reclock" / "merge": how the tables' timestamps are read
+                           # (`jaxdefl.io.validate_trajectory`; `jaxdefl run --timestamps` overrides)
 model = "harmonic"         # signal model, harmonics and lines as `jaxdefl fit` --model,
 harmonics = 1              # --harmonics and --lines (default: the thesis' harmonic + offset)
 lines = 1
@@ -41,6 +43,7 @@ from pathlib import Path
 
 from .._configs import not_found_hint, resolve_config
 from .._errors import ConfigError
+from ..io.trajectory import TIMESTAMP_POLICIES
 
 __all__ = ["Campaign", "Processing", "Recording", "load_campaign"]
 
@@ -59,6 +62,7 @@ class Processing:
     span_mm: float = 3400.0
     load_a_mm: float = 1200.0
     correct_motion_artefact: bool = False
+    timestamps: str = "strict"
     model: str = "harmonic"
     harmonics: int = 1
     lines: int = 1
@@ -123,6 +127,7 @@ _PROC_TYPES = {
     "span_mm": (int, float),
     "load_a_mm": (int, float),
     "correct_motion_artefact": bool,
+    "timestamps": str,
     "model": str,
     "harmonics": int,
     "lines": int,
@@ -177,6 +182,12 @@ def load_campaign(path: Path | str) -> Campaign:
         if bad or not proc_raw["axes"]:
             raise _err(path, "processing.axes", f"expected a list of z, x, y; got {proc_raw['axes']!r}")
         proc_raw["axes"] = tuple(proc_raw["axes"])
+    if "timestamps" in proc_raw and proc_raw["timestamps"] not in TIMESTAMP_POLICIES:
+        raise _err(
+            path,
+            "processing.timestamps",
+            f"expected one of {', '.join(TIMESTAMP_POLICIES)}, got {proc_raw['timestamps']!r}",
+        )
     if {"model", "harmonics", "lines"} & set(proc_raw):
         from ..fit import signal_model
 

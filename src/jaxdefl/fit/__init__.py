@@ -4,6 +4,7 @@ from .estimate import ESTIMATE_COLUMNS, STATUSES, Estimates, estimate_windows
 from .harmonic import N_PARAMS, HarmonicFit, fit_harmonic, fit_harmonics
 from .models import MODEL_KINDS, ModelFit, SignalModel, fit_model, model_values, signal_model
 from .reference import COMPARISON_COLUMNS, compare_with_reference, fit_reference
+from .residual_noise import ResidualNoise, frame_positions, harmonic_residual, residual_noise
 from .table import estimate_table, windows_for
 
 __all__ = [
@@ -26,4 +27,8 @@ __all__ = [
     "model_values",
     "signal_model",
     "windows_for",
+    "ResidualNoise",
+    "frame_positions",
+    "harmonic_residual",
+    "residual_noise",
 ]

@@ -39,6 +39,7 @@ from .._sincos import sincos
 from ..series import Windows
 from ..spectral import Periodogram, lomb_peaks
 from .harmonic import ATOL, MAX_STEPS, RTOL, HarmonicFit, batch_windows, gauss_newton, normal_equations
+from .residual_noise import ResidualNoise, residual_noise
 
 __all__ = [
     "MAX_HARMONICS",
@@ -49,6 +50,7 @@ __all__ = [
     "fit_model",
     "fit_model_window",
     "model_columns",
+    "model_table",
     "model_values",
     "signal_model",
 ]
@@ -548,13 +550,17 @@ def _damping(p, cov, oi, li):
     )
 
 
-def model_columns(tab: pd.DataFrame, fit: HarmonicFit, spec: SignalModel) -> tuple[pd.DataFrame, list[str]]:
+def model_columns(
+    tab: pd.DataFrame, fit: HarmonicFit, spec: SignalModel, kappa: np.ndarray | None = None
+) -> tuple[pd.DataFrame, list[str]]:
     """The estimates table of a `SignalModel`: the default columns describe the first
     component, and each further component gets its own (see README, "Signal models").
 
-    ``tab`` is the default table with ``t_start``, ``t_mid`` and ``t_centre``. Phases are at
-    ``t_mid``; for a damped model the amplitude and phase are the initial ones, at ``t_start``.
-    Returns the table and the names of the added columns (in order).
+    ``tab`` has ``t_start``, ``t_mid``, ``t_centre``, ``n`` and ``status`` (a windows table).
+    Phases are at ``t_mid``; for a damped model the amplitude and phase are the initial ones, at
+    ``t_start``. ``kappa`` (window, component) inflates each component's variances (the
+    residual's spectral density at its frequency over its mean, `jaxdefl.fit.residual_noise`);
+    None gives the white-noise σ's. Returns the table and the names of the added columns.
     """
     tab = tab.copy()
     b, n_par = len(tab), spec.n_params
@@ -571,26 +577,28 @@ def model_columns(tab: pd.DataFrame, fit: HarmonicFit, spec: SignalModel) -> tup
         line, k = spec.line_of(j), spec.multiplier(j)
         oi = spec.omega_index(line)
         li = spec.decay_index(line) if spec.damped else None
+        infl = 1.0 if kappa is None else np.sqrt(kappa[:, j])
         amp, sa, ph, sp = _amp_phase(p, cov, 2 * j, 2 * j + 1, oi, k, t_org - t_ref, li, t_ref - t_org)
         tag = "" if j == 0 else f"_{j + 1}"
         new = {}
-        if spec.lines > 1 and j > 0:
-            new[f"f0{tag}_hz"] = p[:, oi] / two_pi
-            new[f"sigma_f0{tag}_hz"] = np.sqrt(cov[:, oi, oi]) / two_pi
+        if j == 0 or spec.lines > 1:
+            if j > 0:
+                new[f"f0{tag}_hz"] = p[:, oi] / two_pi
+            new[f"sigma_f0{tag}_hz"] = np.sqrt(cov[:, oi, oi]) / two_pi * infl
         new[f"amplitude{tag}_mm"] = amp
-        new[f"sigma_amplitude{tag}_mm"] = sa
+        new[f"sigma_amplitude{tag}_mm"] = sa * infl
         new[f"phase{tag}_rad"] = ph
-        new[f"sigma_phase{tag}_rad"] = sp
+        new[f"sigma_phase{tag}_rad"] = sp * infl
         if spec.lines > 1:
             new[f"peak_fap{tag}"] = fap[:, j]
+            if j == 0 and "peak_fap" in tab:  # a window not fitted keeps its periodogram's FAP
+                new["peak_fap"] = np.where(np.isfinite(fap[:, 0]), fap[:, 0], tab["peak_fap"].to_numpy())
         if spec.damped:
             z, sz, fn, sfn = _damping(p, cov, oi, li)
             new[f"damping_ratio{tag}"] = z
-            new[f"sigma_damping_ratio{tag}"] = sz
+            new[f"sigma_damping_ratio{tag}"] = sz * infl
             new[f"natural_frequency{tag}_hz"] = fn
-            new[f"sigma_natural_frequency{tag}_hz"] = sfn
-        if j == 0 and "peak_fap" in new:  # a window not fitted keeps its periodogram's FAP
-            new["peak_fap"] = np.where(np.isfinite(fap[:, 0]), fap[:, 0], tab["peak_fap"].to_numpy())
+            new[f"sigma_natural_frequency{tag}_hz"] = sfn * infl
         for name, v in new.items():
             tab[name] = v
             if name not in _DEFAULT_NAMES and name not in added:
@@ -598,6 +606,41 @@ def model_columns(tab: pd.DataFrame, fit: HarmonicFit, spec: SignalModel) -> tup
     few = (tab["status"].to_numpy() == "did_not_converge") & (tab["n"].to_numpy() <= n_par + 1)
     tab.loc[few, "status"] = "too_few_samples"
     return tab, added
+
+
+def model_table(
+    w: Windows, tab: pd.DataFrame, fit: HarmonicFit, spec: SignalModel
+) -> tuple[pd.DataFrame, list[str], ResidualNoise]:
+    """`model_columns` with the σ's honest under coloured noise, and the adequacy columns.
+
+    From the whole model's residual: ``r2``, ``whiteness_p`` and, per component, the residual's
+    spectral density at the component's frequency (`residual_noise`), which scales that
+    component's σ's; ``sigma_amplitude_white_mm``/``sigma_f0_white_hz`` keep the first
+    component's white-noise σ's, as for the default model.
+
+    Returns:
+        The table, the names of the model's added columns, and the first component's
+        `ResidualNoise`.
+    """
+    b, m = len(w), spec.n_components
+    rows = np.flatnonzero(fit.converged)
+    kappa = None
+    noise = residual_noise(w, w.y, np.full(b, np.nan), rows=np.zeros(0, np.int64))  # all NaN
+    if isinstance(fit, ModelFit) and rows.size:
+        resid = w.y - model_values(spec, fit.model_params, w.t, fit.origin_s)
+        kappa = np.full((b, m), np.nan)
+        for j in range(m):
+            f_j = spec.multiplier(j) * fit.model_params[:, spec.omega_index(spec.line_of(j))] / (2 * np.pi)
+            nz = residual_noise(w, resid, f_j, rows=rows)
+            kappa[:, j] = nz.kappa
+            noise = nz if j == 0 else noise
+    white, _ = model_columns(tab, fit, spec)
+    tab, added = model_columns(tab, fit, spec, kappa)
+    tab["r2"] = noise.r2
+    tab["whiteness_p"] = noise.whiteness_p
+    tab["sigma_amplitude_white_mm"] = white["sigma_amplitude_mm"]
+    tab["sigma_f0_white_hz"] = white["sigma_f0_hz"]
+    return tab, added, noise
 
 
 _DEFAULT_NAMES = ("f0_hz", "sigma_f0_hz", "amplitude_mm", "sigma_amplitude_mm", "phase_rad", "peak_fap")

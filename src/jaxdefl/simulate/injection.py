@@ -40,7 +40,15 @@ import numpy as np
 
 from .._errors import ConfigError
 
-__all__ = ["INJECTABLE", "EffectSpec", "parse_effects", "motion_modulations", "range_offset", "stamp_times"]
+__all__ = [
+    "INJECTABLE",
+    "EffectSpec",
+    "make_spec",
+    "parse_effects",
+    "motion_modulations",
+    "range_offset",
+    "stamp_times",
+]
 
 # id -> (level, required parameters, optional parameters with defaults)
 _KINDS: dict[str, tuple[str, tuple[str, ...], dict[str, float]]] = {
@@ -126,10 +134,26 @@ def parse_effects(src: str, tables: Any, n_plates: int) -> tuple[EffectSpec, ...
         missing = [n for n in required if n not in params]
         if missing:
             raise ConfigError(f"{src}: key '{key}': {eid} needs {', '.join(missing)}")
-        spec = EffectSpec(eid, tuple(params.items()), plates)
-        _check(src, key, spec)
-        out.append(spec)
+        out.append(make_spec(eid, params, plates, src, key))
     return tuple(out)
+
+
+def make_spec(
+    eid: str,
+    params: dict[str, float],
+    plates: tuple[int, ...] = (),
+    src: str = "<effect>",
+    key: str = "effect",
+) -> EffectSpec:
+    """A checked spec: the optional parameters filled with their defaults."""
+    _, required, optional = _KINDS[eid]
+    full = {**optional, **{k: float(v) for k, v in params.items()}}
+    missing = [n for n in required if n not in full]
+    if missing:
+        raise ConfigError(f"{src}: key '{key}': {eid} needs {', '.join(missing)}")
+    spec = EffectSpec(eid, tuple(full.items()), tuple(plates))
+    _check(src, key, spec)
+    return spec
 
 
 def _check(src: str, key: str, e: EffectSpec) -> None:
@@ -191,7 +215,8 @@ def motion_modulations(
 
 def range_offset(effects, t_s: np.ndarray, t0_s: float, n_plates: int, seed: int) -> np.ndarray:
     """(frame, plates + 1) range offsets (mm): column 0 for pixels off the plates, column p for
-    plate p's pixels. Outliers draw from their own stream seeded by the frame times."""
+    plate p's pixels. Outliers hit (frame, plate) pairs independently, at random but reproducibly
+    (a hash of the seed, the frame's time and the plate)."""
     t_s = np.asarray(t_s, np.float64)
     off = np.zeros((t_s.size, n_plates + 1))
     trel = t_s - t0_s
@@ -201,17 +226,28 @@ def range_offset(effects, t_s: np.ndarray, t0_s: float, n_plates: int, seed: int
             d = e.p("amplitude_mm") * np.exp(-trel / e.p("tau_s"))
         elif e.id == "level_jump":
             d = e.p("size_mm") * (trel >= e.p("t_jump_s"))
-        else:  # outliers: a frame's error, drawn from the frame time (chunking does not move it)
-            frame_key = np.round(trel * 1e6).astype(np.int64)
-            d = np.zeros(t_s.size)
-            for j, k in enumerate(frame_key):
-                rng = np.random.default_rng([seed, 7101, int(k)])
-                if rng.random() < e.p("fraction"):
-                    d[j] = e.p("scale_mm") * rng.standard_normal()
-            if not e.plates:
-                cols = np.arange(1, n_plates + 1)
+        else:  # outliers: each (frame, plate) drawn from a hash of its time: chunking moves nothing
+            cols = np.arange(1, n_plates + 1) if not e.plates else np.asarray(e.plates)
+            keys = np.round(trel * 1e6).astype(np.int64).astype(np.uint64)[:, None]
+            salt = np.uint64((int(seed) * 0x9E3779B97F4A7C15) & 0xFFFFFFFFFFFFFFFF)
+            keys = keys ^ (cols.astype(np.uint64)[None, :] << np.uint64(40)) ^ salt
+            hit = _uniform(keys) < e.p("fraction")
+            u1, u2 = _uniform(keys ^ np.uint64(0x5851F42D)), _uniform(keys ^ np.uint64(0x14057B7E))
+            normal = np.sqrt(-2.0 * np.log1p(-u1)) * np.cos(2 * math.pi * u2)
+            off[:, cols] += np.where(hit, e.p("scale_mm") * normal, 0.0)
+            continue
         off[:, cols] += d[:, None]
     return off
+
+
+def _uniform(keys: np.ndarray) -> np.ndarray:
+    """Uniform [0, 1) numbers from uint64 keys (splitmix64): a counter-based random stream."""
+    with np.errstate(over="ignore"):
+        z = keys + np.uint64(0x9E3779B97F4A7C15)
+        z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+        z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+        z = z ^ (z >> np.uint64(31))
+    return (z >> np.uint64(11)).astype(np.float64) * 2.0**-53
 
 
 def stamp_times(effects, t_s: np.ndarray, t0_s: float) -> np.ndarray:
