@@ -536,3 +536,19 @@ def test_campaign_model_errors_name_the_key(tmp_path):
         load_campaign(_campaign(tmp_path, "lines = 0"))
     with pytest.raises(ConfigError, match=r"key 'processing.harmonics': expected an integer"):
         load_campaign(_campaign(tmp_path, "harmonics = 2.5"))
+
+
+def test_residual_noise_of_several_lines_equals_one_call_per_line(harmonic_windows):
+    from jaxdefl.fit.residual_noise import residual_noise
+
+    w = harmonic_windows
+    rng = np.random.default_rng(2)
+    resid = ar1(rng, w.y.size, 0.6, 1.0).reshape(w.y.shape)
+    f = np.stack([np.full(len(w), 1.3), np.full(len(w), 3.1), np.full(len(w), 7.7)], axis=1)
+    together = residual_noise(w, resid, f)
+    for j in range(3):
+        alone = residual_noise(w, resid, f[:, j])
+        np.testing.assert_array_equal(together.kappa[:, j], alone.kappa)
+        np.testing.assert_array_equal(together.r2, alone.r2)
+    # the AR(1) density: high at low frequencies, low at high ones
+    assert np.median(together.kappa[:, 0]) > 1.5 > 0.5 > np.median(together.kappa[:, 2])

@@ -628,12 +628,11 @@ def model_table(
     noise = residual_noise(w, w.y, np.full(b, np.nan), rows=np.zeros(0, np.int64))  # all NaN
     if isinstance(fit, ModelFit) and rows.size:
         resid = w.y - model_values(spec, fit.model_params, w.t, fit.origin_s)
-        kappa = np.full((b, m), np.nan)
-        for j in range(m):
-            f_j = spec.multiplier(j) * fit.model_params[:, spec.omega_index(spec.line_of(j))] / (2 * np.pi)
-            nz = residual_noise(w, resid, f_j, rows=rows)
-            kappa[:, j] = nz.kappa
-            noise = nz if j == 0 else noise
+        omega = fit.model_params[:, [spec.omega_index(spec.line_of(j)) for j in range(m)]]
+        f_hz = omega * np.array([spec.multiplier(j) for j in range(m)]) / (2 * np.pi)
+        full = residual_noise(w, resid, f_hz, rows=rows)  # kappa (window, component)
+        kappa = full.kappa
+        noise = dataclasses.replace(full, kappa=kappa[:, 0])
     white, _ = model_columns(tab, fit, spec)
     tab, added = model_columns(tab, fit, spec, kappa)
     tab["r2"] = noise.r2

@@ -53,7 +53,8 @@ class ResidualNoise:
     Attributes (all (window,)):
         r2: variance fraction explained by the model.
         whiteness_p: Ljung-Box p-value of the residual; lags: the H used.
-        kappa: residual spectral density at f0 over its mean (variance inflation of the σ's).
+        kappa: residual spectral density at f0 over its mean (variance inflation of the σ's);
+            (window, line) when `residual_noise` was given a frequency per line.
         phi: lag-1 autocorrelation of the residual (the prewhitening AR(1) coefficient).
     """
 
@@ -96,20 +97,26 @@ def residual_noise(
     Args:
         w: the windows that were fitted.
         residual: (window, sample) data minus model (anything where masked).
-        f0_hz: (window,) the model's frequency; the band of ``kappa`` is centred on it.
+        f0_hz: (window,) the model's frequency; the band of ``kappa`` is centred on it. Or
+            (window, line) for a model of several lines: ``kappa`` is then (window, line), the
+            density at each line (one FFT of the residual serves them all).
         rows: windows to assess (default: those with a finite f0 and more than 8 samples).
     Returns:
         ResidualNoise with NaN for the windows not assessed.
     """
     b = len(w)
     f0_hz = np.asarray(f0_hz, float)
+    one_line = f0_hz.ndim == 1
+    f0_hz = f0_hz.reshape(b, -1)  # (window, line)
     n_all = w.mask.sum(axis=1)
     if rows is None:
-        rows = np.flatnonzero(
-            np.isfinite(f0_hz) & (n_all > 8) & np.all(np.isfinite(np.where(w.mask, residual, 0)), axis=1)
-        )
+        finite = np.all(np.isfinite(np.where(w.mask, residual, 0)), axis=1)
+        rows = np.flatnonzero(np.isfinite(f0_hz[:, 0]) & (n_all > 8) & finite)
     rows = np.asarray(rows, np.int64)
-    out = {k: np.full(b, np.nan) for k in ("r2", "whiteness_p", "lags", "kappa", "phi")}
+    out = {k: np.full(b, np.nan) for k in ("r2", "whiteness_p", "lags", "phi")}
+    out["kappa"] = np.full(f0_hz.shape, np.nan)
+    if one_line:
+        out["kappa"] = out["kappa"][:, 0]
     if rows.size == 0:
         return ResidualNoise(**out)
     g_all, dt_all = frame_positions(w, rows)
@@ -123,7 +130,7 @@ def residual_noise(
             sel = same[c0 : c0 + size]
             part = _chunk(w, residual, f0_hz, rows[sel], g_all[sel], dt_all[sel], frames[sel], int(m_len))
             for k, v in part.items():
-                out[k][rows[sel]] = v
+                out[k][rows[sel]] = v[:, 0] if (k == "kappa" and one_line) else v
     return ResidualNoise(**out)
 
 
@@ -183,14 +190,18 @@ def _chunk(w, residual, f0_hz, rows, g, dt, frames, m_len) -> dict:
     def shape(f):  # unit-variance AR(2) spectrum of the masked series, fs S(f) / γ0
         return (1 - missing[:, None]) * ar_density(f) / unit[:, None] + missing[:, None]
 
-    half = np.minimum(np.maximum(BAND_MIN_ORDINATES, np.sqrt(n)) / span, BAND_MAX_FRACTION * f0)
-    dist = np.abs(freq - f0[:, None])
     nyq = 0.5 / dt[:, None]
-    band = (dist >= 2.0 / span[:, None]) & (dist <= half[:, None]) & (freq > 0) & (freq < nyq)
     power = np.abs(fr) ** 2 / n[:, None]
-    with np.errstate(invalid="ignore", divide="ignore"):
-        flat = np.where(band, power / shape(freq), 0.0).sum(axis=1) / band.sum(axis=1)
-        kappa = shape(f0[:, None])[:, 0] * flat / (ss_r / n)
-    # Too short a window for a band (a few cycles): the AR(2) spectrum alone.
-    kappa = np.where(band.sum(axis=1) >= 4, kappa, shape(f0[:, None])[:, 0])
+    flattened = power / shape(freq)
+    kappa = np.empty(f0.shape)
+    for j in range(f0.shape[1]):  # each line's band (one for the thesis model)
+        fj = f0[:, j]
+        half = np.minimum(np.maximum(BAND_MIN_ORDINATES, np.sqrt(n)) / span, BAND_MAX_FRACTION * fj)
+        dist = np.abs(freq - fj[:, None])
+        band = (dist >= 2.0 / span[:, None]) & (dist <= half[:, None]) & (freq > 0) & (freq < nyq)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            flat = np.where(band, flattened, 0.0).sum(axis=1) / band.sum(axis=1)
+            kj = shape(fj[:, None])[:, 0] * flat / (ss_r / n)
+        # Too short a window for a band (a few cycles): the AR(2) spectrum alone.
+        kappa[:, j] = np.where(band.sum(axis=1) >= 4, kj, shape(fj[:, None])[:, 0])
     return dict(r2=r2, whiteness_p=p_white, lags=n_lag.astype(float), kappa=kappa, phi=rho1)
