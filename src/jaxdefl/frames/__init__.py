@@ -10,9 +10,8 @@ from .kernels import (
     check_frames,
     erode,
     label_components,
+    opening,
     otsu_threshold,
-    points_from_depth,
-    points_from_range,
     region_stats,
 )
 from .pipeline import PlateGeometry, Scene, SceneError, calibrate_scene, detect_chunk, ray_factors
@@ -36,9 +35,8 @@ __all__ = [
     "fit_ellipse",
     "floor_targets",
     "label_components",
+    "opening",
     "otsu_threshold",
-    "points_from_depth",
-    "points_from_range",
     "ray_factors",
     "region_stats",
 ]
