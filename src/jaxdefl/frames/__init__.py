@@ -9,6 +9,7 @@ from .floor import bilinear, floor_targets
 from .kernels import (
     check_frames,
     erode,
+    flat_indices,
     label_components,
     opening,
     otsu_threshold,
@@ -32,6 +33,7 @@ __all__ = [
     "extract_frames",
     "extract_recording",
     "extract_to_table",
+    "flat_indices",
     "fit_ellipse",
     "floor_targets",
     "label_components",

@@ -33,7 +33,7 @@ import torch
 import torch.nn.functional as F
 
 from .floor import floor_targets
-from .kernels import erode, label_components, opening, otsu_threshold, region_stats
+from .kernels import all_finite, erode, flat_indices, label_components, opening, otsu_threshold, region_stats
 
 __all__ = ["PlateGeometry", "Scene", "calibrate_scene", "detect_chunk", "ray_factors", "SceneError"]
 
@@ -189,7 +189,8 @@ def _segment(z: torch.Tensor, amp: torch.Tensor | None, top: torch.Tensor, band,
         fg &= flat
     if amp is not None:
         # Otsu on the amplitude masked by the band (eq. 5.22-5.24): the other pixels count as zeros
-        thr = otsu_threshold(torch.where(fg, amp, 0.0)).to(amp.dtype)
+        masked = amp * fg if all_finite(amp) else torch.where(fg, amp, 0.0)
+        thr = otsu_threshold(masked).to(amp.dtype)
         fg &= amp > thr[:, None, None, None]
     return fg
 
@@ -215,11 +216,13 @@ def _regions(
         return out
     st = region_stats(labels, n, row0=r0, height=scene_px["height"])
     # erosion drops the mixed pixels at plate edges (thesis 5.1.4)
-    keep = erode(fg) & torch.isfinite(z)
-    idx = keep.reshape(-1).nonzero()[:, 0]
-    lab = labels.reshape(-1)[idx] - 1
-    pix = idx % (h * w) + r0 * w  # flat pixel index in the full frame
+    idx = flat_indices(erode(fg))
     zz = z.reshape(-1)[idx].to(torch.float64)
+    finite = torch.isfinite(zz)
+    if not bool(finite.all()):
+        idx, zz = idx[finite], zz[finite]
+    lab = labels.reshape(-1)[idx].long() - 1
+    pix = idx % (h * w) + r0 * w  # flat pixel index in the full frame
     if clip_sigma is not None and idx.numel():
         # pixels farther than clip_sigma x the region's scatter from its mean depth are not the plate's
         cnt = torch.bincount(lab, minlength=n).clamp_min(1)
