@@ -4,7 +4,7 @@ The only stage that imports torch.
 """
 
 from .ellipse import Ellipse, fit_ellipse
-from .extract import Extractor, extract_frames, extract_recording, extract_to_table
+from .extract import Extractor, extract_frames, extract_recording, extract_to_table, resolve_device
 from .floor import bilinear, floor_targets
 from .kernels import (
     check_frames,
@@ -41,4 +41,5 @@ __all__ = [
     "otsu_threshold",
     "ray_factors",
     "region_stats",
+    "resolve_device",
 ]

@@ -180,31 +180,41 @@ def region_stats(labels: torch.Tensor, n_labels: int, row0: int = 0, height: int
         border (bool: a pixel on the frame's first or last row or column).
     """
     check_frames(labels, "labels")
-    _, _, h, w = labels.shape
+    b, _, h, w = labels.shape
     height = row0 + h if height is None else height
-    flat = labels.reshape(-1)
-    idx = flat_indices(flat != 0)
-    lab = flat[idx].long() - 1
-    frame, rem = idx // (h * w), idx % (h * w)
-    vi, ui = rem // w + row0, rem % w
-    u, v = ui.to(torch.float64), vi.to(torch.float64)
+    dev, n = labels.device, n_labels
+    # runs of one label along the rows (two labels never touch: they would be one component)
+    rows = labels.reshape(b * h, w)
+    pad = F.pad(rows, (1, 1))
+    first = flat_indices((rows != pad[:, :-2]) & (rows != 0))
+    last = flat_indices((rows != pad[:, 2:]) & (rows != 0))
+    lab = rows.reshape(-1)[first].long() - 1
+    row = first // w
+    u0, u1 = (first % w).to(torch.float64), (last % w).to(torch.float64)
+    vi = row % h + row0
+    v = vi.to(torch.float64)
+    # sums over a run's pixels u0..u1 in closed form (exact integers in float64)
+    cnt = u1 - u0 + 1
+    su = 0.5 * cnt * (u0 + u1)
+    suu = (u1 * (u1 + 1) * (2 * u1 + 1) - (u0 - 1) * u0 * (2 * u0 - 1)) / 6
 
     def rsum(x):
-        return torch.bincount(lab, x, minlength=n_labels)
+        return torch.bincount(lab, x, minlength=n)
 
-    area = rsum(None).to(torch.float64)
+    area = rsum(cnt)
     a = area.clamp_min(1)
-    ub, vb = rsum(u) / a, rsum(v) / a
-    # central moments from the pixels' offsets to their region's centroid (no cancellation)
-    du, dv = u - ub[lab], v - vb[lab]
-    muu, mvv, muv = rsum(du * du) / a, rsum(dv * dv) / a, rsum(du * dv) / a
+    ub, vb = rsum(su) / a, rsum(cnt * v) / a
+    muu = (rsum(suu) / a - ub * ub).clamp_min(0)
+    mvv = (rsum(cnt * v * v) / a - vb * vb).clamp_min(0)
+    muv = rsum(su * v) / a - ub * vb
     half_tr = 0.5 * (muu + mvv)
     disc = torch.sqrt((0.5 * (muu - mvv)) ** 2 + muv**2)
     l1 = half_tr + disc
     l2 = (half_tr - disc).clamp_min(0)
-    edge = (ui == 0) | (ui == w - 1) | (vi == 0) | (vi == height - 1)
+    edge = (u0 == 0) | (u1 == w - 1) | (vi == 0) | (vi == height - 1)
+    frame = torch.zeros(n, dtype=torch.int64, device=dev).index_put_((lab,), row // h)
     return dict(
-        frame=(rsum(frame.to(torch.float64)) / a).round().to(torch.int64),
+        frame=frame,
         area=area,
         u=ub,
         v=vb,
