@@ -35,37 +35,42 @@ class Tracker:
         self.seg = torch.as_tensor(seg, device=dev)
         self.size = torch.as_tensor(sizes, dtype=torch.float64, device=dev)
         inv = torch.as_tensor(scene.inv_norm.reshape(-1), device=dev)[self.pix]
-        self.inv = inv.to(torch.float64) if scene.kind == "range" else None
-        self.xr = torch.as_tensor(scene.xr.reshape(-1)[pix], dtype=torch.float64, device=dev)
-        self.yr = torch.as_tensor(scene.yr.reshape(-1)[pix], dtype=torch.float64, device=dev)
+        self.inv = inv if scene.kind == "range" else None
+        # pixel -> plate sums of a value, of the value times xr and times yr: (P, 3 x plates)
+        xr = torch.as_tensor(scene.xr.reshape(-1)[pix], dtype=torch.float64, device=dev)
+        yr = torch.as_tensor(scene.yr.reshape(-1)[pix], dtype=torch.float64, device=dev)
+        self.sums = torch.cat([self.m, self.m * xr[:, None], self.m * yr[:, None]], 1)
 
     def centroids(self, frames) -> tuple[np.ndarray, np.ndarray]:
         """(frame, plate, 3) centroids in mm and (frame, plate) bool ``lost``."""
         b = frames.shape[0]
         f = frames_tensor(frames, self.scene.device)
-        vals = f.reshape(b, -1)[:, self.pix].to(torch.float64)
+        vals = f.reshape(b, -1).index_select(1, self.pix)
         if self.inv is not None:
             vals = vals * self.inv
-        z, top = vals[:, : self.n_pix], top_level(vals[:, self.n_pix :])
-        zc = z - top[:, None]  # small numbers: sums keep their precision
+        top = top_level(vals[:, self.n_pix :]).to(torch.float64)
+        zc = (
+            vals[:, : self.n_pix].to(torch.float64) - top[:, None]
+        )  # small numbers: sums keep their precision
         valid = torch.isfinite(zc)
-        zc = torch.where(valid, zc, 0.0)
+        zc = zc.nan_to_num_(0.0, 0.0, 0.0)
         w = valid.to(torch.float64)
         if self.scene.kind == "depth":  # drop pixels > 3 sigma from their plate's mean (region growing)
-            cnt = (w @ self.m).clamp_min(1)
-            mean = (zc @ self.m) / cnt
-            res = torch.where(valid, zc - mean[:, self.seg], 0.0)
+            s = torch.stack([w, zc], 1) @ self.m
+            cnt = s[:, 0].clamp_min(1)
+            res = (zc - (s[:, 1] / cnt)[:, self.seg]) * w
             sd = torch.sqrt((res * res) @ self.m / cnt)
             w = w * (res.abs() <= 3.0 * sd[:, self.seg] + 1e-6)
-        cnt = w @ self.m
+        # per plate: sums of w, w xr, w yr and of z w, z w xr, z w yr
+        n = self.m.shape[1]
+        sw = (w @ self.sums).reshape(b, 3, n)
+        sz = ((zc * w) @ self.sums).reshape(b, 3, n)
+        cnt = sw[:, 0]
         c = cnt.clamp_min(1)
-        zw = zc * w
-        rel = (zw @ self.m) / c
-        zabs = rel + top[:, None]
-        x = ((zw * self.xr) @ self.m + top[:, None] * ((w * self.xr) @ self.m)) / c
-        y = ((zw * self.yr) @ self.m + top[:, None] * ((w * self.yr) @ self.m)) / c
+        rel = sz[:, 0] / c
+        out = ((sz + top[:, None, None] * sw) / c[:, None]).transpose(1, 2)  # (b, n, [z, x, y])
         lo, hi = self.scene.band
         lost = (cnt < 0.8 * self.size) | ~((rel > lo) & (rel < hi))
-        out = torch.stack([x, y, zabs], dim=-1)
+        out = out.roll(-1, dims=2)  # x, y, z
         out[lost] = float("nan")
         return out.cpu().numpy(), lost.cpu().numpy()
