@@ -10,8 +10,11 @@ Stages, on a chunk of frames (B, H, W) at a time:
    simulator's, has them between top and floor, bonded 295 mm below the top; a layer above the
    top is tried too, and the one holding a row of similar, collinear regions wins). Each plate
    found is numbered by its position along the beam and keeps its area, eccentricity and image
-   position as a template.
-2. **Per frame**, batched: depth relative to that frame's beam-top level (a per-frame median,
+   position as a template. The level search, the top surface and the plate layer use the same
+   tensor kernels as the per-frame stages (on a stack of one frame, or of one mask per level).
+2. **Per frame**, batched on (B, 1, h, w) torch tensors on the scene's device (the kernels of
+   `kernels.py`: kornia morphology, run-based labelling, closed-form moments), over the rows
+   where the plates can be: depth relative to that frame's beam-top level (a per-frame median,
    so common depth shifts of structured-light cameras cancel); the plate layer's depth band
    (depth-based classification); ToF: Otsu on the amplitude image masked by the band (eq.
    5.22-5.24); structured light: depth only, smoothed 5x5 for segmentation. 8-connected

@@ -31,7 +31,7 @@ class Tracker:
         self.pix = torch.as_tensor(np.concatenate([pix, scene.top_idx]), device=dev)
         self.n_pix = pix.size
         self.m = torch.zeros(pix.size, len(sizes), dtype=torch.float64, device=dev)
-        self.m[torch.arange(pix.size), torch.as_tensor(seg)] = 1.0
+        self.m[torch.arange(pix.size, device=dev), torch.as_tensor(seg, device=dev)] = 1.0
         self.seg = torch.as_tensor(seg, device=dev)
         self.size = torch.as_tensor(sizes, dtype=torch.float64, device=dev)
         inv = torch.as_tensor(scene.inv_norm.reshape(-1), device=dev)[self.pix]
