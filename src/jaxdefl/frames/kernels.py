@@ -15,7 +15,6 @@ from __future__ import annotations
 import kornia
 import numpy as np
 import torch
-import torch.nn.functional as F
 
 __all__ = [
     "check_frames",
@@ -115,6 +114,16 @@ def _roots(parent: torch.Tensor, src: torch.Tensor, dst: torch.Tensor) -> torch.
         parent = merged
 
 
+def _runs(rows: torch.Tensor) -> tuple[int, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Runs of true pixels along the rows of a (R, w) bool tensor: count, row, first and last column."""
+    r, w = rows.shape
+    pad = torch.zeros(r, w + 2, dtype=torch.bool, device=rows.device)
+    pad[:, 1:-1] = rows
+    ends = flat_indices(pad[:, 1:] ^ pad[:, :-1])  # raster order: a run's start, then one past its end
+    first, stop = ends[0::2], ends[1::2]
+    return first.numel(), first // (w + 1), first % (w + 1), stop % (w + 1) - 1
+
+
 def label_components(mask: torch.Tensor) -> tuple[torch.Tensor, int]:
     """8-connected components of every frame, labelled 1..n over the whole batch.
 
@@ -132,13 +141,9 @@ def label_components(mask: torch.Tensor) -> tuple[torch.Tensor, int]:
     check_frames(mask, "mask")
     b, _, h, w = mask.shape
     dev = mask.device
-    rows = F.pad(mask.reshape(b * h, w).to(torch.int8), (1, 1))
-    step = rows[:, 1:] - rows[:, :-1]  # (b*h, w+1): +1 where a run starts, -1 one past its end
-    ends = flat_indices(step != 0)  # raster order: a run's start, then one past its end
-    n_runs = ends.numel() // 2
+    n_runs, row, first, last = _runs(mask.reshape(b * h, w) != 0)
     if n_runs == 0:
         return torch.zeros(mask.shape, dtype=torch.int32, device=dev), 0
-    row, first, last = ends[0::2] // (w + 1), ends[0::2] % (w + 1), ends[1::2] % (w + 1) - 1
     # runs of the row above (same frame) reaching columns first-1 .. last+1: a contiguous range
     stride = w + 2
     key_first, key_last = row * stride + first, row * stride + last
@@ -184,13 +189,9 @@ def region_stats(labels: torch.Tensor, n_labels: int, row0: int = 0, height: int
     height = row0 + h if height is None else height
     dev, n = labels.device, n_labels
     # runs of one label along the rows (two labels never touch: they would be one component)
-    rows = labels.reshape(b * h, w)
-    pad = F.pad(rows, (1, 1))
-    first = flat_indices((rows != pad[:, :-2]) & (rows != 0))
-    last = flat_indices((rows != pad[:, 2:]) & (rows != 0))
-    lab = rows.reshape(-1)[first].long() - 1
-    row = first // w
-    u0, u1 = (first % w).to(torch.float64), (last % w).to(torch.float64)
+    _, row, first, last = _runs(labels.reshape(b * h, w) != 0)
+    lab = labels.reshape(b * h, w)[row, first].long() - 1
+    u0, u1 = first.to(torch.float64), last.to(torch.float64)
     vi = row % h + row0
     v = vi.to(torch.float64)
     # sums over a run's pixels u0..u1 in closed form (exact integers in float64)
@@ -211,7 +212,7 @@ def region_stats(labels: torch.Tensor, n_labels: int, row0: int = 0, height: int
     disc = torch.sqrt((0.5 * (muu - mvv)) ** 2 + muv**2)
     l1 = half_tr + disc
     l2 = (half_tr - disc).clamp_min(0)
-    edge = (u0 == 0) | (u1 == w - 1) | (vi == 0) | (vi == height - 1)
+    edge = (first == 0) | (last == w - 1) | (vi == 0) | (vi == height - 1)
     frame = torch.zeros(n, dtype=torch.int64, device=dev).index_put_((lab,), row // h)
     return dict(
         frame=frame,
