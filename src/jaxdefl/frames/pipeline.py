@@ -219,11 +219,15 @@ def _regions(
     ``scene_px``: ``xr``, ``yr`` (flat, whole frame) tensors. Every array has one entry per region
     (n of them); ``pixels``: per eroded pixel its region and flat pixel index in the frame.
     """
+    # only the rows where some frame has foreground: the others change no label, moment or erosion
+    rows = flat_indices(fg.any(dim=3).any(dim=0)[0])
+    if rows.numel() == 0:
+        return {"n": 0}
+    c0, c1 = int(rows[0]), int(rows[-1]) + 1
+    fg, z, r0 = fg[:, :, c0:c1], z[:, :, c0:c1], r0 + c0
     b, _, h, w = fg.shape
     labels, n = label_components(fg)
     out: dict = {"n": n}
-    if n == 0:
-        return out
     st = region_stats(labels, n, row0=r0, height=scene_px["height"])
     # erosion drops the mixed pixels at plate edges (thesis 5.1.4)
     idx = flat_indices(erode(fg))
