@@ -299,10 +299,9 @@ def _plate_candidates(reg: dict, min_area: float) -> np.ndarray:
     return lab[keep]
 
 
-def _largest_regions(masks: np.ndarray, dev) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Labels (B, h, w), per-region area (n,) and per-region frame (n,) of masks (B, h, w)."""
-    m = torch.as_tensor(masks, device=dev)[:, None]
-    labels, n = label_components(m)
+def _regions_of(masks: torch.Tensor) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Labels (B, h, w), per-region area (n,) and per-region frame (n,) of masks (B, 1, h, w)."""
+    labels, n = label_components(masks)
     if n == 0:
         return labels[:, 0].cpu().numpy(), np.zeros(0), np.zeros(0, np.int64)
     st = region_stats(labels, n)
@@ -364,14 +363,14 @@ def calibrate_scene(
     # opened by one pixel: a surface is thicker than the thin strip where a slanted side face
     # (the beam's, next to the plates bonded at its bottom) crosses the level; all levels at once
     near = torch.as_tensor(np.abs(zmed[None] - levels[:, None, None].astype(np.float32)) < 10, device=dev)
-    _, area, frame = _largest_regions(opening(near[:, None])[:, 0].cpu().numpy(), dev)
+    _, area, frame = _regions_of(opening(near[:, None]))
     biggest = np.zeros(levels.size)
     np.maximum.at(biggest, frame, area)
     large = levels[biggest >= 0.2 * biggest.max()]
     if not np.isfinite(floor_z) and len(large) > 1:
         large = large[:-1]  # no floor targets: the farthest large level is the floor
     mode = large.max()
-    lab, sizes, _ = _largest_regions((np.abs(zmed - mode) < 10)[None], dev)
+    lab, sizes, _ = _regions_of(torch.as_tensor(np.abs(zmed - mode) < 10, device=dev)[None, None])
     big = np.flatnonzero(sizes >= 0.25 * sizes.max()) + 1
     surface = torch.as_tensor(np.isin(lab, big), device=dev)[:, None]
     top_mask = erode(surface, 5)[0, 0].cpu().numpy()  # two 3x3 erosions
