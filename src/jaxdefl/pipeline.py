@@ -14,9 +14,10 @@ from rich.console import Console
 from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from . import __version__
+from ._configs import config_dir
 from ._errors import ConfigError, JaxdeflError
 from .fit import Estimates, compare_with_reference, estimate_windows, fit_reference
-from .io import load_table, read_reference, read_trajectory, write_trajectory
+from .io import check_timestamp_policy, load_table, read_reference, read_trajectory, timestamp_note, write_trajectory
 from .io.output import TABLE_SUFFIXES, Outputs
 from .series import check_window_plan
 
@@ -90,45 +91,22 @@ def _check_fit_settings(window_s, step_s, fmin_hz, fmax_hz, oversampling, fap_ma
 
 
 def uncertainty_tables(
-    est: Estimates, n_posterior: int, seed: int = 0
+    est: Estimates, n_posterior: int, seed: int = 0, noise: str = "ar1"
 ) -> tuple[pd.DataFrame, pd.DataFrame | None]:
     """Honesty flags of every window and, for ``n_posterior`` windows (a seeded sample), emcee
     posteriors against the linearised σ's. Returns (uncertainty table, posterior table or None)."""
-    from .uncertainty import (
-        debiased_amplitude,
-        honesty_features,
-        honesty_flags,
-        posterior_table,
-        rice_interval,
-    )
+    from .uncertainty import posterior_table, uncertainty_table
 
     if n_posterior < 0:
         raise ConfigError(f"--posterior: expected a number of windows >= 0, got {n_posterior}")
-    tab = est.table
-    feat = honesty_features(est)
-    flags = honesty_flags(est)
-    lo, hi = rice_interval(tab["amplitude_mm"].to_numpy(), tab["sigma_amplitude_mm"].to_numpy())
-    low = np.char.find(flags.astype(str), "low_snr") >= 0
-    unc = tab[["segment", "window", "plate", "axis"]].assign(
-        snr=feat["snr"].to_numpy(),
-        cycles=feat["cycles"].to_numpy(),
-        missing=feat["missing"].to_numpy(),
-        flag=flags,
-        trust_amplitude=np.where(
-            flags == "ok", "linearised", np.where(low, "rice_or_posterior", "posterior")
-        ),
-        trust_f0=np.where(flags == "ok", "linearised", "posterior"),
-        amplitude_debiased_mm=debiased_amplitude(
-            tab["amplitude_mm"].to_numpy(), tab["sigma_amplitude_mm"].to_numpy()
-        ),
-        amplitude_rice_lo95_mm=lo,
-        amplitude_rice_hi95_mm=hi,
-    )
-    unc.loc[flags == "not_fitted", ["trust_amplitude", "trust_f0"]] = "none"
-    post = posterior_table(est, n_posterior, seed=seed) if n_posterior > 0 else None
-    n_bad = int(((flags != "ok") & (flags != "not_fitted")).sum())
+    unc = uncertainty_table(est)
+    post = posterior_table(est, n_posterior, seed=seed, noise=noise) if n_posterior > 0 else None
+    trust = unc[["trust_amplitude", "trust_f0"]].to_numpy()
+    n_bad = int(((trust != "linearised") & (trust != "none")).any(axis=1).sum())
+    n_model = int((trust[:, 0] == "inadequate_model").sum())
     console.print(
-        f"  uncertainty: {n_bad} of {len(flags)} windows flagged (linearised σ not to be trusted there)"
+        f"  uncertainty: {n_bad} of {len(unc)} windows flagged (linearised σ not to be trusted there)"
+        + (f", {n_model} of them not one harmonic in noise (inadequate_model)" if n_model else "")
     )
     return unc, post
 
@@ -191,6 +169,8 @@ def fit_file(
     fap_max: float = 0.01,
     reference: Path | None = None,
     posterior: int | None = None,
+    timestamps: str = "strict",
+    posterior_noise: str = "ar1",
 ) -> tuple[pd.DataFrame, pd.DataFrame | None]:
     """`jaxdefl fit`: read, estimate, write OUT (and OUT stem + _reference/_comparison/... beside).
 
@@ -201,6 +181,9 @@ def fit_file(
     t0 = time.perf_counter()
     traj, out = Path(traj), Path(out)
     _check_fit_settings(window_s, step_s, fmin_hz, fmax_hz, oversampling, fap_max, posterior)
+    check_timestamp_policy(timestamps)
+    if posterior_noise not in ("ar1", "white"):
+        raise ConfigError(f"--posterior-noise: expected ar1 or white, got {posterior_noise!r}")
     outs = Outputs(inputs=[traj, reference])
     outs.reserve(out, "--out", suffixes=TABLE_SUFFIXES)
     paths = companions(out)
@@ -214,12 +197,14 @@ def fit_file(
             outs.reserve(paths["posterior"], "the posterior table")
             outs.reserve(paths["posterior_png"], "the posterior figure")
 
-    df = read_trajectory(traj)
+    df = read_trajectory(traj, timestamps=timestamps)
+    clocks = {"trajectory": df.attrs.get("timestamps")}
     if axes is None:
         axes = tuple(a for a in ("z", "x", "y") if a in df.columns)
     ref = None
     if reference is not None:
-        ref = read_reference(reference)
+        ref = read_reference(reference, timestamps=timestamps)
+        clocks["reference"] = ref.attrs.get("timestamps")
         shared = np.intersect1d(ref["plate"].unique(), df["plate"].unique())
         if not shared.size:
             raise ConfigError(
@@ -238,7 +223,7 @@ def fit_file(
         ref_tab = fit_reference(ref, est, **kw).table
         comparison = compare_with_reference(tab, ref_tab)
     if posterior is not None:
-        unc, post = uncertainty_tables(est, posterior)
+        unc, post = uncertainty_tables(est, posterior, noise=posterior_noise)
 
     with outs:
         outs.table(out, tab)
@@ -247,11 +232,14 @@ def fit_file(
             settings_record(
                 command="fit",
                 posterior=posterior,
+                posterior_noise=posterior_noise,
                 trajectory=str(traj),
                 window_s=window_s,
                 step_s=step_s,
                 axes=list(axes),
                 reference=str(reference) if reference else None,
+                timestamps=timestamps,
+                clock={k: v for k, v in clocks.items() if v},
                 **kw,
             ),
         )
@@ -260,6 +248,9 @@ def fit_file(
             outs.table(paths["comparison"], comparison)
         if unc is not None:
             write_uncertainty(outs, unc, post, paths)
+    for name, rep in clocks.items():
+        if (note := timestamp_note(rep)) is not None:
+            console.print(f"  {name}: {note}", highlight=False, soft_wrap=True)
     counts = tab["status"].value_counts().to_dict()
     console.print(
         f"[bold]jaxdefl fit[/]: {len(tab)} windows in {time.perf_counter() - t0:.1f} s -> {out} "
@@ -279,12 +270,19 @@ def _plates(df: pd.DataFrame) -> str:
     return "plates " + ", ".join(map(str, p[:8].tolist())) + (" ..." if p.size > 8 else "")
 
 
-def run_file(config: Path, out: Path, scheduler: str = "none") -> pd.DataFrame:
-    """`jaxdefl run`: a campaign config to ``out`` (see `jaxdefl.bulk`)."""
+def run_file(config: Path, out: Path, scheduler: str = "none", timestamps: str | None = None) -> pd.DataFrame:
+    """`jaxdefl run`: a campaign config to ``out`` (see `jaxdefl.bulk`); ``timestamps``
+    overrides the campaign's ``processing.timestamps``."""
+    from dataclasses import replace
+
     from .bulk import load_campaign, run_campaign
 
     t0 = time.perf_counter()
+    if timestamps is not None:
+        check_timestamp_policy(timestamps)
     campaign = load_campaign(config)
+    if timestamps is not None:
+        campaign = replace(campaign, processing=replace(campaign.processing, timestamps=timestamps))
     units = run_campaign(campaign, out, scheduler=scheduler)
     n_ok = int((units["status"] == "ok").sum())
     console.print(
@@ -308,7 +306,6 @@ def run_file(config: Path, out: Path, scheduler: str = "none") -> pd.DataFrame:
 # demo
 
 
-CONFIG_DIR = Path(__file__).resolve().parents[2] / "configs"
 DEMO_CONFIG = "exp2_tof_3hz.toml"
 
 
@@ -316,9 +313,9 @@ def _demo_recording(out: Path, duration_s: float, seed: int):
     """Simulate Experiment II day 1 (3 Hz, SR4000 at 20 Hz) into ``out/simulation``."""
     from .simulate import simulate_to_dir
 
-    cfg = CONFIG_DIR / DEMO_CONFIG
+    cfg = config_dir() / DEMO_CONFIG
     if not cfg.is_file():
-        raise JaxdeflError(f"{cfg}: the demo's simulation config is missing (run the demo from a checkout)")
+        raise JaxdeflError(f"{cfg}: the demo's simulation config is missing from the installed package")
     sim = out / "simulation"
     simulate_to_dir(cfg, sim, duration_s=duration_s, seed=seed)
     return sim
@@ -429,6 +426,7 @@ def diagnose_file(
     segment: str | None = None,
     effects: tuple[str, ...] | None = None,
     figures: bool = True,
+    timestamps: str = "strict",
 ) -> dict:
     """`jaxdefl diagnose`: read, diagnose, write OUT.json, OUT.md and a figure per effect.
 
@@ -438,6 +436,7 @@ def diagnose_file(
     from .report.diagnosis import write_diagnosis_report
 
     traj, out = Path(traj), Path(out)
+    check_timestamp_policy(timestamps)
     outs = Outputs(inputs=[traj, reference, config])
     outs.reserve(out, "--out", suffixes=(".json",))
     outs.reserve(out.with_suffix(".md"), "the diagnosis report")
@@ -473,8 +472,12 @@ def diagnose_file(
             source=str(traj),
             reference_source=str(reference),
             on_round=on_round,
+            timestamps=timestamps,
             **facts,
         )
+    for note in diag.notes:
+        if "timestamps reclocked" in note or "timestamps merged" in note:
+            console.print(f"  {note}", highlight=False, soft_wrap=True)
     d = diag.to_json()
     d["settings"] = {
         "jaxdefl_version": __version__,
@@ -484,6 +487,7 @@ def diagnose_file(
         **{k: v for k, v in facts.items()},
         "segment": segment,
         "effects": list(effects) if effects else None,
+        "timestamps": timestamps,
     }
     with outs:
         outs.json(out, d)
@@ -493,4 +497,125 @@ def diagnose_file(
         f"effects: {names}; unexplained: {len(d['unexplained'])}; RMS {d['nominal']['rms_mm']:.4f} -> "
         f"{d['final']['rms_mm']:.4f} mm; {diag.seconds:.1f} s -> {out}, {written[0]}"
     )
+    return d
+
+
+# --------------------------------------------------------------------------------------------
+# reconcile
+
+
+def _reconcile_input(recording: Path, segment: str | None, timestamps: str = "strict") -> pd.DataFrame:
+    """A trajectory table as read, or a frame recording's extracted trajectories; one segment."""
+    from .io import validate_trajectory
+
+    if recording.suffix.lower() in (".csv", ".parquet", ".pq", ".gz", ".txt"):
+        df = read_trajectory(recording, timestamps=timestamps)
+    else:
+        from .frames import extract_recording
+        from .io.recording import open_recording
+
+        df = validate_trajectory(extract_recording(open_recording(recording)), recording, timestamps=timestamps)
+    segments = list(pd.unique(df["segment"]))
+    if segment is None:
+        if len(segments) > 1:
+            console.print(f"reconcile: {recording} holds segments {', '.join(segments)}; using {segments[0]}")
+        segment = segments[0]
+    elif segment not in segments:
+        raise ConfigError(
+            f"--segment: {recording} has no segment {segment!r}; expected one of {', '.join(segments)}"
+        )
+    return df[df["segment"] == segment].reset_index(drop=True)
+
+
+def reconcile_file(
+    recording: Path,
+    config: Path,
+    out: Path,
+    reference: Path | None = None,
+    session: str | None = None,
+    segment: str | None = None,
+    n_null: int = 20,
+    seed: int = 0,
+    timestamps: str = "strict",
+) -> dict:
+    """`jaxdefl reconcile`: DIR/reconcile.json, DIR/reconciled.toml, DIR/report.md and figures."""
+    import json
+    import tomllib
+
+    from ._configs import resolve_config
+    from .reconcile import calibrate, effect_tables_toml, reconcile
+    from .report.reconcile import plot_level, reconcile_markdown
+    from .simulate import config_from_dict, load_config
+
+    recording, out = Path(recording), Path(out)
+    config = resolve_config(config)
+    if n_null < 5:
+        raise ConfigError(f"--null-sims: expected at least 5 simulations for a 95 % band, got {n_null}")
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out}: is a file; expected a directory")
+    check_timestamp_policy(timestamps)
+    cfg = load_config(config, session)  # checked before anything is read or written
+    outs = Outputs(inputs=[recording, config, reference])
+    names = ("reconcile.json", "reconciled.toml", "report.md", "trajectories.png", "estimates.png")
+    for name in names:
+        outs.reserve(out / name, f"--out {out}: {name}")
+    df = _reconcile_input(recording, segment, timestamps)
+    ref = read_reference(reference, timestamps=timestamps) if reference is not None else None
+    facts = _camera_facts(config)
+    with console.status("reconciling ...") as status:
+        status.update("reconcile: simulating and extracting a calibration clip ...")
+        calibration = calibrate(cfg, seconds=10.0, seed=seed)
+        rec = reconcile(
+            df,
+            ref,
+            facts=facts,
+            n_null=n_null,
+            seed=seed,
+            source=str(recording),
+            on_step=lambda msg: status.update(f"reconcile: {msg} ..."),
+            calibration=calibration,
+        )
+    base = Path(config).read_text()
+    toml = (
+        base.rstrip("\n")
+        + f"\n\n# [[effect]] tables added by jaxdefl {__version__} reconcile: the physics that the\n"
+        + f"# diagnosis named in {recording}, with its fitted parameters (times from the first frame).\n\n"
+        + effect_tables_toml(rec.specs)
+    )
+    config_from_dict(tomllib.loads(toml), str(out / "reconciled.toml"), session)  # simulate accepts it
+    d = {
+        "levels": rec.levels,
+        "effects": rec.effects,
+        "config": "reconciled.toml",
+        "unexplained": rec.diagnosis.get("unexplained", []),
+        "f0_hz": rec.f0_hz,
+        "settings": {
+            "jaxdefl_version": __version__,
+            "recording": str(recording),
+            "config": str(config),
+            "reference": str(reference) if reference else None,
+            "session": session,
+            "segment": str(df["segment"].iat[0]),
+            "null_sims": n_null,
+            "seed": seed,
+            "sensor": cfg.camera.sensor,
+        },
+    }
+    for r in d["levels"]:
+        r["verdict"] = rec.verdict(r)
+    with outs:
+        outs.text(out / "reconcile.json", json.dumps(d, indent=2, default=float))
+        outs.text(out / "reconciled.toml", toml)
+        figs = []
+        for level in ("trajectories", "estimates"):
+            fig = plot_level(rec, level)
+            outs.figure(out / f"{level}.png", fig, dpi=110)
+            figs.append(f"{level}.png")
+            import matplotlib.pyplot as plt
+
+            plt.close(fig)
+        outs.text(out / "report.md", reconcile_markdown(rec, d, figs, str(recording), str(config)))
+    verdicts = ", ".join(f"{r['metric']} {r['verdict']}" for r in d["levels"])
+    names = ", ".join(e["id"] for e in rec.effects) or "none"
+    console.print(f"effects: {names}; {verdicts} -> {out / 'report.md'}")
     return d

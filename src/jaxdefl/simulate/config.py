@@ -20,7 +20,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from .._configs import not_found_hint, resolve_config
 from .._errors import ConfigError
+from .injection import EffectSpec, parse_effects
 
 __all__ = [
     "SimConfig",
@@ -171,11 +173,13 @@ class SimConfig:
     fatigue: FatigueConfig = field(default_factory=FatigueConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
     lds: LDSConfig = field(default_factory=LDSConfig)
+    effects: tuple[EffectSpec, ...] = ()  # [[effect]] tables (`jaxdefl.simulate.injection`)
     source: str = "<config>"
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
         d.pop("source")
+        d["effects"] = [e.to_dict() for e in self.effects]
         return d
 
     @property
@@ -186,7 +190,7 @@ class SimConfig:
         return [self.plates.x0_mm + i * self.plates.spacing_mm for i in range(self.plates.count)]
 
 
-_SECTIONS = {f.name: f.type for f in dataclasses.fields(SimConfig) if f.name != "source"}
+_SECTIONS = {f.name: f.type for f in dataclasses.fields(SimConfig) if f.name not in ("source", "effects")}
 _CLASSES = {
     "recording": RecordingConfig,
     "beam": BeamConfig,
@@ -278,12 +282,14 @@ def config_from_dict(raw: dict, source: str = "<config>", session: str | None = 
     """
     raw = dict(raw)
     sessions = raw.pop("session", [])
+    effect_tables = raw.pop("effect", [])
     if not isinstance(sessions, list) or not all(isinstance(s, dict) for s in sessions):
         raise _err(source, "session", "an array of tables [[session]]", sessions)
     for key in raw:
         if key not in _SECTIONS:
             raise ConfigError(
-                f"{source}: unknown key {key!r}; expected one of {', '.join(list(_SECTIONS) + ['session'])}"
+                f"{source}: unknown key {key!r}; expected one of "
+                f"{', '.join(list(_SECTIONS) + ['session', 'effect'])}"
             )
     wanted = session if session is not None else raw.get("recording", {}).get("session", "") or None
     if sessions:
@@ -325,7 +331,8 @@ def config_from_dict(raw: dict, source: str = "<config>", session: str | None = 
     if sensor == "kinect" and "camera" in raw and "frame_rate_hz" not in raw["camera"]:
         cam = dataclasses.replace(cam, frame_rate_hz=30.0)
     parts["camera"] = cam
-    cfg = SimConfig(**parts, source=source)
+    effects = parse_effects(source, effect_tables, parts["plates"].count)
+    cfg = SimConfig(**parts, effects=effects, source=source)
     validate(cfg)
     return cfg
 
@@ -336,9 +343,9 @@ def load_config(path: Path | str, session: str | None = None) -> SimConfig:
     Raises:
         ConfigError: missing or unparsable file, unknown keys, impossible values.
     """
-    path = Path(path)
+    path = resolve_config(path)
     if not path.exists():
-        raise ConfigError(f"{path}: file not found")
+        raise ConfigError(f"{path}: file not found; expected a simulation config (TOML){not_found_hint()}")
     if not path.is_file():
         raise ConfigError(f"{path}: is a directory; expected a simulation config file (TOML)")
     try:
