@@ -32,7 +32,7 @@ import math
 import numpy as np
 
 from .._base import Context, Effect, Proposal, State
-from ._common_b import (
+from .shared_fits import (
     AMBIGUOUS_CHI2,
     PPM,
     TiedModel,
