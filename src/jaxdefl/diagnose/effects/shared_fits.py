@@ -40,6 +40,7 @@ __all__ = [
     "chi2_p_value",
     "tap_response",
     "TiedModel",
+    "tied_series",
     "AMBIGUOUS_CHI2",
     "motion_parameters",
     "Carriers",
@@ -230,6 +231,17 @@ PPM = 1e-6
 AMBIGUOUS_CHI2 = 10.0
 TIED_EFFECTS = ("motion_artefact", "timing_error")
 NAMES = ("tap_spread_s", "offset_s", "rate_ppm")
+
+
+def tied_series(effect, ctx: Context, states: list[State]) -> list[int] | None:
+    """The reference-tied z series a tied effect (motion_artefact, timing_error) may propose on,
+    or None when it cannot tell or is already in the model."""
+    if effect.cannot_tell(ctx) is not None:
+        return None
+    idx = ctx.indices("z", tied=True)
+    if not idx or any(effect.id in states[i].effects for i in idx):
+        return None
+    return idx
 
 
 class TiedModel:
