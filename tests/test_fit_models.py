@@ -552,3 +552,24 @@ def test_residual_noise_of_several_lines_equals_one_call_per_line(harmonic_windo
         np.testing.assert_array_equal(together.r2, alone.r2)
     # the AR(1) density: high at low frequencies, low at high ones
     assert np.median(together.kappa[:, 0]) > 1.5 > 0.5 > np.median(together.kappa[:, 2])
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed, rho, fd", [(40, 0.8, 4.7), (41, 0.6, 2.1)])
+def test_damped_sigmas_follow_coloured_noise(seed, rho, fd):
+    """A camera's free-vibration records in AR(1) noise: errors match the σ's from the residual's
+    density at the mode, where the white-noise σ's are off by the noise's colour there."""
+    rng = np.random.default_rng(seed)
+    fs = 30.0
+    t = clock(rng, 20.0, fs, 0.03, t0=T0)
+    series = [damped_series(rng, t, fd, 0.02, 3.0, -1.1, 0.3, rho=rho, t_hit=T0) for _ in range(16)]
+    est = estimate_windows(windows_of(t, series), model=signal_model("damped"))
+    tab = est.table
+    assert (tab["status"] == "converged").all()
+    white, _ = model_columns(est.windows.table, est.fit, signal_model("damped"))
+    colour = np.sqrt(colour_factor(fd, fs, rho))
+    for col, v in (("damping_ratio", 0.02), ("f0_hz", fd), ("amplitude_mm", 3.0)):
+        z = (tab[col] - v) / tab["sigma_" + col]
+        assert 0.6 < np.sqrt(np.mean(z**2)) < 1.45, col
+        ratio = np.median(tab["sigma_" + col] / white["sigma_" + col])
+        assert ratio == pytest.approx(colour, rel=0.25), col

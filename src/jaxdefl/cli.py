@@ -127,11 +127,15 @@ def extract(
         typer.Option("--realtime/--full", help="Track plates detected once (fast) or detect in every frame."),
     ] = False,
     chunk_frames: Annotated[int, typer.Option(help="Frames per batch (bounds memory).")] = 256,
+    device: Annotated[
+        str | None,
+        typer.Option(help="Torch device of the per-frame stages: cpu, cuda, cuda:N [default: cuda if any]."),
+    ] = None,
 ) -> None:
     """Extract the plates from every frame: 3D centroid trajectories (t, plate, x, y, z)."""
     from .frames import extract_to_table
 
-    extract_to_table(recording, out, realtime=realtime, chunk_frames=chunk_frames)
+    extract_to_table(recording, out, realtime=realtime, chunk_frames=chunk_frames, device=device)
 
 
 @app.command()

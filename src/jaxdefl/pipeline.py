@@ -17,7 +17,14 @@ from . import __version__
 from ._configs import config_dir
 from ._errors import ConfigError, JaxdeflError
 from .fit import Estimates, compare_with_reference, estimate_windows, fit_reference, signal_model
-from .io import check_timestamp_policy, load_table, read_reference, read_trajectory, timestamp_note, write_trajectory
+from .io import (
+    check_timestamp_policy,
+    load_table,
+    read_reference,
+    read_trajectory,
+    timestamp_note,
+    write_trajectory,
+)
 from .io.output import TABLE_SUFFIXES, Outputs
 from .series import check_window_plan
 
@@ -528,7 +535,8 @@ def _reconcile_input(recording: Path, segment: str | None, timestamps: str = "st
         from .frames import extract_recording
         from .io.recording import open_recording
 
-        df = validate_trajectory(extract_recording(open_recording(recording)), recording, timestamps=timestamps)
+        frames = extract_recording(open_recording(recording))
+        df = validate_trajectory(frames, recording, timestamps=timestamps)
     segments = list(pd.unique(df["segment"]))
     if segment is None:
         if len(segments) > 1:

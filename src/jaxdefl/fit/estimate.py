@@ -178,12 +178,14 @@ def estimate_windows(
     tab["sigma_residual_mm"] = fit.sigma_residual_mm
     tab["peak_fap"] = periodogram.fap
     if model is not None:
-        # the same adequacy and coloured-noise σ's, from the whole model's residual
+        # adequacy and σ's from the whole model's residual (`jaxdefl.fit.models.model_table`)
         tab, added, noise = model_table(w, tab, fit, model)
         return Estimates(tab[ESTIMATE_COLUMNS + added], w, periodogram, fit, noise)
     # Model adequacy and σ's honest under coloured noise (`residual_noise`): the white-noise σ's
     # (thesis 5.43-5.45) are kept beside; the default ones use the residual's density near f0.
-    noise = residual_noise(w, harmonic_residual(w, fit.params), fit.f0_hz, rows=np.flatnonzero(fit.converged))
+    noise = residual_noise(
+        w, harmonic_residual(w, fit.params), fit.f0_hz, rows=np.flatnonzero(fit.converged)
+    )
     tab["r2"] = noise.r2
     tab["whiteness_p"] = noise.whiteness_p
     tab["sigma_amplitude_white_mm"] = fit.sigma_amplitude_mm

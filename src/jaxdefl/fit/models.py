@@ -206,11 +206,10 @@ def _model_jvp(spec, primals, tangents):
     return value, tangent
 
 
-def _decay_start(spec: SignalModel, t, yc, w, omegas):
-    """Start decay rate of each line: a straight line through the log amplitudes of the line in
-    `_ENVELOPE_SEGMENTS` consecutive segments, weighted by amplitude² x samples (the inverse
-    variance of a log amplitude), so that segments lost in the noise count little."""
-    g_n = _ENVELOPE_SEGMENTS
+def _envelope_slope(t, yc, w, omega, g_n):
+    """Decay rate from ``g_n`` consecutive segments: a straight line through the log amplitudes
+    of the line at ``omega`` in each, weighted by (A / σ_A)² (the inverse variance of a log
+    amplitude). Returns (rate, number of segments used)."""
     valid = w > 0
     lo = jnp.min(jnp.where(valid, t, jnp.inf))
     hi = jnp.max(jnp.where(valid, t, -jnp.inf))
@@ -218,31 +217,40 @@ def _decay_start(spec: SignalModel, t, yc, w, omegas):
     onehot = (seg[None, :] == jnp.arange(g_n)[:, None]) * w[None, :]  # (segment, sample)
     n_seg = onehot.sum(axis=1)
     t_seg = (onehot @ t) / jnp.maximum(n_seg, 1e-300)
+    s, c = sincos(omega * t)
+    a11, a12, a22 = onehot @ (c * c), onehot @ (c * s), onehot @ (s * s)
+    b1, b2 = onehot @ (c * yc), onehot @ (s * yc)
+    det = a11 * a22 - a12**2
+    good = (n_seg >= 4) & (det > 1e-3 * (a11 + a22) ** 2 / 4)
+    det = jnp.where(good, det, 1.0)
+    cc = (a22 * b1 - a12 * b2) / det
+    dd = (a11 * b2 - a12 * b1) / det
+    amp2 = cc**2 + dd**2
+    # (A / σ_A)² = A² n / (2 σ²), σ² from the segment's residual; segments within 3 σ_A of the
+    # noise (whose amplitude is the noise's, and whose far times would pull the line) are left out
+    noise2 = jnp.maximum(onehot @ (yc * yc) - (cc * b1 + dd * b2), 0.0) / jnp.maximum(n_seg - 2, 1)
+    snr2 = amp2 * n_seg / (2 * jnp.maximum(noise2, 1e-300))
+    good = good & (amp2 > 0) & (snr2 > 9)
+    wt = jnp.where(good, snr2, 0.0)
+    la = 0.5 * jnp.log(jnp.where(good, amp2, 1.0))
+    sw = jnp.sum(wt)
+    tm = jnp.sum(wt * t_seg) / jnp.maximum(sw, 1e-300)
+    lm = jnp.sum(wt * la) / jnp.maximum(sw, 1e-300)
+    stt = jnp.sum(wt * (t_seg - tm) ** 2)
+    slope = jnp.sum(wt * (t_seg - tm) * (la - lm)) / jnp.where(stt > 0, stt, 1.0)
+    used = jnp.sum(good)
+    return jnp.where((used >= 2) & (stt > 0), -slope, 0.0), used
+
+
+def _decay_start(spec: SignalModel, t, yc, w, omegas):
+    """Start decay rate of each line from its envelope (`_envelope_slope`) over
+    `_ENVELOPE_SEGMENTS` segments, or over four times as many when fewer than three of those
+    rise above the noise (a record that decays within a small part of the window)."""
     out = []
     for line in range(spec.lines):
-        s, c = sincos(omegas[line] * t)
-        a11, a12, a22 = onehot @ (c * c), onehot @ (c * s), onehot @ (s * s)
-        b1, b2 = onehot @ (c * yc), onehot @ (s * yc)
-        det = a11 * a22 - a12**2
-        good = (n_seg >= 4) & (det > 1e-3 * (a11 + a22) ** 2 / 4)
-        det = jnp.where(good, det, 1.0)
-        cc = (a22 * b1 - a12 * b2) / det
-        dd = (a11 * b2 - a12 * b1) / det
-        amp2 = cc**2 + dd**2
-        # inverse variance of a log amplitude: (A / σ_A)² = A² n / (2 σ²), σ² from the segment's
-        # residual; segments within 3 σ_A of the noise (whose amplitude is the noise's, and
-        # whose far times would pull the line) are left out
-        noise2 = jnp.maximum(onehot @ (yc * yc) - (cc * b1 + dd * b2), 0.0) / jnp.maximum(n_seg - 2, 1)
-        snr2 = amp2 * n_seg / (2 * jnp.maximum(noise2, 1e-300))
-        good = good & (amp2 > 0) & (snr2 > 9)
-        wt = jnp.where(good, snr2, 0.0)
-        la = 0.5 * jnp.log(jnp.where(good, amp2, 1.0))
-        sw = jnp.sum(wt)
-        tm = jnp.sum(wt * t_seg) / jnp.maximum(sw, 1e-300)
-        lm = jnp.sum(wt * la) / jnp.maximum(sw, 1e-300)
-        stt = jnp.sum(wt * (t_seg - tm) ** 2)
-        slope = jnp.sum(wt * (t_seg - tm) * (la - lm)) / jnp.where(stt > 0, stt, 1.0)
-        out.append(jnp.where((jnp.sum(good) >= 2) & (stt > 0), -slope, 0.0))
+        coarse, n_coarse = _envelope_slope(t, yc, w, omegas[line], _ENVELOPE_SEGMENTS)
+        fine, n_fine = _envelope_slope(t, yc, w, omegas[line], 4 * _ENVELOPE_SEGMENTS)
+        out.append(jnp.where((n_coarse < 3) & (n_fine >= 2), fine, coarse))
     return jnp.stack(out)
 
 
