@@ -206,20 +206,25 @@ def _model_jvp(spec, primals, tangents):
     return value, tangent
 
 
-def _envelope_slope(t, yc, w, omega, g_n):
-    """Decay rate from ``g_n`` consecutive segments: a straight line through the log amplitudes
-    of the line at ``omega`` in each, weighted by (A / σ_A)² (the inverse variance of a log
-    amplitude). Returns (rate, number of segments used)."""
+def _segment_sums(t, yc, w, omega, g_n):
+    """Per-segment sums for the amplitude of the line at ``omega`` in ``g_n`` consecutive
+    segments of the window: (sample count, Σt, Σc², Σcs, Σs², Σcy, Σsy, Σy²), each (segment,)."""
     valid = w > 0
     lo = jnp.min(jnp.where(valid, t, jnp.inf))
     hi = jnp.max(jnp.where(valid, t, -jnp.inf))
     seg = jnp.clip(jnp.floor((t - lo) / jnp.maximum(hi - lo, 1e-300) * g_n), 0, g_n - 1)
     onehot = (seg[None, :] == jnp.arange(g_n)[:, None]) * w[None, :]  # (segment, sample)
-    n_seg = onehot.sum(axis=1)
-    t_seg = (onehot @ t) / jnp.maximum(n_seg, 1e-300)
     s, c = sincos(omega * t)
-    a11, a12, a22 = onehot @ (c * c), onehot @ (c * s), onehot @ (s * s)
-    b1, b2 = onehot @ (c * yc), onehot @ (s * yc)
+    cols = jnp.stack([jnp.ones_like(t), t, c * c, c * s, s * s, c * yc, s * yc, yc * yc], axis=1)
+    return (onehot @ cols).T
+
+
+def _envelope_slope(sums):
+    """Decay rate from `_segment_sums`: a straight line through the segments' log amplitudes,
+    weighted by (A / σ_A)² (the inverse variance of a log amplitude). Returns (rate, segments
+    used)."""
+    n_seg, t_sum, a11, a12, a22, b1, b2, yy = sums
+    t_seg = t_sum / jnp.maximum(n_seg, 1e-300)
     det = a11 * a22 - a12**2
     good = (n_seg >= 4) & (det > 1e-3 * (a11 + a22) ** 2 / 4)
     det = jnp.where(good, det, 1.0)
@@ -228,7 +233,7 @@ def _envelope_slope(t, yc, w, omega, g_n):
     amp2 = cc**2 + dd**2
     # (A / σ_A)² = A² n / (2 σ²), σ² from the segment's residual; segments within 3 σ_A of the
     # noise (whose amplitude is the noise's, and whose far times would pull the line) are left out
-    noise2 = jnp.maximum(onehot @ (yc * yc) - (cc * b1 + dd * b2), 0.0) / jnp.maximum(n_seg - 2, 1)
+    noise2 = jnp.maximum(yy - (cc * b1 + dd * b2), 0.0) / jnp.maximum(n_seg - 2, 1)
     snr2 = amp2 * n_seg / (2 * jnp.maximum(noise2, 1e-300))
     good = good & (amp2 > 0) & (snr2 > 9)
     wt = jnp.where(good, snr2, 0.0)
@@ -248,9 +253,12 @@ def _decay_start(spec: SignalModel, t, yc, w, omegas):
     rise above the noise (a record that decays within a small part of the window)."""
     out = []
     for line in range(spec.lines):
-        coarse, n_coarse = _envelope_slope(t, yc, w, omegas[line], _ENVELOPE_SEGMENTS)
-        fine, n_fine = _envelope_slope(t, yc, w, omegas[line], 4 * _ENVELOPE_SEGMENTS)
-        out.append(jnp.where((n_coarse < 3) & (n_fine >= 2), fine, coarse))
+        fine = _segment_sums(t, yc, w, omegas[line], 4 * _ENVELOPE_SEGMENTS)
+        # floor(32 x) // 4 == floor(8 x): the coarse segments are the fine ones four by four
+        coarse = fine.reshape(fine.shape[0], _ENVELOPE_SEGMENTS, 4).sum(axis=-1)
+        lam_coarse, n_coarse = _envelope_slope(coarse)
+        lam_fine, n_fine = _envelope_slope(fine)
+        out.append(jnp.where((n_coarse < 3) & (n_fine >= 2), lam_fine, lam_coarse))
     return jnp.stack(out)
 
 
