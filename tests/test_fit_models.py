@@ -514,6 +514,7 @@ def _campaign(tmp_path, processing):
     return cfg
 
 
+@pytest.mark.slow
 def test_campaign_processing_takes_the_model(tmp_path):
     from jaxdefl.bulk import load_campaign, run_campaign
 
