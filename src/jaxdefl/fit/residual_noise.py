@@ -139,16 +139,25 @@ def _chunk(w, residual, f0_hz, rows, g, dt, frames, m_len) -> dict:
     ss_r = np.sum(rc**2, axis=1)
     r2 = 1.0 - np.sum(r**2, axis=1) / ss_y
 
-    bi = np.repeat(np.arange(rows.size), m.shape[1]).reshape(m.shape)
+    # Frame indices are distinct within a window; masked samples all go to the last cell, which
+    # no frame reaches (the grid is longer than the frames plus the lags) and which ends zero.
+    bi = np.arange(rows.size)[:, None]
+    cell = np.where(m, g, m_len - 1)
     grid = np.zeros((rows.size, m_len))
     mgrid = np.zeros((rows.size, m_len))
-    np.add.at(grid, (bi[m], g[m]), rc[m])
-    np.add.at(mgrid, (bi[m], g[m]), 1.0)
-    fr = scipy.fft.rfft(grid, axis=1)
-    fm = scipy.fft.rfft(mgrid, axis=1)
+    grid[bi, cell] = rc
+    mgrid[bi, cell] = m
     n_lag = np.minimum(LJUNG_BOX_MAX_LAG, np.maximum(1, n // 5)).astype(int)
-    acov = scipy.fft.irfft(np.abs(fr) ** 2, n=m_len, axis=1)[:, : LJUNG_BOX_MAX_LAG + 1]
-    pairs = np.rint(scipy.fft.irfft(np.abs(fm) ** 2, n=m_len, axis=1)[:, : LJUNG_BOX_MAX_LAG + 1])
+    # Lag products on the frame grid (a missing frame is a zero), Σ r_k r_{k+h} and the pairs,
+    # from the power spectra: the grid is longer than the frames plus the lags, so the circular
+    # autocorrelation is the plain one; its first lags are one matrix product with cosines.
+    fr_all = scipy.fft.rfft(grid, axis=1)
+    fm = scipy.fft.rfft(mgrid, axis=1)
+    j = np.arange(fr_all.shape[1])
+    weight = np.where((j == 0) | (2 * j == m_len), 1.0, 2.0) / m_len
+    cosines = weight[:, None] * np.cos(2 * np.pi * np.outer(j, np.arange(LJUNG_BOX_MAX_LAG + 1)) / m_len)
+    acov = (fr_all.real**2 + fr_all.imag**2) @ cosines
+    pairs = np.rint((fm.real**2 + fm.imag**2) @ cosines)
 
     # Ljung-Box with the pairs each lag actually has (drop-outs remove some).
     h = np.arange(1, LJUNG_BOX_MAX_LAG + 1)
@@ -171,23 +180,27 @@ def _chunk(w, residual, f0_hz, rows, g, dt, frames, m_len) -> dict:
     phi2 = np.where(stationary, phi2, 0.0)
     missing = np.clip(1.0 - n / frames, 0.0, 1.0)
     span = frames * dt
-    freq = np.arange(fr.shape[1])[None, :] / (m_len * dt[:, None])
     f0 = f0_hz[rows]
-
-    def ar_density(f):
-        z = np.exp(-2j * np.pi * f * dt[:, None])
-        return 1.0 / np.abs(1 - phi1[:, None] * z - phi2[:, None] * z**2) ** 2
-
-    unit = np.mean(ar_density(np.linspace(0, 0.5, 257)[None, :] / dt[:, None]), axis=1)
+    # AR(2) variance per unit innovation variance: the mean of its density over (0, fs/2).
+    gamma0 = (1 - phi2) / ((1 + phi2) * ((1 - phi2) ** 2 - phi1**2))
 
     def shape(f):  # unit-variance AR(2) spectrum of the masked series, fs S(f) / γ0
-        return (1 - missing[:, None]) * ar_density(f) / unit[:, None] + missing[:, None]
+        c1 = np.cos(2 * np.pi * f * dt[:, None])
+        c2 = 2 * c1**2 - 1
+        p1, p2 = phi1[:, None], phi2[:, None]
+        den = 1 + p1**2 + p2**2 - 2 * p1 * (1 - p2) * c1 - 2 * p2 * c2
+        return (1 - missing[:, None]) / (den * gamma0[:, None]) + missing[:, None]
 
     half = np.minimum(np.maximum(BAND_MIN_ORDINATES, np.sqrt(n)) / span, BAND_MAX_FRACTION * f0)
+    # Only the bins of the chunk's bands are transformed into powers.
+    lo = int(max(1, np.nanmin(np.floor((f0 - half) * m_len * dt))))
+    hi = int(min(m_len // 2, np.nanmax(np.ceil((f0 + half) * m_len * dt)) + 1))
+    fr = fr_all[:, lo:hi]
+    freq = np.arange(lo, hi)[None, :] / (m_len * dt[:, None])
     dist = np.abs(freq - f0[:, None])
     nyq = 0.5 / dt[:, None]
-    band = (dist >= 2.0 / span[:, None]) & (dist <= half[:, None]) & (freq > 0) & (freq < nyq)
-    power = np.abs(fr) ** 2 / n[:, None]
+    band = (dist >= 2.0 / span[:, None]) & (dist <= half[:, None]) & (freq < nyq)
+    power = (fr.real**2 + fr.imag**2) / n[:, None]
     with np.errstate(invalid="ignore", divide="ignore"):
         flat = np.where(band, power / shape(freq), 0.0).sum(axis=1) / band.sum(axis=1)
         kappa = shape(f0[:, None])[:, 0] * flat / (ss_r / n)
