@@ -233,7 +233,8 @@ def _coloured(out: Path, args) -> None:
                          inadequate=float(np.mean(unc["trust_amplitude"] == "inadequate_model")),
                          t_fit_s=t_fit, t_post_s=time.time() - t0 - t_fit)
                 rows.append(r)
-                print(f"{f0:g} Hz {label:<13} {which:<8} default A/f0 {r['lin_a_95']:.3f}/{r['lin_f0_95']:.3f}"
+                print(f"{f0:g} Hz {label:<13} {which:<8} "
+                      f"default A/f0 {r['lin_a_95']:.3f}/{r['lin_f0_95']:.3f}"
                       f"  white A/f0 {r['white_a_95']:.3f}/{r['white_f0_95']:.3f}"
                       + (f"  emcee AR(1) A/f0 {r['post_a_95']:.3f}/{r['post_f0_95']:.3f} "
                          f"(n {r['n_post']}, ρ {r['rho_post']:.2f})" if post is not None else "")
