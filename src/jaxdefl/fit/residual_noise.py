@@ -18,7 +18,9 @@ flattens the steep spectra of slow noise (AR(1), 1/f, drift) so the band's avera
 up by its low-frequency side; averaging over the band keeps what AR(1) does not describe. The
 ordinates within 2/T of f0 are left out (the fit removed the residual's power there). The band
 holds about 2·max(30, √n) independent ordinates (σ's within ~7 % under white noise at
-n = 600, 2.6 % at n = 35,000) and reaches at most f0/2 either side. With drop-outs the AR(1)
+n = 600, 2.6 % at n = 35,000) and reaches at most f0/2 either side. A window too short for 16
+independent ordinates (a few cycles) takes the AR(2) spectrum at f0 when its residual fails the
+whiteness test, else κ = 1. With drop-outs the AR(1)
 shape is that of the masked series, (1 - p) h(f) + p for a missing fraction p. All windows are
 done at once with FFTs of the zero-filled frame grid (numpy), in chunks.
 """
@@ -35,13 +37,15 @@ from .._shapes import pow2_at_least
 from ..series import Windows
 
 __all__ = [
-    "BAND_MIN_ORDINATES", "LJUNG_BOX_MAX_LAG", "ResidualNoise", "frame_positions", "harmonic_residual",
-    "residual_noise",
+    "BAND_MIN_ORDINATES", "LJUNG_BOX_MAX_LAG", "WHITENESS_P_MIN", "ResidualNoise", "frame_positions",
+    "harmonic_residual", "residual_noise",
 ]
 
 LJUNG_BOX_MAX_LAG = 20
 BAND_MIN_ORDINATES = 30  # half-band in Fourier bins (1/T): at least this, or √n when larger
 BAND_MAX_FRACTION = 0.5  # of f0, either side
+BAND_MIN_INDEPENDENT = 16  # fewer: no band estimate (σ's within ~12 % from 16 ordinates)
+WHITENESS_P_MIN = 1e-3  # Ljung-Box p below which a short window's residual counts as coloured
 PHI_MAX = 0.97  # prewhitening coefficient bound (Andrews & Monahan 1992)
 _CHUNK_CELLS = 1 << 22
 
@@ -204,6 +208,10 @@ def _chunk(w, residual, f0_hz, rows, g, dt, frames, m_len) -> dict:
     with np.errstate(invalid="ignore", divide="ignore"):
         flat = np.where(band, power / shape(freq), 0.0).sum(axis=1) / band.sum(axis=1)
         kappa = shape(f0[:, None])[:, 0] * flat / (ss_r / n)
-    # Too short a window for a band (a few cycles): the AR(2) spectrum alone.
-    kappa = np.where(band.sum(axis=1) >= 4, kappa, shape(f0[:, None])[:, 0])
+    # A band of fewer than BAND_MIN_INDEPENDENT independent ordinates (a window of a few cycles,
+    # 2 T half - 4 of them) would make the σ's noisier than white ones: there, the AR(2)
+    # spectrum at f0 when the residual's colour is significant, else white (κ = 1).
+    independent = 2 * half * span - 4
+    short = np.where(p_white < WHITENESS_P_MIN, shape(f0[:, None])[:, 0], 1.0)
+    kappa = np.where(independent >= BAND_MIN_INDEPENDENT, kappa, short)
     return dict(r2=r2, whiteness_p=p_white, lags=n_lag.astype(float), kappa=kappa, phi=rho1)

@@ -45,7 +45,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ..fit import Estimates
+from ..fit import WHITENESS_P_MIN, Estimates
 
 __all__ = [
     "SNR_MIN", "CYCLES_MIN", "DROPOUT_MAX", "R2_MIN", "WHITENESS_P_MIN", "honesty_features",
@@ -55,7 +55,6 @@ __all__ = [
 SNR_MIN = 7.0
 CYCLES_MIN = 8.0
 DROPOUT_MAX = 0.7
-WHITENESS_P_MIN = 1e-3
 R2_MIN = 0.5
 
 
