@@ -125,7 +125,8 @@ def residual_noise(
         size = max(1, _CHUNK_CELLS // int(m_len))
         for c0 in range(0, same.size, size):
             sel = same[c0 : c0 + size]
-            part = _chunk(w, residual, f0_hz, rows[sel], g_all[sel], dt_all[sel], frames[sel], int(m_len))
+            with np.errstate(invalid="ignore", divide="ignore"):  # a window it cannot assess is NaN
+                part = _chunk(w, residual, f0_hz, rows[sel], g_all[sel], dt_all[sel], frames[sel], int(m_len))
             for k, v in part.items():
                 out[k][rows[sel]] = v
     return ResidualNoise(**out)
@@ -197,8 +198,10 @@ def _chunk(w, residual, f0_hz, rows, g, dt, frames, m_len) -> dict:
 
     half = np.minimum(np.maximum(BAND_MIN_ORDINATES, np.sqrt(n)) / span, BAND_MAX_FRACTION * f0)
     # Only the bins of the chunk's bands are transformed into powers.
-    lo = int(max(1, np.nanmin(np.floor((f0 - half) * m_len * dt))))
-    hi = int(min(m_len // 2, np.nanmax(np.ceil((f0 + half) * m_len * dt)) + 1))
+    lo_bin, hi_bin = (f0 - half) * m_len * dt, (f0 + half) * m_len * dt
+    finite = np.isfinite(lo_bin) & np.isfinite(hi_bin)
+    lo = int(max(1, np.floor(lo_bin[finite].min()))) if finite.any() else 1
+    hi = int(min(m_len // 2 + 1, np.ceil(hi_bin[finite].max()) + 1)) if finite.any() else 1
     fr = fr_all[:, lo:hi]
     freq = np.arange(lo, hi)[None, :] / (m_len * dt[:, None])
     dist = np.abs(freq - f0[:, None])
