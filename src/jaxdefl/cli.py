@@ -174,6 +174,36 @@ def diagnose(
 
 
 @app.command()
+def reconcile(
+    recording: Annotated[
+        Path, typer.Argument(help="Recording: a trajectory table (CSV/Parquet) or frames (.zarr, TUM, .npz).")
+    ],
+    config: Annotated[Path, typer.Option("--config", help="Simulation config of the experiment (TOML).")],
+    out: Annotated[Path, typer.Option("--out", help="Output directory.")],
+    reference: Annotated[Path | None, typer.Option(help="Reference (LDS) table t, plate, z.")] = None,
+    session: Annotated[str | None, typer.Option(help="Session of the config ([[session]] name).")] = None,
+    segment: Annotated[
+        str | None, typer.Option(help="Segment of the recording (default: the first).")
+    ] = None,
+    null_sims: Annotated[int, typer.Option(help="Simulations for the null band.")] = 20,
+    seed: Annotated[int, typer.Option(help="Random seed of the simulations.")] = 0,
+) -> None:
+    """Compare a recording with its simulation, name the missing physics, simulate it, compare again."""
+    from . import pipeline
+
+    pipeline.reconcile_file(
+        recording,
+        config,
+        out,
+        reference=reference,
+        session=session,
+        segment=segment,
+        n_null=null_sims,
+        seed=seed,
+    )
+
+
+@app.command()
 def demo(
     out: Annotated[Path, typer.Option("--out", help="Report directory.")] = Path("demo_out"),
     duration: Annotated[float, typer.Option(help="Simulated duration, s.")] = 120.0,

@@ -494,3 +494,122 @@ def diagnose_file(
         f"{d['final']['rms_mm']:.4f} mm; {diag.seconds:.1f} s -> {out}, {written[0]}"
     )
     return d
+
+
+# --------------------------------------------------------------------------------------------
+# reconcile
+
+
+def _reconcile_input(recording: Path, segment: str | None) -> pd.DataFrame:
+    """A trajectory table as read, or a frame recording's extracted trajectories; one segment."""
+    from .io import validate_trajectory
+
+    if recording.suffix.lower() in (".csv", ".parquet", ".pq", ".gz", ".txt"):
+        df = read_trajectory(recording)
+    else:
+        from .frames import extract_recording
+        from .io.recording import open_recording
+
+        df = validate_trajectory(extract_recording(open_recording(recording)), recording)
+    segments = list(pd.unique(df["segment"]))
+    if segment is None:
+        if len(segments) > 1:
+            console.print(f"reconcile: {recording} holds segments {', '.join(segments)}; using {segments[0]}")
+        segment = segments[0]
+    elif segment not in segments:
+        raise ConfigError(
+            f"--segment: {recording} has no segment {segment!r}; expected one of {', '.join(segments)}"
+        )
+    return df[df["segment"] == segment].reset_index(drop=True)
+
+
+def reconcile_file(
+    recording: Path,
+    config: Path,
+    out: Path,
+    reference: Path | None = None,
+    session: str | None = None,
+    segment: str | None = None,
+    n_null: int = 20,
+    seed: int = 0,
+) -> dict:
+    """`jaxdefl reconcile`: DIR/reconcile.json, DIR/reconciled.toml, DIR/report.md and figures."""
+    import json
+    import tomllib
+
+    from ._configs import resolve_config
+    from .reconcile import calibrate, effect_tables_toml, reconcile
+    from .report.reconcile import plot_level, reconcile_markdown
+    from .simulate import config_from_dict, load_config
+
+    recording, out = Path(recording), Path(out)
+    config = resolve_config(config)
+    if n_null < 5:
+        raise ConfigError(f"--null-sims: expected at least 5 simulations for a 95 % band, got {n_null}")
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out}: is a file; expected a directory")
+    cfg = load_config(config, session)  # checked before anything is read or written
+    outs = Outputs(inputs=[recording, config, reference])
+    names = ("reconcile.json", "reconciled.toml", "report.md", "trajectories.png", "estimates.png")
+    for name in names:
+        outs.reserve(out / name, f"--out {out}: {name}")
+    df = _reconcile_input(recording, segment)
+    ref = read_reference(reference) if reference is not None else None
+    facts = _camera_facts(config)
+    with console.status("reconciling ...") as status:
+        status.update("reconcile: simulating and extracting a calibration clip ...")
+        calibration = calibrate(cfg, seconds=10.0, seed=seed)
+        rec = reconcile(
+            df,
+            ref,
+            facts=facts,
+            n_null=n_null,
+            seed=seed,
+            source=str(recording),
+            on_step=lambda msg: status.update(f"reconcile: {msg} ..."),
+            calibration=calibration,
+        )
+    base = Path(config).read_text()
+    toml = (
+        base.rstrip("\n")
+        + f"\n\n# [[effect]] tables added by jaxdefl {__version__} reconcile: the physics that the\n"
+        + f"# diagnosis named in {recording}, with its fitted parameters (times from the first frame).\n\n"
+        + effect_tables_toml(rec.specs)
+    )
+    config_from_dict(tomllib.loads(toml), str(out / "reconciled.toml"), session)  # simulate accepts it
+    d = {
+        "levels": rec.levels,
+        "effects": rec.effects,
+        "config": "reconciled.toml",
+        "unexplained": rec.diagnosis.get("unexplained", []),
+        "f0_hz": rec.f0_hz,
+        "settings": {
+            "jaxdefl_version": __version__,
+            "recording": str(recording),
+            "config": str(config),
+            "reference": str(reference) if reference else None,
+            "session": session,
+            "segment": str(df["segment"].iat[0]),
+            "null_sims": n_null,
+            "seed": seed,
+            "sensor": cfg.camera.sensor,
+        },
+    }
+    for r in d["levels"]:
+        r["verdict"] = rec.verdict(r)
+    with outs:
+        outs.text(out / "reconcile.json", json.dumps(d, indent=2, default=float))
+        outs.text(out / "reconciled.toml", toml)
+        figs = []
+        for level in ("trajectories", "estimates"):
+            fig = plot_level(rec, level)
+            outs.figure(out / f"{level}.png", fig, dpi=110)
+            figs.append(f"{level}.png")
+            import matplotlib.pyplot as plt
+
+            plt.close(fig)
+        outs.text(out / "report.md", reconcile_markdown(rec, d, figs, str(recording), str(config)))
+    verdicts = ", ".join(f"{r['metric']} {r['verdict']}" for r in d["levels"])
+    names = ", ".join(e["id"] for e in rec.effects) or "none"
+    console.print(f"effects: {names}; {verdicts} -> {out / 'report.md'}")
+    return d

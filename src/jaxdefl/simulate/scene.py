@@ -24,6 +24,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .injection import motion_modulations
+
 if TYPE_CHECKING:  # the config validates geometry through this module: no import cycle
     from .config import SimConfig
 
@@ -128,18 +130,27 @@ def midspan_amplitude_mm(cfg: SimConfig, cycles):
 def kinematics(cfg: SimConfig, t_s) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Mid-span deflection (downward +), longitudinal and lateral motion (mm) at epoch times t."""
     ld = cfg.loading
-    tau = np.asarray(t_s, np.float64) - cfg.t0_s
+    t_s = np.asarray(t_s, np.float64)
+    tau = t_s - cfg.t0_s
     cycles = cfg.recording.cycles_at_start + ld.frequency_hz * tau
-    s = np.sin(2 * np.pi * ld.frequency_hz * tau + ld.phase_rad)
+    theta = 2 * np.pi * ld.frequency_hz * tau + ld.phase_rad
     amp = midspan_amplitude_mm(cfg, cycles)
     if cfg.changes:  # scheduled stiffness changes (jaxdefl.simulate.schedule): phase continuous
         from .schedule import amplitude_factor, frequency_phase
 
         phase = frequency_phase(cfg.changes, ld.frequency_hz, tau)
         cycles = cfg.recording.cycles_at_start + phase / (2 * np.pi)
-        s = np.sin(phase + ld.phase_rad)
+        theta = phase + ld.phase_rad
         amp = midspan_amplitude_mm(cfg, cycles) * amplitude_factor(cfg.changes, tau)
-    return ld.mean_mm + amp * s, ld.longitudinal_mm * s, ld.lateral_mm * s
+    if not cfg.effects:
+        s = np.sin(theta)
+        return ld.mean_mm + amp * s, ld.longitudinal_mm * s, ld.lateral_mm * s
+    # [[effect]] tables that move the beam: the load's AM / FM, its harmonics, a second motion
+    gain, shift, extra = motion_modulations(cfg.effects, cfg.t0_s)
+    s = np.sin(theta + (shift(t_s) if shift is not None else 0.0))
+    g = gain(t_s) if gain is not None else 1.0
+    defl = ld.mean_mm + amp * g * s + sum((f(t_s, theta) for f in extra), np.zeros_like(tau))
+    return defl, ld.longitudinal_mm * g * s, ld.lateral_mm * s
 
 
 @dataclass(frozen=True)

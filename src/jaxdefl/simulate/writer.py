@@ -21,6 +21,7 @@ from .._errors import ConfigError
 from .._signals import check_interrupt
 from ..io.output import Outputs
 from .config import SimConfig, load_config
+from .injection import range_offset, stamp_times
 from .lds import LDS_BLOCK_S, frame_clock, lds_block, truth_table
 from .scene import kinematics, pixel_model
 
@@ -137,7 +138,13 @@ class _Renderer:
                 self.km, self.cfg, frame_index, defl[:, 0], dx[:, 0], dy[:, 0], off, self.seed
             )
         n = len(frame_index)
-        return r.reshape(n, h, w), np.asarray(a, np.float32).reshape(n, h, w)
+        r = r.reshape(n, h, w)
+        if any(e.level == "range" for e in self.cfg.effects):
+            # [[effect]] tables the camera adds to its ranges (warm-up drift, jumps, outliers)
+            off = range_offset(self.cfg.effects, t_frame, self.cfg.t0_s, self.cfg.plates.count, self.seed)
+            col = (self.pm.plate_idx + 1).reshape(h, w)
+            r = (r + off[:, col]).astype(r.dtype, copy=False)
+        return r, np.asarray(a, np.float32).reshape(n, h, w)
 
 
 def render_frames(config: SimConfig | str | Path, duration_s: float | None = None, seed: int | None = None):
@@ -148,7 +155,7 @@ def render_frames(config: SimConfig | str | Path, duration_s: float | None = Non
     idx, t = frame_clock(cfg, duration, seed)
     rend = _Renderer(cfg, seed, duration)
     frames, amp = rend.render(idx, t)
-    return t, frames, amp, rend.facts()
+    return stamp_times(cfg.effects, t, cfg.t0_s), frames, amp, rend.facts()
 
 
 def _append_csv(df: pd.DataFrame, path: Path, first: bool) -> None:
@@ -254,7 +261,7 @@ def _write_recording(cfg: SimConfig, outs: Outputs, out: Path, duration: float, 
             r, a = rend.render(fi, ti)
             frames.append(r, axis=0)
             amp.append(a, axis=0)
-            stamps.append(ti, axis=0)
+            stamps.append(stamp_times(cfg.effects, ti, cfg.t0_s), axis=0)  # timing errors
             _append_csv(truth_table(cfg, ti), truth_path, False)
             # LDS blocks up to the time covered so far
             covered = (fi[-1] + 1) / cfg.camera.frame_rate_hz if s + chunk < len(idx) else duration

@@ -1,0 +1,304 @@
+"""Recording against simulation: where they differ, what the diagnosis names, and whether the
+simulation with the named physics comes back inside the null band.
+
+1. The recording is diagnosed (`jaxdefl.diagnose.run_diagnosis`, with the camera facts of the
+   simulation config): its f0, and the effects it names with their fitted parameters.
+2. The simulation a user would set up (`Twin`: the recording's frame times, plates and fitted
+   harmonics, white noise at each series' level) is rendered ``n_sims`` times and compared with
+   the recording on every metric (`jaxdefl.reconcile.metrics`): *before*.
+3. The null band: ``n_null`` further simulations of the same model, each compared as if it were
+   the recording; ``null_95`` is the 95th percentile of those distances.
+4. The named effects that the simulator can inject become ``[[effect]]`` specs; the simulation is
+   rendered again with them and compared again: *after*.
+
+A metric is reconciled when *before* lies outside the null band and *after* inside it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import numpy as np
+import pandas as pd
+
+from .._errors import ConfigError
+from .._signals import check_interrupt
+from ..simulate.injection import INJECTABLE, EffectSpec, make_spec
+from .metrics import METRICS, TableStats, distance, table_stats
+from .twin import Twin
+
+__all__ = ["Reconciliation", "effect_tables_toml", "reconcile", "specs_from_diagnosis"]
+
+
+@dataclass
+class Reconciliation:
+    levels: list[dict]
+    effects: list[dict]
+    specs: tuple[EffectSpec, ...]
+    diagnosis: dict
+    f0_hz: float
+    stats: dict[str, TableStats] = field(default_factory=dict)
+
+    def verdict(self, row: dict) -> str:
+        before, after, null = row["before"], row["after"], row["null_95"]
+        if not all(np.isfinite([before, after, null])):
+            return "not measured"
+        if before <= null:
+            return "agreed already"
+        return "reconciled" if after <= null else "still apart"
+
+
+def _value(p) -> float | str | None:
+    return p.get("value") if isinstance(p, dict) else p
+
+
+def _per_range(e: dict, detail_key: str, value: float, calibration) -> float:
+    """A trajectory-level size as the range size that makes it: the median over the effect's
+    series of size / gain, where the range-to-centroid gain is large enough to tell."""
+    sizes = (e.get("detail") or {}).get(detail_key) or {}
+    if calibration is None or not sizes:
+        return value
+    ratios = []
+    for key, size in sizes.items():
+        plate, axis = int(key[:-1]), key[-1]
+        g = calibration.gain_of(plate, axis)
+        if abs(g) >= 0.5:
+            ratios.append(float(size) / g)
+    return float(np.median(ratios)) if ratios else value
+
+
+def specs_from_diagnosis(
+    effects: list[dict], duration_s: float, calibration=None, n_plates: int = 0
+) -> list[tuple[EffectSpec | None, str]]:
+    """Each diagnosed effect as an ``[[effect]]`` spec, or None and the reason it is not one.
+
+    Times in DIAG.json are relative to the table's first stamp, as the simulator's t_rel; the
+    linear modulations there are about the record's middle (``t_ref_s`` = duration / 2). Range
+    effects are sized in range through the calibration's gains; one seen on at least half of the
+    ``n_plates`` plates is taken for the whole image (a camera effect), else for its plates."""
+    out: list[tuple[EffectSpec | None, str]] = []
+    for e in effects:
+        eid = e["id"]
+        p = {k: _value(v) for k, v in e.get("parameters", {}).items()}
+        kind = p.get("kind") or (e.get("detail") or {}).get("kind")
+        plates = tuple(int(x) for x in e.get("plates", ()))
+        params: dict[str, float] = {}
+        if eid not in INJECTABLE:
+            out.append(
+                (None, f"{eid} is not one of the effects the simulator injects ({', '.join(INJECTABLE)})")
+            )
+            continue
+        whole = n_plates > 0 and len(plates) * 2 >= n_plates
+        if eid == "drift":
+            if kind != "exponential" or p.get("tau_s") is None:
+                out.append((None, "a polynomial drift has no physical time constant to simulate"))
+                continue
+            amp = _per_range(e, "amplitudes_mm", p["amplitude_mm"], calibration)
+            params = {"amplitude_mm": amp, "tau_s": p["tau_s"]}
+            plates = () if whole else plates
+        elif eid == "level_jump":
+            size = _per_range(e, "sizes_mm", p["size_mm"], calibration)
+            params = {"t_jump_s": p["t_jump_s"], "size_mm": size}
+            plates = () if whole else plates
+        elif eid == "outliers":
+            scales = {k: abs(float(v)) for k, v in ((e.get("detail") or {}).get("scales_mm") or {}).items()}
+            scale = abs(_per_range({"detail": {"s": scales}}, "s", p["scale_mm"], calibration))
+            params = {"fraction": p["fraction"], "scale_mm": scale}
+        elif eid == "timing_error":
+            params = {k: p[k] for k in ("offset_s", "rate_ppm") if p.get(k) is not None}
+            plates = ()
+        elif eid == "amplitude_modulation":
+            detail = e.get("detail") or {}
+            if "relative_rate_per_s" in p:
+                params = {"relative_rate_per_s": p["relative_rate_per_s"], "t_ref_s": duration_s / 2}
+            else:
+                params = {
+                    "depth": p["depth"],
+                    "freq_hz": p["freq_hz"],
+                    "phase_rad": detail.get("phase_rad", 0.0),
+                }
+            plates = ()
+        elif eid == "frequency_modulation":
+            detail = e.get("detail") or {}
+            if "drift_hz_per_s" in p:
+                params = {"drift_hz_per_s": p["drift_hz_per_s"], "t_ref_s": duration_s / 2}
+            else:
+                params = {
+                    "depth_rad": p["depth_rad"],
+                    "freq_hz": p["freq_hz"],
+                    "phase_rad": detail.get("phase_rad", 0.0),
+                }
+            plates = ()
+        elif eid == "extra_periodic":
+            params = {"freq_hz": p["freq_hz"], "amplitude_mm": p["amplitude_mm"]}
+            plates = ()
+        elif eid == "harmonic_distortion":
+            params = {
+                "order": p["order"],
+                "amplitude_mm": p["amplitude_mm"],
+                "phase_rad": p.get("phase_rad") or 0.0,
+            }
+            plates = ()
+        if any(v is None or not math.isfinite(float(v)) for v in params.values()):
+            out.append((None, f"{eid}: a parameter was not estimated"))
+            continue
+        try:
+            out.append((make_spec(eid, {k: float(v) for k, v in params.items()}, plates), "simulated"))
+        except ConfigError as err:
+            out.append((None, f"{eid}: fitted parameters outside what can be simulated ({err})"))
+    return out
+
+
+def _range_columns(spec: EffectSpec, t: np.ndarray, tau: float | None = None) -> np.ndarray:
+    if spec.id == "drift":
+        return np.exp(-t / (spec.p("tau_s") if tau is None else tau))
+    return (t >= spec.p("t_jump_s")).astype(float)
+
+
+def refine_range_effects(twin: Twin, df: pd.DataFrame, specs: tuple[EffectSpec, ...], calibration):
+    """Fit a drift's or a jump's range size (and a drift's time constant) to the recording as the
+    frame simulator would show them: one range effect seen through every series' calibrated
+    gain, the series' offsets and harmonics as nuisances (weighted by their noise). The
+    diagnosis fits a free size per series; this is the physics the simulator injects."""
+    if calibration is None:
+        return specs
+    out = []
+    for spec in specs:
+        if spec.id not in ("drift", "level_jump"):
+            out.append(spec)
+            continue
+        parts = []
+        for s in twin.series:
+            if spec.plates and s.plate not in spec.plates:
+                continue
+            g = calibration.gain_of(s.plate, s.axis)
+            if abs(g) < 0.05 or s.sigma <= 0:
+                continue
+            y = df[s.axis].to_numpy()[s.rows]
+            a = np.stack([np.ones_like(s.t), np.cos(twin.omega * s.t), np.sin(twin.omega * s.t)], 1)
+            q = np.linalg.qr(a)[0]
+            parts.append((s.t, (y - q @ (q.T @ y)) / s.sigma, q, g / s.sigma))
+        if not parts:
+            out.append(spec)
+            continue
+
+        def fit(tau, spec=spec, parts=parts):
+            num = den = 0.0
+            for t, r, q, g in parts:
+                u = g * _range_columns(spec, t, tau)
+                u = u - q @ (q.T @ u)
+                num += float(u @ r)
+                den += float(u @ u)
+            return (num / den if den > 0 else 0.0), (num * num / den if den > 0 else 0.0)
+
+        params = dict(spec.parameters)
+        if spec.id == "drift":
+            taus = spec.p("tau_s") * np.geomspace(0.33, 3.0, 61)
+            gains = [fit(tau)[1] for tau in taus]
+            tau = float(taus[int(np.argmax(gains))])
+            params["tau_s"] = tau
+            params["amplitude_mm"] = fit(tau)[0]
+        else:
+            params["size_mm"] = fit(None)[0]
+        out.append(make_spec(spec.id, params, spec.plates))
+    return tuple(out)
+
+
+def _median_distance(r: TableStats, sims: list[TableStats], metric: str) -> float:
+    d = [distance(r, s, metric) for s in sims]
+    d = [x for x in d if np.isfinite(x)]
+    return float(np.median(d)) if d else float("nan")
+
+
+def reconcile(
+    df: pd.DataFrame,
+    reference: pd.DataFrame | None = None,
+    facts: dict | None = None,
+    n_sims: int = 4,
+    n_null: int = 20,
+    seed: int = 0,
+    source: str = "<table>",
+    on_step: Callable[[str], None] | None = None,
+    calibration=None,
+) -> Reconciliation:
+    """Compare a validated one-segment trajectory table with its simulation, before and after the
+    diagnosed effects are added to the simulation. ``calibration`` (`calibrate`): what the frame
+    simulator and the extraction make of the sensor (frame-common noise, range gains)."""
+    from ..diagnose import run_diagnosis
+
+    say = on_step or (lambda _msg: None)
+    say("diagnosing the recording")
+    diag = run_diagnosis(df, reference, source=source, **(facts or {})).to_json()
+    f0s = [s["f0_hz"] for s in diag["nominal"]["series"] if s["axis"] == "z" and np.isfinite(s["f0_hz"])]
+    f0 = float(np.median(f0s)) if f0s else float(np.median([s["f0_hz"] for s in diag["nominal"]["series"]]))
+    duration = float(df["t"].max() - df["t"].min())
+    n_plates = int(df["plate"].nunique())
+    mapped = specs_from_diagnosis(diag["effects"], duration, calibration, n_plates)
+    specs = tuple(s for s, _ in mapped if s is not None)
+
+    say("simulating the experiment")
+    twin = Twin(df, f0, calibration)
+    specs = refine_range_effects(twin, df, specs, calibration)
+    refined = iter(specs)
+    mapped = [(next(refined) if spec is not None else None, why) for spec, why in mapped]
+    rec = table_stats(df, f0)
+    nominal, fixed, null = [], [], []
+    for m in range(n_sims):
+        check_interrupt()
+        nominal.append(table_stats(twin.simulate((), seed=seed + 1 + m), f0))
+        fixed.append(table_stats(twin.simulate(specs, seed=seed + 1 + m), f0) if specs else nominal[-1])
+    say("null band from repeated simulation")
+    for j in range(n_null):
+        check_interrupt()
+        null.append(table_stats(twin.simulate((), seed=seed + 1000 + j), f0))
+
+    levels = []
+    for metric, level in METRICS.items():
+        nd = [_median_distance(p, nominal, metric) for p in null]
+        nd = [x for x in nd if np.isfinite(x)]
+        band = float(np.quantile(nd, 0.95)) if nd else float("nan")
+        if metric == "frame_common" and calibration is not None:
+            # the simulator's share was measured on a short clip: its error widens the band
+            band = math.hypot(band, 1.96 * calibration.frame_common_se)
+        levels.append(
+            dict(
+                level=level,
+                metric=metric,
+                before=_median_distance(rec, nominal, metric),
+                after=_median_distance(rec, fixed, metric),
+                null_95=band,
+            )
+        )
+    effects = []
+    for e, (spec, why) in zip(diag["effects"], mapped, strict=True):
+        effects.append(
+            dict(
+                id=e["id"],
+                parameters={k: _value(v) for k, v in e["parameters"].items()},
+                plates=e.get("plates", []),
+                axes=e.get("axes", []),
+                delta_bic=e.get("delta_bic"),
+                simulated=spec is not None,
+                injected=spec.to_dict() if spec is not None else None,
+                note=why,
+                explanation=e.get("explanation", ""),
+            )
+        )
+    stats = {"recording": rec, "nominal": nominal[0], "reconciled": fixed[0]}
+    return Reconciliation(levels, effects, specs, diag, f0, stats)
+
+
+def effect_tables_toml(specs: tuple[EffectSpec, ...]) -> str:
+    """``[[effect]]`` tables in TOML (numbers with full precision)."""
+    lines = []
+    for s in specs:
+        lines.append("[[effect]]")
+        lines.append(f'id = "{s.id}"')
+        for k, v in s.parameters:
+            lines.append(f"{k} = {float(v)!r}")
+        if s.plates:
+            lines.append(f"plates = [{', '.join(str(p) for p in s.plates)}]")
+        lines.append("")
+    return "\n".join(lines)

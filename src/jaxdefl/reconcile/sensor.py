@@ -1,0 +1,109 @@
+"""What the simulator and the extraction make of the sensor, measured on a short clip.
+
+The trajectory-level simulation (`Twin`) must carry what the *frame* simulator would put into
+trajectories, or every recording differs from it for reasons the user's simulation already
+knows. Two facts are measured by running the frame simulator and the extraction on a short clip
+of the configured experiment (same seed, so the noise cancels in differences):
+
+- ``frame_common``: per axis, the correlation of the plates' residuals within a frame (the ToF
+  camera's frame-wide range error, thesis Tables 6.2/6.17);
+- ``gain``: per plate and axis, how far the extracted centroid moves when every pixel's range
+  reads 1 mm farther (the transfer of a range effect such as a warm-up into trajectories; the
+  extraction's depth classification and 3D geometry set it, not 1).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from ..simulate.config import SimConfig
+from ..simulate.injection import make_spec
+from .metrics import frame_correlation
+
+__all__ = ["SensorCalibration", "calibrate"]
+
+
+@dataclass
+class SensorCalibration:
+    frame_common: dict[str, float]  # axis -> mean pairwise correlation (`frame_correlation`)
+    gain: dict[tuple[int, str], float]  # (plate, axis) -> d centroid / d range (mm/mm)
+    seconds: float
+    frame_common_se: float = 0.0  # its standard error from the clip's length (Fisher z)
+
+    def gain_of(self, plate: int, axis: str) -> float:
+        return self.gain.get((int(plate), axis), 1.0 if axis == "z" else 0.0)
+
+
+def _extract(cfg: SimConfig, seconds: float, seed: int) -> pd.DataFrame:
+    from ..frames import extract_recording
+    from ..io.recording import Recording
+    from ..simulate import render_frames
+
+    t, frames, amp, facts = render_frames(cfg, seconds, seed)
+    intr = {k: float(facts[k]) for k in ("fx", "fy", "cx", "cy")}
+
+    def read(s, e):
+        return t[s:e], frames[s:e], amp[s:e]
+
+    rec = Recording(
+        path=Path("<calibration clip>"),
+        kind=facts["frame_kind"],
+        n_frames=len(t),
+        height=frames.shape[1],
+        width=frames.shape[2],
+        intrinsics=intr,
+        segment=str(facts["segment"]),
+        attrs=facts,
+        plate_x_mm=np.asarray(facts["plate_x_mm"], float),
+        camera_x_mm=float(facts["camera_x_mm"]),
+        _read=read,
+    )
+    return extract_recording(rec, realtime=False, progress=False)
+
+
+def _frame_common(df: pd.DataFrame, f0_hz: float) -> dict[str, tuple[float, int]]:
+    """Per axis: the simulator's frame-common correlation (`frame_correlation`) and the frames."""
+    out = {}
+    omega = 2 * math.pi * f0_hz
+    for axis in ("z", "x", "y"):
+        wide = df.pivot_table(index="t", columns="plate", values=axis).dropna()
+        if wide.shape[0] < 20 or wide.shape[1] < 3:
+            continue
+        t = wide.index.to_numpy() - wide.index[0]
+        a = np.stack([np.ones_like(t), np.cos(omega * t), np.sin(omega * t)], 1)
+        y = wide.to_numpy()
+        rho = frame_correlation(y - a @ np.linalg.lstsq(a, y, rcond=None)[0])
+        if np.isfinite(rho):
+            out[axis] = (float(np.clip(rho, 0.0, 0.99)), int(wide.shape[0]))
+    return out
+
+
+def calibrate(cfg: SimConfig, seconds: float = 10.0, seed: int = 0) -> SensorCalibration:
+    """Simulate and extract a ``seconds`` clip twice (ranges as configured, and 1 mm farther)."""
+    clean = dataclasses.replace(cfg, effects=())
+    shifted = dataclasses.replace(cfg, effects=(make_spec("level_jump", {"t_jump_s": 0.0, "size_mm": 1.0}),))
+    a = _extract(clean, seconds, seed)
+    b = _extract(shifted, seconds, seed)
+    m = a.merge(b, on=["t", "plate"], suffixes=("", "_1"))
+    gain = {}
+    for plate, g in m.groupby("plate"):
+        for axis in ("z", "x", "y"):
+            d = (g[f"{axis}_1"] - g[axis]).to_numpy()
+            d = d[np.isfinite(d)]
+            if d.size:
+                gain[(int(plate), axis)] = float(np.median(d))
+    fc = _frame_common(a, cfg.loading.frequency_hz)
+    # the clip is short: its correlations carry an error the null band must allow for
+    se = [(1 - r * r) / math.sqrt(max(n - 4, 1)) for r, n in fc.values()]
+    return SensorCalibration(
+        {k: r for k, (r, _) in fc.items()},
+        gain,
+        seconds,
+        float(np.sqrt(np.mean(np.square(se)))) if se else 0.0,
+    )

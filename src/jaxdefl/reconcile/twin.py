@@ -1,0 +1,105 @@
+"""The simulation a user would set up for a recording, at the trajectory level.
+
+Same frame times (drop-outs included), same plates and axes, each series the loading harmonic
+with the recording's own fitted offset, amplitude and phase at the recording's f0, plus noise at
+the series' short-term noise level (first differences: slow structure does not inflate it),
+shared by the plates of a frame as the frame simulator shares it (`SensorCalibration`).
+``[[effect]]`` specs (`jaxdefl.simulate.injection`) are injected as the frame simulator injects
+them: range effects through the calibrated range-to-centroid gains of each plate and axis (z
+alone, gain 1, without a calibration), timing errors on the written stamps, motion effects on the
+harmonic (AM, FM) and on z in the beam's shape (extra lines, harmonics; the shape is the plates'
+z amplitudes over the largest).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from ..simulate.injection import EffectSpec, motion_modulations, range_offset, stamp_times
+from .metrics import short_term_noise
+
+__all__ = ["Twin"]
+
+
+@dataclass
+class _Series:
+    plate: int
+    axis: str
+    rows: np.ndarray  # positions in the table
+    t: np.ndarray  # s since the table's first stamp
+    coef: np.ndarray  # offset, cos, sin at ω
+    sigma: float
+
+
+class Twin:
+    """Fitted once from a recording; `simulate` renders it with or without effects."""
+
+    def __init__(
+        self, df: pd.DataFrame, f0_hz: float, calibration=None, axes: tuple[str, ...] = ("z", "x", "y")
+    ):
+        self.df = df.reset_index(drop=True)
+        self.calibration = calibration
+        self.frame = np.unique(self.df["t"].to_numpy(), return_inverse=True)[1]  # rows -> frame
+        self.f0_hz = float(f0_hz)
+        self.omega = 2 * math.pi * self.f0_hz
+        self.t_first = float(self.df["t"].min())
+        self.plates = sorted(int(p) for p in self.df["plate"].unique())
+        self.series: list[_Series] = []
+        t_all = self.df["t"].to_numpy() - self.t_first
+        for plate, idx in self.df.groupby("plate", sort=True).indices.items():
+            for axis in axes:
+                if axis not in self.df:
+                    continue
+                y = self.df[axis].to_numpy()[idx]
+                ok = np.isfinite(y)
+                if ok.sum() < 10:
+                    continue
+                rows, t = idx[ok], t_all[idx][ok]
+                a = np.stack([np.ones_like(t), np.cos(self.omega * t), np.sin(self.omega * t)], 1)
+                coef = np.linalg.lstsq(a, y[ok], rcond=None)[0]
+                sigma = short_term_noise(y[ok] - a @ coef)
+                self.series.append(_Series(int(plate), axis, rows, t, coef, sigma))
+        amps = {s.plate: math.hypot(s.coef[1], s.coef[2]) for s in self.series if s.axis == "z"}
+        top = max(amps.values(), default=0.0)
+        self.shape = {p: (a / top if top > 0 else 0.0) for p, a in amps.items()}
+
+    def simulate(self, effects: tuple[EffectSpec, ...] = (), seed: int = 0) -> pd.DataFrame:
+        """A table like the recording (same rows), rendered with ``effects``."""
+        out = self.df.copy()
+        rng = np.random.default_rng([int(seed), 9301])
+        gain, shift, extra = motion_modulations(effects, 0.0)
+        n_plates = max(self.plates)
+        stamps = stamp_times(effects, self.df["t"].to_numpy(), self.t_first)
+        cal = self.calibration
+        n_frames = int(self.frame.max()) + 1
+        common = {a: rng.standard_normal(n_frames) for a in ("z", "x", "y")}
+        ranged = any(e.level == "range" for e in effects)
+        for s in self.series:
+            t = s.t
+            c, a, b = s.coef
+            amp, phi = math.hypot(a, b), math.atan2(b, a)  # a cos + b sin = amp cos(ωt − φ)
+            theta = self.omega * t - phi
+            g = gain(t) if gain is not None else 1.0
+            dphi = shift(t) if shift is not None else 0.0
+            y = c + amp * g * np.cos(theta + dphi)
+            if s.axis == "z":
+                shape = self.shape.get(s.plate, 0.0)
+                for f in extra:
+                    y = y + shape * f(t, theta + math.pi / 2)
+            if ranged:
+                g_range = cal.gain_of(s.plate, s.axis) if cal is not None else float(s.axis == "z")
+                off = range_offset(effects, t, 0.0, n_plates, seed)
+                y = y + g_range * off[:, s.plate]
+            rho = cal.frame_common.get(s.axis, 0.0) if cal is not None else 0.0
+            eps = (
+                math.sqrt(1 - rho) * rng.standard_normal(t.size)
+                + math.sqrt(rho) * common[s.axis][self.frame[s.rows]]
+            )
+            y = y + s.sigma * eps
+            out.loc[s.rows, s.axis] = y
+        out["t"] = stamps
+        return out

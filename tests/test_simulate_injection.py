@@ -1,0 +1,101 @@
+"""[[effect]] tables: the simulator injects diagnosed physics where it acts (ranges, timestamps,
+the beam's motion), with the diagnosis' parameters, and refuses what it cannot render."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from jaxdefl import ConfigError
+from jaxdefl.simulate import config_from_dict, kinematics, render_frames
+from jaxdefl.simulate.lds import truth_table
+
+BASE = {"recording": {"duration_s": 6.0}, "camera": {"frame_rate_hz": 10.0}}
+
+
+def _cfg(*effects):
+    return config_from_dict({**BASE, "effect": list(effects)}, "<test>")
+
+
+@pytest.mark.parametrize(
+    "table, message",
+    [
+        ({"id": "camera_shake"}, "key 'effect[1].id': expected one of drift,"),
+        ({"id": "drift", "amplitude_mm": 1.0}, "key 'effect[1]': drift needs tau_s"),
+        ({"id": "drift", "amplitude_mm": 1.0, "tau_s": 5.0, "size": 2}, "unknown parameter of drift"),
+        ({"id": "drift", "amplitude_mm": 1.0, "tau_s": -5.0}, "'effect[1].tau_s': expected a time constant"),
+        ({"id": "level_jump", "t_jump_s": 1.0, "size_mm": "big"}, "'effect[1].size_mm': expected a number"),
+        ({"id": "outliers", "fraction": 0.1, "scale_mm": 3.0, "plates": [0, 99]}, "expected a list of plate"),
+        ({"id": "harmonic_distortion", "order": 2.5, "amplitude_mm": 0.1}, "expected an integer >= 2"),
+    ],
+)
+def test_bad_effect_tables_are_one_line_errors(table, message):
+    with pytest.raises(ConfigError) as err:
+        _cfg(table)
+    assert message in str(err.value) and "\n" not in str(err.value)
+
+
+def test_range_effects_add_to_every_pixel_and_nothing_else_moves():
+    """A warm-up drift and a jump read as range offsets of exactly the injected size; the noise
+    streams do not depend on the effects, so the difference to the clean recording is the effect."""
+    drift = {"id": "drift", "amplitude_mm": 1.5, "tau_s": 2.0}
+    jump = {"id": "level_jump", "t_jump_s": 4.0, "size_mm": -0.8, "plates": [7]}
+    cfg = _cfg(drift, jump)
+    t, f, _, _ = render_frames(cfg, seed=3)
+    t0, f0, _, _ = render_frames(dataclasses.replace(cfg, effects=()), seed=3)
+    assert np.array_equal(t, t0)
+    d = (f - f0).reshape(len(t), -1)
+    trel = t - cfg.t0_s
+    expect = 1.5 * np.exp(-trel / 2.0)
+    # off the plates: the drift alone (float32 frames: ~1e-4 mm rounding at 2 m)
+    assert np.nanmax(np.abs(np.nanmedian(d, axis=1) - expect)) < 2e-3
+    # plate 7's pixels also jump after 4 s
+    from jaxdefl.simulate import pixel_model
+
+    on7 = pixel_model(cfg).plate_idx == 6
+    d7 = np.nanmedian(d[:, on7], axis=1)
+    assert np.nanmax(np.abs(d7 - expect - np.where(trel >= 4.0, -0.8, 0.0))) < 2e-3
+
+
+def test_motion_effects_move_the_beam_as_the_diagnosis_models_them():
+    am = {"id": "amplitude_modulation", "relative_rate_per_s": 0.05, "t_ref_s": 3.0}
+    fm = {"id": "frequency_modulation", "depth_rad": 0.3, "freq_hz": 0.5, "phase_rad": 0.2}
+    xp = {"id": "extra_periodic", "freq_hz": 7.3, "amplitude_mm": 0.4, "phase_rad": 1.0}
+    cfg = _cfg(am, fm, xp)
+    t = cfg.t0_s + np.linspace(0.0, 6.0, 2001)
+    defl, _, _ = kinematics(cfg, t)
+    ld = cfg.loading
+    tau = t - cfg.t0_s
+    theta = 2 * np.pi * ld.frequency_hz * tau + ld.phase_rad
+    clean, _, _ = kinematics(dataclasses.replace(cfg, effects=()), t)
+    good = np.abs(np.sin(theta)) > 0.3
+    amp = np.where(good, clean - ld.mean_mm, 0.0) / np.where(good, np.sin(theta), 1.0)  # fatigue A(t)
+    expect = (
+        ld.mean_mm
+        + amp * (1 + 0.05 * (tau - 3.0)) * np.sin(theta + 0.3 * np.sin(2 * np.pi * 0.5 * tau + 0.2))
+        + 0.4 * np.cos(2 * np.pi * 7.3 * tau + 1.0)
+    )
+    assert np.max(np.abs(defl - expect)[good]) < 1e-9
+    # the truth table (and so the LDS) follows the moved beam, each plate in the beam's shape
+    z = truth_table(cfg, t)["z"].to_numpy().reshape(t.size, -1)
+    z0 = truth_table(dataclasses.replace(cfg, effects=()), t)["z"].to_numpy().reshape(t.size, -1)
+    moved = np.abs(defl - clean) > 0.05
+    ratio = (z - z0)[moved] / (defl - clean)[moved, None]
+    assert np.allclose(ratio, ratio[0], rtol=1e-6) and ratio[0, 6] > ratio[0, 0] > 0
+
+
+def test_timing_error_moves_the_written_stamps_only():
+    cfg = _cfg({"id": "timing_error", "offset_s": 0.004, "rate_ppm": 100.0})
+    t, f, _, _ = render_frames(cfg, seed=2)
+    t0, f0, _, _ = render_frames(dataclasses.replace(cfg, effects=()), seed=2)
+    assert np.allclose(t - t0, 0.004 + 1e-4 * (t0 - cfg.t0_s), atol=1e-6)  # epoch seconds: 2.4e-7 s spacing
+    assert np.array_equal(f, f0, equal_nan=True)
+
+
+def test_effects_round_trip_through_the_effective_config():
+    tables = [{"id": "drift", "amplitude_mm": 1.0, "tau_s": 60.0, "plates": [3, 5]}]
+    cfg = _cfg(*tables)
+    again = config_from_dict({**BASE, "effect": cfg.to_dict()["effects"]}, "<again>")
+    assert again.effects == cfg.effects
