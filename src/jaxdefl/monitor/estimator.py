@@ -258,6 +258,8 @@ def initial_state(
     P[0, 0] = sd_omega**2
     noise = np.ones(s)
     resid = np.full(Y.shape, np.nan)
+    unit = np.zeros((s, 3, 3))  # (XᵀX)⁻¹ of every series
+    fitted = np.zeros(s, bool)
     for j in range(s):
         m = np.isfinite(Y[:, j])
         if m.sum() < 8:
@@ -267,10 +269,9 @@ def initial_state(
         beta, *_ = np.linalg.lstsq(Xm, ym, rcond=None)
         r = ym - Xm @ beta
         s2 = float(r @ r) / max(m.sum() - 4, 1)
-        cov = s2 * np.linalg.inv(Xm.T @ Xm)
+        unit[j] = np.linalg.inv(Xm.T @ Xm)
+        fitted[j] = True
         c[j], d[j], e[j] = beta
-        idx = [1 + j, 1 + s + j, 1 + 2 * s + j]
-        P[np.ix_(idx, idx)] = cov
         noise[j] = np.sqrt(s2)
         resid[m, j] = r / np.sqrt(s2)
     good = np.isfinite(resid)
@@ -280,6 +281,13 @@ def initial_state(
     corr = (1 - settings.correlation_shrink) * corr + settings.correlation_shrink * np.eye(s)
     dg = np.sqrt(np.clip(np.diag(corr), 1e-12, None))
     corr = corr / np.outer(dg, dg)
+    # the start values' errors share the noise's correlation across series: P = Σ ⊗ (XᵀX)⁻¹
+    # (with a block-diagonal P the filter would weigh the later frames against a wrong prior)
+    f = np.flatnonzero(fitted)
+    for j in f:
+        for k in f:
+            blk = corr[j, k] * noise[j] * noise[k] * 0.5 * (unit[j] + unit[k])
+            P[np.ix_([1 + j, 1 + s + j, 1 + 2 * s + j], [1 + k, 1 + s + k, 1 + 2 * s + k])] = blk
     n_start = int(np.isfinite(Y).any(axis=1).sum())
     tr = HarmonicTracker(omega, c, d, e, P, noise, corr, t_ref, settings, n_start=n_start)
     tr.t_start = float(np.nanmin(t))

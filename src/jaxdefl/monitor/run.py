@@ -346,12 +346,12 @@ def run_monitor(
         disp.close()
     if mon.started:
         _write_figure(out, history, log.alarms, source.layout, t_first)
-    if not mon.started:
+    if not mon.started and reason == "end of the source":
         raise InputError(
             f"{source.name}: the source ended after {mon.frames} frames, before the monitor could start "
             f"(it fits the first {mon.init_s:g} s)"
         )
-    tracked = max(mon.tracker.frames, 1)
+    tracked = max(mon.tracker.frames if mon.started else 0, 1)
     return {
         "frames": mon.frames,
         "alarms": log.alarms,
