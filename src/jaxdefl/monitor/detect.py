@@ -101,6 +101,7 @@ class _Reference:
         self.count = np.zeros(n)
         self.n_max, self.lag = n_max, lag
         self.queue: deque[tuple[np.ndarray, np.ndarray, np.ndarray]] = deque()
+        self.direct_until = np.zeros(n)  # after an alarm: take the new level's blocks at once
 
     def take(self, x: np.ndarray, var: np.ndarray, mask: np.ndarray) -> None:
         ok = mask & np.isfinite(x) & np.isfinite(var)
@@ -112,7 +113,9 @@ class _Reference:
         self.count = np.where(ok, self.count + 1, self.count)
 
     def offer(self, x: np.ndarray, var: np.ndarray, mask: np.ndarray) -> None:
-        self.queue.append((np.array(x, float), np.array(var, float), np.array(mask, bool)))
+        direct = self.count < self.direct_until
+        self.take(x, var, mask & direct)
+        self.queue.append((np.array(x, float), np.array(var, float), np.array(mask & ~direct, bool)))
         if len(self.queue) > self.lag:
             self.take(*self.queue.popleft())
 
@@ -120,8 +123,11 @@ class _Reference:
         return np.sqrt(self.var / np.maximum(np.minimum(self.count, self.n_max), 1))
 
     def restart(self, idx, value, count) -> None:
+        """A change was found: the level is ``value`` (from ``count`` blocks); the next ``lag``
+        blocks refine it at once (it is new, there is no change left to wait for)."""
         self.value[idx] = value
         self.count[idx] = count
+        self.direct_until[idx] = self.count[idx] + self.lag
         for _, _, m in self.queue:  # blocks queued before the alarm belong to the old level
             m[idx] = False
 
@@ -135,8 +141,24 @@ class _Chart:
         self.lo = np.zeros(n)
         self.start_hi = np.zeros(n, np.int64)
         self.start_lo = np.zeros(n, np.int64)
+        self.z: deque[np.ndarray] = deque(maxlen=720)
+        self.block = 0
+
+    def onset(self, j: int, up: bool) -> int:
+        """The block where the change of series ``j`` most likely began: within the CUSUM's run,
+        the start m blocks back that maximises the likelihood ratio (Σ z)²/m of a step."""
+        start = int(self.start_hi[j] if up else self.start_lo[j])
+        m_max = max(1, min(self.block - start + 1, len(self.z)))
+        z = np.array([h[j] for h in list(self.z)[-m_max:]])[::-1]  # newest first
+        z = np.where(np.isfinite(z), z, 0.0) * (1 if up else -1)
+        cum = np.cumsum(z)
+        m = np.arange(1, z.size + 1)
+        score = np.where(cum > 0, cum * cum / m, 0.0)
+        return self.block - int(np.argmax(score))
 
     def step(self, z: np.ndarray, block: int) -> tuple[np.ndarray, np.ndarray]:
+        self.z.append(np.array(z, float))
+        self.block = block
         ok = np.isfinite(z)
         zz = np.where(ok, z, 0.0)
         hi = np.where(ok, np.maximum(0.0, self.hi + zz - self.k), self.hi)
@@ -315,8 +337,7 @@ class ChangeDetector:
         }
 
     def _f0_alarm(self, b: BlockResult, up: bool) -> dict:
-        start = self.ch_f0.start_hi[0] if up else self.ch_f0.start_lo[0]
-        since = self._since(start)
+        since = self._since(self.ch_f0.onset(0, up))
         m = len(since)
         hist = list(self.f0_history)[-m:]
         vals = np.array([h[0] for h in hist])
@@ -388,11 +409,7 @@ class ChangeDetector:
         for j in alarm:
             if j in done:
                 continue
-            start = min(
-                self.ch_amp.start_hi[j] if self.ch_amp.hi[j] > self.h else 10**12,
-                self.ch_amp.start_lo[j] if self.ch_amp.lo[j] > self.h else 10**12,
-            )
-            since = self._since(start)
+            since = self._since(self.ch_amp.onset(j, bool(self.ch_amp.hi[j] > self.h)))
             same_axis = np.flatnonzero((self.axis_of == self.axis_of[j]) & self.charted & ~self.lost)
             alarming = set(int(a) for a in alarm if self.axis_of[a] == self.axis_of[j])
             others = np.array([k for k in same_axis if k not in alarming], np.int64)
@@ -465,13 +482,7 @@ class ChangeDetector:
         return ratio, s
 
     def _sensor_alarm(self, b: BlockResult, series: np.ndarray, quantity: str, chart: _Chart, sizer) -> dict:
-        start = int(
-            min(
-                np.min(np.where(chart.hi[series] > self.h, chart.start_hi[series], 10**12)),
-                np.min(np.where(chart.lo[series] > self.h, chart.start_lo[series], 10**12)),
-            )
-        )
-        since = self._since(start)
+        since = self._since(min(chart.onset(j, bool(chart.hi[j] > self.h)) for j in series))
         size, sig = sizer(since, series)
         chart.reset(series)
         ev = self._base(b, quantity, "sensor", series, since)
