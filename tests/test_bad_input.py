@@ -147,6 +147,61 @@ def test_parquet_out_is_parquet(work, capsys):
     np.testing.assert_allclose(pq["amplitude_mm"], csv["amplitude_mm"], rtol=1e-9)
 
 
+# -- table contents: true/false columns, row numbers, units, timestamp policy ------------------
+
+
+@pytest.mark.parametrize("col", ["z", "x", "t", "plate"])
+def test_a_true_false_column_is_refused_naming_it(work, capsys, col):
+    df = pd.read_csv(work / "traj.csv")
+    df[col] = df.index % 2 == 0
+    df.to_parquet(work / "b.parquet")
+    assert_refused(
+        work, capsys, ["fit", work / "b.parquet", "--out", work / "EST.csv"], f"b.parquet: column '{col}' holds true/false"
+    )
+
+
+def test_parquet_rows_count_from_1_and_values_are_plain(work, capsys):
+    df = pd.read_csv(work / "traj.csv")
+    df["plate"] = df["plate"].astype(float)
+    df.loc[2, "plate"] = 2.5  # the third data row
+    df.to_parquet(work / "p.parquet")
+    df.to_csv(work / "p.csv", index=False)
+    args = ["fit", None, "--out", work / "EST.csv"]
+    msg = "column 'plate': expected an integer plate number, got 2.5"
+    assert_refused(work, capsys, [args[0], work / "p.parquet", *args[2:]], f"p.parquet: row 3 {msg}")
+    assert_refused(work, capsys, [args[0], work / "p.csv", *args[2:]], f"p.csv: row 4 {msg}")
+
+
+def test_implausible_units_are_refused_naming_the_likely_unit(work, capsys):
+    df = pd.read_csv(work / "traj.csv")
+    df.assign(t=df["t"] * 1000).to_csv(work / "ms.csv", index=False)
+    assert_refused(
+        work, capsys, ["fit", work / "ms.csv", "--out", work / "EST.csv"], "epoch milliseconds? rename the column t_ms"
+    )
+    df.assign(z=(df["z"] - 1900.0) / 1000.0).to_csv(work / "m.csv", index=False)
+    assert_refused(
+        work, capsys, ["diagnose", work / "m.csv", "--out", work / "d.json"], "metres, not mm? rename the column z_m"
+    )
+
+
+def test_timestamp_policy_errors(work, capsys):
+    df = pd.read_csv(work / "traj.csv")
+    rows = df[df["plate"] == 5].iloc[[10]].assign(z=0.0)
+    pd.concat([df, rows]).sort_index(kind="stable").to_csv(work / "dup.csv", index=False)
+    args = ["fit", work / "dup.csv", "--out", work / "EST.csv"]
+    assert_refused(work, capsys, args, "with different values (1 such rows); rerun with --timestamps reclock")
+    assert_refused(work, capsys, [*args, "--timestamps", "bogus"], "--timestamps: expected one of strict, reclock, merge")
+    assert_refused(
+        work, capsys, ["run", work / "c.toml", "--timestamps", "later"], "--timestamps: expected one of strict"
+    )
+    (work / "c.toml").write_text(
+        '[processing]\ntimestamps = "later"\n[[recording]]\nday = 1\ncamera = "c"\ntrajectories = "traj.csv"\n'
+    )
+    assert_refused(
+        work, capsys, ["run", work / "c.toml", "--out", work / "o"], "key 'processing.timestamps': expected one of"
+    )
+
+
 # -- epoch precision --------------------------------------------------------------------------
 
 

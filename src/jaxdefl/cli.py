@@ -30,6 +30,12 @@ def _root(
     _state["debug"] = debug
 
 
+_TIMESTAMPS_HELP = (
+    "strict (default: a repeated time with other values is an error), reclock (recover the "
+    "sample clock of rounded or jittered stamps) or merge (average true duplicates)."
+)
+
+
 def _parse_axes(axes: str) -> tuple[str, ...]:
     out = tuple(a.strip() for a in axes.split(",") if a.strip())
     bad = [a for a in out if a not in ("z", "x", "y")]
@@ -60,6 +66,10 @@ def fit(
         int | None,
         typer.Option(help="Check N windows' σ's against emcee posteriors (0: honesty flags only)."),
     ] = None,
+    timestamps: Annotated[str, typer.Option("--timestamps", help=_TIMESTAMPS_HELP)] = "strict",
+    posterior_noise: Annotated[
+        str, typer.Option(help="Noise likelihood of the posteriors: ar1 (coloured, default) or white.")
+    ] = "ar1",
 ) -> None:
     """Estimate loading frequency and deflection amplitude per segment, window, plate and axis."""
     from . import pipeline
@@ -76,6 +86,8 @@ def fit(
         fap_max=fap_max,
         reference=reference,
         posterior=posterior,
+        timestamps=timestamps,
+        posterior_noise=posterior_noise,
     )
 
 
@@ -137,11 +149,15 @@ def run(
         str,
         typer.Option(help="none (in-process), local (a dask LocalCluster) or a scheduler address."),
     ] = "none",
+    timestamps: Annotated[
+        str | None,
+        typer.Option("--timestamps", help="Override processing.timestamps: " + _TIMESTAMPS_HELP),
+    ] = None,
 ) -> None:
     """Reprocess a campaign (days x cameras) to tables, a Zarr dataset, figures and a report."""
     from . import pipeline
 
-    pipeline.run_file(config, out, scheduler=scheduler)
+    pipeline.run_file(config, out, scheduler=scheduler, timestamps=timestamps)
 
 
 @app.command()
@@ -168,6 +184,7 @@ def diagnose(
     figures: Annotated[
         bool, typer.Option("--figures/--no-figures", help="Write a figure per effect.")
     ] = True,
+    timestamps: Annotated[str, typer.Option("--timestamps", help=_TIMESTAMPS_HELP)] = "strict",
 ) -> None:
     """Locate where a recording departs from the nominal model and name the missing physics."""
     from . import pipeline
@@ -183,6 +200,7 @@ def diagnose(
         segment=segment,
         effects=None if effects is None else tuple(e.strip() for e in effects.split(",") if e.strip()),
         figures=figures,
+        timestamps=timestamps,
     )
 
 
@@ -200,6 +218,7 @@ def reconcile(
     ] = None,
     null_sims: Annotated[int, typer.Option(help="Simulations for the null band.")] = 20,
     seed: Annotated[int, typer.Option(help="Random seed of the simulations.")] = 0,
+    timestamps: Annotated[str, typer.Option("--timestamps", help=_TIMESTAMPS_HELP)] = "strict",
 ) -> None:
     """Compare a recording with its simulation, name the missing physics, simulate it, compare again."""
     from . import pipeline
@@ -213,6 +232,7 @@ def reconcile(
         segment=segment,
         n_null=null_sims,
         seed=seed,
+        timestamps=timestamps,
     )
 
 

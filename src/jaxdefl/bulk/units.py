@@ -73,7 +73,7 @@ def estimate_unit(
             raise JaxdeflError(rec.failed)
         if inputs.get("trajectories") == "missing":
             raise JaxdeflError(f"{rec.trajectories}: file not found")
-        traj = read_trajectory(rec.trajectories)
+        traj = read_trajectory(rec.trajectories, timestamps=proc.timestamps)
         axes = tuple(a for a in proc.axes if a in traj.columns)
         kw = dict(
             fmin_hz=proc.fmin_hz,
@@ -103,7 +103,7 @@ def estimate_unit(
         if rec.lds is not None:
             if inputs.get("lds") == "missing":
                 raise JaxdeflError(f"{rec.lds}: file not found")
-            ref = fit_reference(read_reference(rec.lds), whole, **kw)
+            ref = fit_reference(read_reference(rec.lds, timestamps=proc.timestamps), whole, **kw)
             outputs["lds.csv"] = ref.table.assign(**tag)
             outputs["comparison.csv"] = compare_with_reference(whole.table, ref.table).assign(**tag)
         for name, df in outputs.items():

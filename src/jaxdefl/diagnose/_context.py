@@ -11,7 +11,7 @@ import pandas as pd
 from .._errors import ConfigError, InputError
 from ..fit import estimate_windows
 from ..fit.estimate import MAX_ABS_VALUE_MM
-from ..io import validate_trajectory
+from ..io import timestamp_note, validate_trajectory
 from ..series import make_windows
 from ..series.windows import frame_clock, windows_like
 from ._base import Context, Harmonic, Series, State, lstsq
@@ -62,6 +62,7 @@ def build_context(
     axes: tuple[str, ...] | None = None,
     source: str = "<table>",
     reference_source: str = "--reference",
+    timestamps: str = "strict",
 ) -> tuple[Context, list[State], list[str]]:
     """Validate the tables, fit the nominal model and return (context, nominal states, notes).
 
@@ -80,7 +81,7 @@ def build_context(
         raise ConfigError(f"--frame-rate: expected a positive rate in Hz, got {frame_rate_hz}")
     if modulation_mhz is not None and not modulation_mhz > 0:
         raise ConfigError(f"--modulation-mhz: expected a positive frequency in MHz, got {modulation_mhz}")
-    df = validate_trajectory(traj.reset_index(drop=True), source)
+    df = validate_trajectory(traj.reset_index(drop=True), source, timestamps=timestamps)
     segs = [str(s) for s in df["segment"].unique()]
     if segment is None and len(segs) > 1:
         raise ConfigError(
@@ -95,13 +96,22 @@ def build_context(
         df = df[df["segment"] == segment]
     axes = tuple(a for a in ("z", "x", "y") if a in df.columns) if axes is None else axes
     notes: list[str] = []
+    if (note := timestamp_note(df.attrs.get("timestamps"))) is not None:
+        notes.append(f"{source}: {note}")
     t0 = float(df["t"].min())
     t_all = np.unique(df["t"].to_numpy() - t0)
     if t_all.size < MIN_SAMPLES:
         raise InputError(f"{source}: {t_all.size} timestamps, the diagnosis needs at least {MIN_SAMPLES}")
-    dt, k_all, on_clock = frame_clock(t_all)
+    # the frame grid of every spectrum: the recovered clock (robust to jitter, drop-outs and a
+    # logger's rounding), started from --frame-rate when it is given
+    dt, k_all, on_clock = frame_clock(t_all, hint=1.0 / frame_rate_hz if frame_rate_hz else None)
     if not on_clock:
         notes.append("timestamps are not on a regular frame clock; spectra use the nearest frame")
+    if frame_rate_hz and abs(dt * frame_rate_hz - 1.0) > 0.01:
+        notes.append(
+            f"the timestamps' frame interval {dt:.6g} s differs from 1/--frame-rate "
+            f"({1.0 / frame_rate_hz:.6g} s) by more than 1 %; the grids follow the timestamps"
+        )
     duration = float(t_all[-1] - t_all[0])
     n_frames = int(k_all.max()) + 1
 
@@ -119,7 +129,7 @@ def build_context(
     left_out: list[dict] = []
     for plate, g in df.groupby("plate", sort=True):
         t = g["t"].to_numpy() - t0
-        k = np.rint(t / dt).astype(np.int64)
+        k = k_all[np.searchsorted(t_all, t)]  # the frame of each stamp on the recovered clock
         for axis in axes:
             y = g[axis].to_numpy()
             ok = np.isfinite(y)
@@ -147,8 +157,10 @@ def build_context(
     ref_harm: dict[int, Harmonic] = {}
     if reference is not None:
         ref = validate_trajectory(
-            reference.reset_index(drop=True), reference_source, required=("t", "plate", "z")
+            reference.reset_index(drop=True), reference_source, required=("t", "plate", "z"), timestamps=timestamps
         )
+        if (note := timestamp_note(ref.attrs.get("timestamps"))) is not None:
+            notes.append(f"{reference_source}: {note}")
         if not np.isin(ref["plate"].unique(), df["plate"].unique()).any():
             raise ConfigError(
                 f"{reference_source}: no plate of the reference "

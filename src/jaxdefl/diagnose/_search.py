@@ -296,6 +296,7 @@ def run_diagnosis(
     source: str = "<table>",
     on_round=None,
     reference_source: str = "--reference",
+    timestamps: str = "strict",
 ) -> Diagnosis:
     """Diagnose a trajectory table (DESIGN.md contract) against the nominal model.
 
@@ -305,6 +306,7 @@ def run_diagnosis(
         segment: the segment to diagnose when the table has several.
         effects: restrict the library to these ids (default: all).
         source, reference_source: the tables' names in error messages.
+        timestamps: the timestamp policy the tables are read with (`jaxdefl.io.validate_trajectory`).
         on_round: optional callback(round number, accepted effect id or None).
     """
     start = time.perf_counter()
@@ -326,6 +328,7 @@ def run_diagnosis(
         segment,
         source=source,
         reference_source=reference_source,
+        timestamps=timestamps,
     )
     cannot_tell = []
     usable = {}

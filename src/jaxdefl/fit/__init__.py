@@ -3,6 +3,7 @@
 from .estimate import ESTIMATE_COLUMNS, STATUSES, Estimates, estimate_windows
 from .harmonic import N_PARAMS, HarmonicFit, fit_harmonic, fit_harmonics
 from .reference import COMPARISON_COLUMNS, compare_with_reference, fit_reference
+from .residual_noise import ResidualNoise, frame_positions, harmonic_residual, residual_noise
 from .table import estimate_table, windows_for
 
 __all__ = [
@@ -19,4 +20,8 @@ __all__ = [
     "fit_harmonics",
     "fit_reference",
     "windows_for",
+    "ResidualNoise",
+    "frame_positions",
+    "harmonic_residual",
+    "residual_noise",
 ]

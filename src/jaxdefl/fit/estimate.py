@@ -14,6 +14,7 @@ from .._signals import check_interrupt
 from ..series import Windows
 from ..spectral import Periodogram, lomb_peaks
 from .harmonic import N_PARAMS, HarmonicFit, fit_harmonics
+from .residual_noise import ResidualNoise, harmonic_residual, residual_noise
 
 __all__ = ["ESTIMATE_COLUMNS", "STATUSES", "Estimates", "estimate_windows"]
 
@@ -34,6 +35,10 @@ ESTIMATE_COLUMNS = [
     "sigma_residual_mm",
     "peak_fap",
     "status",
+    "r2",
+    "whiteness_p",
+    "sigma_amplitude_white_mm",
+    "sigma_f0_white_hz",
 ]
 STATUSES = (
     "converged",
@@ -56,6 +61,7 @@ class Estimates:
     windows: Windows
     periodogram: Periodogram
     fit: HarmonicFit
+    noise: ResidualNoise | None = None
 
 
 def estimate_windows(
@@ -161,7 +167,16 @@ def estimate_windows(
     tab["offset_mm"] = fit.offset_mm
     tab["sigma_residual_mm"] = fit.sigma_residual_mm
     tab["peak_fap"] = periodogram.fap
-    return Estimates(tab[ESTIMATE_COLUMNS], w, periodogram, fit)
+    # Model adequacy and σ's honest under coloured noise (`residual_noise`): the white-noise σ's
+    # (thesis 5.43-5.45) are kept beside; the default ones use the residual's density near f0.
+    noise = residual_noise(w, harmonic_residual(w, fit.params), fit.f0_hz, rows=np.flatnonzero(fit.converged))
+    tab["r2"] = noise.r2
+    tab["whiteness_p"] = noise.whiteness_p
+    tab["sigma_amplitude_white_mm"] = fit.sigma_amplitude_mm
+    tab["sigma_f0_white_hz"] = fit.sigma_f0_hz
+    tab["sigma_amplitude_mm"] = fit.sigma_amplitude_mm * np.sqrt(noise.kappa)
+    tab["sigma_f0_hz"] = fit.sigma_f0_hz * np.sqrt(noise.kappa)
+    return Estimates(tab[ESTIMATE_COLUMNS], w, periodogram, fit, noise)
 
 
 def _span(w: Windows) -> np.ndarray:

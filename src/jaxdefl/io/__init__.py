@@ -1,5 +1,23 @@
 """Reading and writing tables and recordings."""
 
-from .trajectory import load_table, read_reference, read_trajectory, validate_trajectory, write_trajectory
+from .trajectory import (
+    TIMESTAMP_POLICIES,
+    check_timestamp_policy,
+    load_table,
+    read_reference,
+    read_trajectory,
+    timestamp_note,
+    validate_trajectory,
+    write_trajectory,
+)
 
-__all__ = ["load_table", "read_reference", "read_trajectory", "validate_trajectory", "write_trajectory"]
+__all__ = [
+    "TIMESTAMP_POLICIES",
+    "check_timestamp_policy",
+    "load_table",
+    "read_reference",
+    "read_trajectory",
+    "timestamp_note",
+    "validate_trajectory",
+    "write_trajectory",
+]

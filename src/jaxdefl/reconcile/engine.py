@@ -75,7 +75,8 @@ def specs_from_diagnosis(
     """Each diagnosed effect as an ``[[effect]]`` spec, or None and the reason it is not one.
 
     Times in DIAG.json are relative to the table's first stamp, as the simulator's t_rel; the
-    linear modulations there are about the record's middle (``t_ref_s`` = duration / 2). Range
+    linear modulations there are about the record's middle (``t_ref_s`` = duration / 2); a
+    polynomial drift becomes a warm-up with τ = the record's length, to be refitted. Range
     effects are sized in range through the calibration's gains; one seen on at least half of the
     ``n_plates`` plates is taken for the whole image (a camera effect), else for its plates."""
     out: list[tuple[EffectSpec | None, str]] = []
@@ -92,11 +93,11 @@ def specs_from_diagnosis(
             continue
         whole = n_plates > 0 and len(plates) * 2 >= n_plates
         if eid == "drift":
-            if kind != "exponential" or p.get("tau_s") is None:
-                out.append((None, "a polynomial drift has no physical time constant to simulate"))
-                continue
             amp = _per_range(e, "amplitudes_mm", p["amplitude_mm"], calibration)
-            params = {"amplitude_mm": amp, "tau_s": p["tau_s"]}
+            # a polynomial drift (slower than the record) is simulated as a warm-up whose time
+            # constant starts at the record's length (`refine_range_effects` fits it)
+            tau = p["tau_s"] if kind == "exponential" and p.get("tau_s") else duration_s
+            params = {"amplitude_mm": amp, "tau_s": tau}
             plates = () if whole else plates
         elif eid == "level_jump":
             size = _per_range(e, "sizes_mm", p["size_mm"], calibration)
@@ -158,12 +159,17 @@ def _range_columns(spec: EffectSpec, t: np.ndarray, tau: float | None = None) ->
 
 
 def refine_range_effects(twin: Twin, df: pd.DataFrame, specs: tuple[EffectSpec, ...], calibration):
-    """Fit a drift's or a jump's range size (and a drift's time constant) to the recording as the
-    frame simulator would show them: one range effect seen through every series' calibrated
-    gain, the series' offsets and harmonics as nuisances (weighted by their noise). The
-    diagnosis fits a free size per series; this is the physics the simulator injects."""
-    if calibration is None:
-        return specs
+    """Fit a drift's or a jump's range size (and a drift's time constant, on a grid from a third
+    to three times the diagnosed one) to the recording as the frame simulator would show them:
+    one range effect seen through every series' calibrated gain (without a calibration: z, gain
+    1), the series' offsets and harmonics as nuisances, weighted by their noise. The diagnosis
+    fits a free size per series; this is the physics the simulator injects."""
+
+    def gain_of(plate: int, axis: str) -> float:
+        if calibration is None:  # as the twin injects without one: z alone, gain 1
+            return float(axis == "z")
+        return calibration.gain_of(plate, axis)
+
     out = []
     for spec in specs:
         if spec.id not in ("drift", "level_jump"):
@@ -173,7 +179,7 @@ def refine_range_effects(twin: Twin, df: pd.DataFrame, specs: tuple[EffectSpec, 
         for s in twin.series:
             if spec.plates and s.plate not in spec.plates:
                 continue
-            g = calibration.gain_of(s.plate, s.axis)
+            g = gain_of(s.plate, s.axis)
             if abs(g) < 0.05 or s.sigma <= 0:
                 continue
             y = df[s.axis].to_numpy()[s.rows]

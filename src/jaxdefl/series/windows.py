@@ -3,8 +3,9 @@
 Every row of the batch is one (segment, plate, axis, window). Times are stored relative to the
 window's mid time ``t_mid = (t_start + t_end) / 2`` (computed in float64 from the window bounds,
 not from the data), so epoch timestamps lose nothing and the fit is well conditioned.
-Samples on a regular frame clock also get their integer frame index ``k`` (relative to the first
-sample of the window), which lets the periodogram use an exact FFT on the masked grid.
+Samples on a frame clock also get their integer frame index ``k`` (relative to the first sample
+of the window), which lets the periodogram use an FFT on the masked grid: exact for an exact
+clock, on the stamps snapped to the recovered clock when they jitter by a fraction of a frame.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import numpy as np
 import pandas as pd
 
 from .._errors import ConfigError
+from .clock import SNAP_MAX, fit_clock
 
 __all__ = [
     "Windows",
@@ -29,9 +31,6 @@ __all__ = [
 STATUS_OK = "converged"
 STATUS_FEW_SAMPLES = "too_few_samples"
 
-# A window is on the frame clock when every timestamp is within this fraction of a frame
-# interval of t_first + k * dt: then the masked-grid FFT periodogram is exact to that level.
-CLOCK_TOLERANCE = 1e-5
 MAX_GRID_FILL = 64
 
 
@@ -45,8 +44,9 @@ class Windows:
         y: (window, sample) values in mm; 0 where masked.
         mask: (window, sample) True where a sample is valid.
         k: (window, sample) frame index relative to the window's first sample; 0 where masked.
-        dt: (window,) frame interval in s (median spacing, refined by least squares).
-        on_clock: (window,) True when all samples sit on the frame clock (see CLOCK_TOLERANCE).
+        dt: (window,) frame interval in s (the recovered clock, `jaxdefl.series.clock`).
+        on_clock: (window,) True when the samples sit on the frame clock to SNAP_MAX of a frame
+            (RMS): the periodogram uses the frame grid (see `frame_clock`).
         table: one row per window: segment, window, t_start, t_end, t_mid (middle of the bounds,
             the reference of reported phases), t_centre, plate, axis, n, status.
     """
@@ -78,36 +78,24 @@ class Windows:
         )
 
 
-def frame_clock(t_rel: np.ndarray) -> tuple[float, np.ndarray, bool]:
+def frame_clock(t_rel: np.ndarray, hint: float | None = None) -> tuple[float, np.ndarray, bool]:
     """Frame interval, integer frame indices and on-clock flag for sorted times ``t_rel`` (s).
 
-    The interval starts as the smallest spacing (drop-outs only make gaps of whole frames, and
-    with most frames lost even the median spacing spans several frames) and is refined by least
-    squares of t on k, so long windows do not accumulate error. A grid with more than
-    ``MAX_GRID_FILL`` frames per sample is not treated as a frame clock (the FFT grid would be
-    mostly empty; such times take the non-uniform path).
+    The clock is recovered by `jaxdefl.series.clock.fit_clock` (a robust line t = t0 + k dt
+    whose integer indices resolve drop-outs, repeats and jitter; never the smallest spacing,
+    which jitter shrinks). The times are on the clock when they scatter about it by at most
+    ``SNAP_MAX`` of a frame (RMS): the periodogram then uses the frame grid (exact for an
+    exact clock, the stamps snapped to the nearest frame otherwise; the fit always uses the
+    stamps). A grid with more than ``MAX_GRID_FILL`` frames per sample is not a frame clock (the
+    FFT grid would be mostly empty; such times take the non-uniform path). ``hint`` is a
+    nominal interval (1 / frame rate) to start the clock fit from.
     """
     n = t_rel.size
-    if n < 2:
+    c = fit_clock(t_rel, hint)
+    if not np.isfinite(c.dt):
         return np.nan, np.zeros(n, np.int64), False
-    d = np.diff(t_rel)
-    pos = d[d > 0]
-    if pos.size == 0:
-        return np.nan, np.zeros(n, np.int64), False
-    dt = float(pos.min())
-    rel = t_rel - t_rel[0]
-    k = np.rint(rel / dt)
-    for _ in range(2):
-        kk = float(k @ k)
-        if kk > 0:
-            dt = float(k @ rel) / kk
-        k = np.rint(rel / dt)
-    on = (
-        bool(np.max(np.abs(rel - k * dt)) <= CLOCK_TOLERANCE * dt)
-        and bool(np.all(np.diff(k) > 0))
-        and k[-1] + 1 <= MAX_GRID_FILL * n
-    )
-    return dt, k.astype(np.int64), on
+    on = c.jitter_frames <= SNAP_MAX and c.k[-1] + 1 <= MAX_GRID_FILL * n
+    return c.dt, c.k, bool(on)
 
 
 def _bounds(t_seg: np.ndarray, window_s: float | None, step_s: float | None) -> list[tuple[float, float]]:
@@ -144,7 +132,7 @@ def _pack(series: list[tuple], min_samples: int) -> Windows:
         T[i, :n] = t_abs - centre[i]
         Y[i, :n] = y
         M[i, :n] = True
-        if clock and clock[0][2] and n:
+        if clock and clock[0][2] and n and clock[0][1][-1] - clock[0][1][0] + 1 <= MAX_GRID_FILL * n:
             dt[i], K[i, :n], on[i] = clock[0][0], clock[0][1] - clock[0][1][0], True
         elif n:
             dt[i], K[i, :n], on[i] = frame_clock(t_abs - t_abs[0])
@@ -153,6 +141,27 @@ def _pack(series: list[tuple], min_samples: int) -> Windows:
     table = pd.DataFrame(rows, columns=cols)
     table.insert(5, "t_centre", centre)
     return Windows(T, Y, M, K, dt, on, table)
+
+
+# A window whose stamps lie on a line in k to this fraction of a frame is on an exact clock.
+EXACT = 1e-5
+
+
+def _window_clock(dt: float, k: np.ndarray, r: np.ndarray) -> tuple[float, np.ndarray, bool]:
+    """The series clock as seen by one window: (interval, indices, on the grid). ``r`` are the
+    window's residuals about the series clock. A line through them (a logger restart shifts
+    the clock, a rate change tilts it) makes an exact clock of the window's own when what is
+    left is below EXACT of a frame; else the window is snapped to the series clock when its
+    stamps scatter by at most SNAP_MAX of a frame, and fits its own clock otherwise."""
+    if r.size < 2 or not np.isfinite(dt):
+        return dt, k, False
+    kc = k - k.mean()
+    den = float(kc @ kc)
+    slope = float(kc @ r) / den if den > 0 else 0.0
+    left = r - r.mean() - slope * kc
+    if float(np.max(np.abs(left))) <= EXACT * dt:
+        return dt + slope, k, True
+    return dt, k, bool(np.std(r) <= SNAP_MAX * dt)
 
 
 def make_windows(
@@ -192,14 +201,22 @@ def make_windows(
             f"--axes: the table has no column {', '.join(missing)} (it has {', '.join(df.columns)})"
         )
     series = []
+    last = (None, None)  # plates of a frame share their stamps: one clock fit for them all
     for seg, g in df.groupby("segment", sort=False):
         bounds = _bounds(g["t"].to_numpy(), window_s, step_s)
         for plate, gp in g.groupby("plate", sort=True):
             t_all = gp["t"].to_numpy()
-            # One clock for the whole series (all axes share the timestamps); a window where
-            # it does not hold to CLOCK_TOLERANCE gets its own clock fitted in `_pack`.
-            dt_all, k_all, _ = frame_clock(t_all - t_all[0])
-            resid_ok = np.abs(t_all - t_all[0] - k_all * dt_all) <= CLOCK_TOLERANCE * dt_all
+            # One clock for the whole series (all axes share the timestamps). A window takes
+            # it when its stamps scatter about it (a constant offset aside: a logger restart
+            # keeps its own exact grid) by at most SNAP_MAX of a frame; else its own clock is
+            # fitted in `_pack`.
+            if last[0] is not None and np.array_equal(last[0], t_all):
+                clk = last[1]
+            else:
+                clk = fit_clock(t_all - t_all[0])
+                last = (t_all, clk)
+            dt_all, k_all = clk.dt, clk.k
+            resid = t_all - t_all[0] - clk.t if np.isfinite(clk.dt) else np.full(t_all.size, np.nan)
             for axis in axes:
                 v = gp[axis].to_numpy()
                 ok = np.isfinite(v)
@@ -218,7 +235,7 @@ def make_windows(
                         plate=int(plate),
                         axis=axis,
                     )
-                    clock = (dt_all, k_all[lo:hi][sel], bool(resid_ok[lo:hi][sel].all()))
+                    clock = _window_clock(dt_all, k_all[lo:hi][sel], resid[lo:hi][sel])
                     series.append((meta, t_all[lo:hi][sel], v[lo:hi][sel], clock))
     return _pack(series, min_samples)
 
