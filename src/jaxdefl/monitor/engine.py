@@ -184,6 +184,13 @@ class Monitor:
                 "sigma_residual_mm": est["sigma_residual_mm"],
                 "peak_fap": nan,
                 "status": status,
+                # harmonic share of the variance; the recursive σ's assume noise white in time,
+                # so the white-noise σ's are the same numbers and no whiteness test is made
+                "r2": (est["amplitude_mm"] ** 2 / 2)
+                / (est["amplitude_mm"] ** 2 / 2 + est["sigma_residual_mm"] ** 2),
+                "whiteness_p": nan,
+                "sigma_amplitude_white_mm": est["sigma_amplitude_mm"],
+                "sigma_f0_white_hz": est["sigma_f0_hz"],
                 "t_update": time.time() if t_update is None else t_update,
             }
         )
