@@ -35,11 +35,14 @@ class Monitor:
         detector: DetectorSettings | None = None,
         init_s: float = 10.0,
         segment: str = "",
+        track: bool = True,
     ):
+        """``track=False``: detection only (detection studies over simulated days): the tracker
+        is started (reference frequency, noise correlation) but not updated frame by frame."""
         self.layout = layout
         self.tracker_settings = tracker or TrackerSettings()
         self.detector_settings = detector or DetectorSettings()
-        self.init_s, self.segment = init_s, segment
+        self.init_s, self.segment, self.track = init_s, segment, track
         self._buf_t: list[np.ndarray] = []
         self._buf_y: list[np.ndarray] = []
         self.tracker: HarmonicTracker | None = None
@@ -117,8 +120,9 @@ class Monitor:
     def _track(self, t: np.ndarray, Y: np.ndarray) -> list[dict]:
         tr = self.tracker
         c0 = time.perf_counter()
-        for k in range(t.size):
-            tr.update(t[k], Y[k])
+        if self.track:
+            for k in range(t.size):
+                tr.update(t[k], Y[k])
         finished = self.blocks.add(t, Y)
         self.update_seconds += time.perf_counter() - c0
         self._recent.append((t, Y))
