@@ -1,7 +1,8 @@
 """Which recursive estimator for `jaxdefl monitor`: the extended Kalman filter with slow process
 noise against recursive least squares with forgetting, on the same simulated record.
 
-    PYTHONPATH=src python experiments/monitor_estimators.py [--rate 20] [--seed 2] [--figure monitor_estimators.png]
+    PYTHONPATH=src python experiments/monitor_estimators.py [--rate 20] [--seed 2]
+                                                            [--figure monitor_estimators.png]
 
 Record: the live simulated camera (Experiment II, 3 Hz, SR4000-class ToF at --rate, calibrated
 centroid noise, 70 % of it shared by the plates of a frame, 3 % drop-outs), 900 s, fatigue off;

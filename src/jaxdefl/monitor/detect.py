@@ -44,10 +44,12 @@ SECONDS_PER_DAY = 86400.0
 @dataclass(frozen=True)
 class DetectorSettings:
     block_s: float = 5.0
-    learn_blocks: int = 24
+    learn_blocks: int = 60  # 5 min: the references' own error must stay small against k
     alarms_per_day: float = 1.0
     k: float = 0.5  # reference value, σ per block (optimal for shifts of 2k = 1 σ per block)
-    reference_s: float = 900.0
+    # amplitude charts: tuned for half a σ per block (a 3 % step at mid-span on a 20-Hz ToF camera)
+    k_amplitude: float = 0.25
+    reference_s: float = 1800.0
     min_snr: float = 5.0  # amplitude / σ per block for a series' amplitude and phase to be charted
     lost_fraction: float = 0.5  # a series with fewer samples than this share of a block's frames
 
@@ -220,9 +222,11 @@ class ChangeDetector:
         n_amp = int(self.charted.sum())
         self.n_sides = 2 * (1 + n_amp + s) + s
         blocks_per_day = SECONDS_PER_DAY / st.block_s
-        self.h = cusum_threshold(self.n_sides * blocks_per_day / st.alarms_per_day, st.k)
+        arl = self.n_sides * blocks_per_day / st.alarms_per_day
+        self.h = cusum_threshold(arl, st.k)
+        self.h_amp = cusum_threshold(arl, st.k_amplitude)
         self.ch_f0 = _Chart(1, st.k, self.h)
-        self.ch_amp = _Chart(s, st.k, self.h)
+        self.ch_amp = _Chart(s, st.k_amplitude, self.h_amp)
         self.ch_off = _Chart(s, st.k, self.h)
         self.ch_noise = _Chart(s, st.k, self.h, upward_only=True)
         self.state = "monitoring"
@@ -233,7 +237,8 @@ class ChangeDetector:
                 "t": L[-1].t_end,
                 "message": (
                     f"references learnt on {len(L)} blocks of {st.block_s:g} s; {n_amp} of {s} series "
-                    f"charted for amplitude and frequency; CUSUM h = {self.h:.2f} (k = {st.k:g}) for "
+                    f"charted for amplitude and frequency; CUSUM h = {self.h:.2f} (k = {st.k:g}; "
+                    f"amplitude h = {self.h_amp:.2f}, k = {st.k_amplitude:g}) for "
                     f"{st.alarms_per_day:g} false alarm(s) per day over {self.n_sides} chart sides"
                 ),
                 "threshold_h": self.h,
@@ -409,7 +414,7 @@ class ChangeDetector:
         for j in alarm:
             if j in done:
                 continue
-            since = self._since(self.ch_amp.onset(j, bool(self.ch_amp.hi[j] > self.h)))
+            since = self._since(self.ch_amp.onset(j, bool(self.ch_amp.hi[j] > self.h_amp)))
             same_axis = np.flatnonzero((self.axis_of == self.axis_of[j]) & self.charted & ~self.lost)
             alarming = set(int(a) for a in alarm if self.axis_of[a] == self.axis_of[j])
             others = np.array([k for k in same_axis if k not in alarming], np.int64)
@@ -482,7 +487,7 @@ class ChangeDetector:
         return ratio, s
 
     def _sensor_alarm(self, b: BlockResult, series: np.ndarray, quantity: str, chart: _Chart, sizer) -> dict:
-        since = self._since(min(chart.onset(j, bool(chart.hi[j] > self.h)) for j in series))
+        since = self._since(min(chart.onset(j, bool(chart.hi[j] > chart.h)) for j in series))
         size, sig = sizer(since, series)
         chart.reset(series)
         ev = self._base(b, quantity, "sensor", series, since)
