@@ -70,6 +70,11 @@ def fit(
     posterior_noise: Annotated[
         str, typer.Option(help="Noise likelihood of the posteriors: ar1 (coloured, default) or white.")
     ] = "ar1",
+    model: Annotated[
+        str, typer.Option(help="Signal model: harmonic (thesis) or damped (free vibration).")
+    ] = "harmonic",
+    harmonics: Annotated[int, typer.Option(help="Fit f0 and its harmonics 2 f0 .. K f0.")] = 1,
+    lines: Annotated[int, typer.Option(help="Fit N independent spectral lines (modes).")] = 1,
 ) -> None:
     """Estimate loading frequency and deflection amplitude per segment, window, plate and axis."""
     from . import pipeline
@@ -88,6 +93,9 @@ def fit(
         posterior=posterior,
         timestamps=timestamps,
         posterior_noise=posterior_noise,
+        model=model,
+        harmonics=harmonics,
+        lines=lines,
     )
 
 
@@ -132,11 +140,15 @@ def extract(
         typer.Option("--realtime/--full", help="Track plates detected once (fast) or detect in every frame."),
     ] = False,
     chunk_frames: Annotated[int, typer.Option(help="Frames per batch (bounds memory).")] = 256,
+    device: Annotated[
+        str | None,
+        typer.Option(help="Torch device of the per-frame stages: cpu, cuda, cuda:N [default: cuda if any]."),
+    ] = None,
 ) -> None:
     """Extract the plates from every frame: 3D centroid trajectories (t, plate, x, y, z)."""
     from .frames import extract_to_table
 
-    extract_to_table(recording, out, realtime=realtime, chunk_frames=chunk_frames)
+    extract_to_table(recording, out, realtime=realtime, chunk_frames=chunk_frames, device=device)
 
 
 @app.command()
