@@ -49,7 +49,7 @@ class DetectorSettings:
     k: float = 0.5  # reference value, σ per block (optimal for shifts of 2k = 1 σ per block)
     # amplitude charts: tuned for half a σ per block (a 3 % step at mid-span on a 20-Hz ToF camera)
     k_amplitude: float = 0.25
-    reference_s: float = 1800.0
+    reference_s: float = 3600.0
     min_snr: float = 5.0  # amplitude / σ per block for a series' amplitude and phase to be charted
     lost_fraction: float = 0.5  # a series with fewer samples than this share of a block's frames
 
@@ -61,12 +61,26 @@ def cusum_arl(h: float, k: float) -> float:
     return (np.exp(x) - x - 1) / (2 * k * k)
 
 
-def cusum_threshold(arl_blocks: float, k: float) -> float:
-    """The h whose one-sided in-control ARL is ``arl_blocks`` (bisection on `cusum_arl`)."""
-    lo, hi = 0.0, 200.0
+def _alarm_rate(h: float, k: float, ref_sd: float) -> float:
+    """1/ARL averaged over a reference offset δ ~ N(0, ref_sd²) that the chart sees as a shift
+    (the reference is itself an estimate; it changes slowly against the CUSUM's memory)."""
+    if ref_sd <= 0:
+        return 1.0 / cusum_arl(h, k)
+    x, w = np.polynomial.hermite_e.hermegauss(21)
+    w = w / w.sum()
+    keff = k - ref_sd * x
+    b = h + 1.166
+    arl = np.where(keff > 0.02, cusum_arl(h, np.maximum(keff, 0.02)), b * b)  # no drift: ~b² steps
+    return float(np.sum(w / arl))
+
+
+def cusum_threshold(arl_blocks: float, k: float, ref_sd: float = 0.0) -> float:
+    """The h whose one-sided in-control ARL is ``arl_blocks`` (bisection on `cusum_arl`), with
+    the alarm rate averaged over the reference's own error ``ref_sd`` (σ per block) if given."""
+    lo, hi = 0.0, 400.0
     for _ in range(200):
         mid = 0.5 * (lo + hi)
-        if cusum_arl(mid, k) < arl_blocks:
+        if _alarm_rate(mid, k, ref_sd) > 1.0 / arl_blocks:
             lo = mid
         else:
             hi = mid
@@ -223,8 +237,9 @@ class ChangeDetector:
         self.n_sides = 2 * (1 + n_amp + s) + s
         blocks_per_day = SECONDS_PER_DAY / st.block_s
         arl = self.n_sides * blocks_per_day / st.alarms_per_day
-        self.h = cusum_threshold(arl, st.k)
-        self.h_amp = cusum_threshold(arl, st.k_amplitude)
+        ref_sd = 1.0 / np.sqrt(n_max)  # a reference's error in block σ's, once it is full
+        self.h = cusum_threshold(arl, st.k, ref_sd)
+        self.h_amp = cusum_threshold(arl, st.k_amplitude, ref_sd)
         self.ch_f0 = _Chart(1, st.k, self.h)
         self.ch_amp = _Chart(s, st.k_amplitude, self.h_amp)
         self.ch_off = _Chart(s, st.k, self.h)
