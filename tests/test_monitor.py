@@ -29,7 +29,7 @@ from jaxdefl.monitor import (
     initial_state,
     simulated_source,
 )
-from jaxdefl.simulate import config_from_dict, kinematics, write_live
+from jaxdefl.simulate import config_from_dict, kinematics, simulate_to_dir, simulate_trajectories, write_live
 from jaxdefl.simulate.schedule import amplitude_factor, frequency_phase
 
 
@@ -195,7 +195,12 @@ def test_follow_a_growing_table(tmp_path):
 def test_cli_monitor_writes_its_files_and_stops_at_until(tmp_path):
     cfg = _tiny_config(tmp_path, duration=40.0)
     out = tmp_path / "mon"
-    code = main(["monitor", "--config", str(cfg), "--out", str(out), "--speed", "0", "--until", "30"])
+    _, lds = simulate_trajectories(cfg, 40.0, 0)
+    lds.to_csv(tmp_path / "lds.csv", index=False)
+    code = main(
+        ["monitor", "--config", str(cfg), "--out", str(out), "--speed", "0", "--until", "30"]
+        + ["--reference", str(tmp_path / "lds.csv")]
+    )
     assert code == 0
     events = [json.loads(x) for x in (out / "events.jsonl").read_text().splitlines()]
     assert events[0]["state"] == "learning" and events[-1]["state"] == "stopped"
@@ -206,8 +211,14 @@ def test_cli_monitor_writes_its_files_and_stops_at_until(tmp_path):
     est = pd.read_csv(out / "estimates.csv")
     assert list(est.columns) == SNAPSHOT_COLUMNS
     assert est["t_end"].max() <= est["t_start"].min() + 30.0 + 1e-6
-    z7 = est[(est.plate == 7) & (est.axis == "z")]
+    z7 = est[(est.plate == 7) & (est.axis == "z") & (est.segment == "camera")]
     assert np.all(np.abs(z7["f0_hz"] - 3.068) < 4 * z7["sigma_f0_hz"])
+    # the LDS monitored alongside: plates 3, 5, 7, 9, 11, same frequency, mid-span amplitude
+    ref = est[est.segment == "reference"]
+    assert set(ref.plate) == {3, 5, 7, 9, 11} and len(ref) >= 10
+    r7 = ref[ref.plate == 7].iloc[-1]
+    assert abs(r7.f0_hz - 3.068) < 4 * r7.sigma_f0_hz
+    assert abs(r7.amplitude_mm - 2.32) < 4 * r7.sigma_amplitude_mm + 0.01
     assert (out / "snapshot.png").stat().st_size > 0
     # a replay of a table works the same way, and a bad speed is a one-line error
     assert main(["monitor", "--replay", str(out / "estimates.csv"), "--out", str(tmp_path / "m2")]) == 2
@@ -291,3 +302,23 @@ def test_amplitude_step_on_one_plate_and_sensor_faults(tmp_path):
     assert amp[0]["size"] > 0
     got = {(a["quantity"], tuple(a["plates"])) for a in alarms if a["class"] == "sensor"}
     assert ("offset", (3,)) in got and ("noise", (11,)) in got and ("samples", (5,)) in got, got
+
+
+@pytest.mark.slow
+def test_replay_of_a_frame_recording(tmp_path):
+    """--replay of a .zarr recording goes through the tracked extraction: the plates in view,
+    three axes, the loading frequency."""
+    cfg = _tiny_config(tmp_path, duration=14.0)
+    simulate_to_dir(cfg, tmp_path / "sim", progress=False)
+    out = tmp_path / "mon"
+    code = main(
+        ["monitor", "--replay", str(tmp_path / "sim" / "recording.zarr"), "--out", str(out)]
+        + ["--speed", "0", "--snapshot", "2"]
+    )
+    assert code == 0
+    import pandas as pd
+
+    est = pd.read_csv(out / "estimates.csv")
+    assert set(est.axis) == {"z", "x", "y"} and est.plate.nunique() >= 5
+    last = est[est.axis == "z"].groupby("plate").tail(1)
+    assert np.all(np.abs(last.f0_hz - 3.068) < 4 * last.sigma_f0_hz + 1e-3)

@@ -276,6 +276,9 @@ def monitor(
         float, typer.Option(help="A followed source ends after this many s without data.")
     ] = 10.0,
     seed: Annotated[int | None, typer.Option(help="With --config: the simulation seed.")] = None,
+    reference: Annotated[
+        Path | None, typer.Option(help="Reference (LDS) table t, plate, z, monitored alongside.")
+    ] = None,
 ) -> None:
     """Follow a live camera: f0 and A per plate with σ's, alarms when the structure or a sensor changes."""
     from .monitor.run import run_monitor
@@ -295,7 +298,8 @@ def monitor(
         alarms_per_day=alarms_per_day,
         block_s=block,
         snapshot_s=snapshot,
-        inputs=tuple(p for p in (source, config) if p is not None),
+        inputs=tuple(p for p in (source, config, reference) if p is not None),
+        reference=reference,
     )
 
 

@@ -8,6 +8,8 @@ Outputs in DIR:
   record left by a killed monitor, has every event up to that moment and never half a line.
 - ``estimates.csv``: every ``snapshot_s`` seconds of data the tracker's estimates, the estimates
   table's columns plus ``t_update`` (wall-clock epoch s of the snapshot); appended and flushed.
+  Segment ``camera``; with ``--reference LDS.csv`` (read at the start) the LDS are monitored
+  alongside up to the camera's time, as segment ``reference`` (their events: ``source: reference``).
 - ``snapshot.png``: f0 and every plate's z amplitude ± σ against time with the alarms, replaced
   atomically every ``figure_s`` seconds of data and at the end.
 - ``monitor.json``: the settings and the source, written atomically at the start.
@@ -226,6 +228,7 @@ def run_monitor(
     figure_s: float = 60.0,
     dashboard: bool | None = None,
     inputs: tuple[Path, ...] = (),
+    reference: Path | None = None,
 ) -> dict:
     """Run the monitor on ``source`` until it ends, ``until_s`` s of data, ``duration_s`` s of
     wall-clock time or a signal. ``speed`` paces a replayed or simulated source (× real time;
@@ -256,6 +259,7 @@ def run_monitor(
     out.mkdir(parents=True, exist_ok=True)
     settings = dict(
         source=source.name,
+        reference=None if reference is None else str(reference),
         layout=dict(plates=list(source.layout.plates), axes=list(source.layout.axes)),
         speed=speed,
         until_s=until_s,
@@ -272,11 +276,13 @@ def run_monitor(
         source.layout,
         TrackerSettings(method=method),
         DetectorSettings(block_s=block_s, alarms_per_day=alarms_per_day),
+        segment="camera",
     )
     live = sys.stdout.isatty() if dashboard is None else dashboard
     log, disp = _Log(out), _Display(source.layout, live)
     history: deque = deque(maxlen=5000)
     z_cols = [k for k, a in enumerate(source.layout.axis_of()) if a == source.layout.axes[0]]
+    ref = _Reference(reference, method, block_s, alarms_per_day) if reference is not None else None
     wall0 = time.monotonic()
     t_first = next_snap = next_fig = None
     reason = "end of the source"
@@ -298,12 +304,14 @@ def run_monitor(
                     while (wait := due - time.monotonic()) > 0:
                         time.sleep(min(wait, 0.1))
                         check_interrupt()
-                for ev in mon.feed(t, Y):
+                for ev in mon.feed(t, Y) + (ref.feed_until(float(t[-1])) if ref else []):
                     log.event(ev)
                     disp.event(ev)
                 if mon.started and t[-1] >= next_snap:
                     df = mon.snapshot()
                     log.rows(df)
+                    if ref is not None and ref.mon.started:
+                        log.rows(ref.mon.snapshot())
                     lost = {int(p) for p in source.layout.plate_of()[mon.detector.lost]}
                     disp.snapshot(df, lost)
                     est = df.iloc[z_cols]
@@ -358,6 +366,38 @@ def run_monitor(
         "update_ms_per_frame": 1e3 * mon.update_seconds / tracked,
         "reason": reason,
     }
+
+
+class _Reference:
+    """The LDS (``--reference``, t, plate, z) monitored alongside, up to the camera's time: its
+    estimates go to estimates.csv as segment ``reference``, its events carry ``source: reference``."""
+
+    def __init__(self, path: Path, method: str, block_s: float, alarms_per_day: float):
+        from ..io import read_reference
+        from .layout import Layout, frames_from_table
+
+        df = read_reference(path)
+        layout = Layout(tuple(int(p) for p in np.unique(df["plate"].to_numpy())), ("z",))
+        self.t, self.Y, _ = frames_from_table(df, layout)
+        self.k = 0
+        self.mon = Monitor(
+            layout,
+            TrackerSettings(method=method),
+            DetectorSettings(block_s=block_s, alarms_per_day=alarms_per_day),
+            segment="reference",
+        )
+
+    def feed_until(self, t_end: float) -> list[dict]:
+        stop = int(np.searchsorted(self.t, t_end, side="right"))
+        events = []
+        while self.k < stop:  # a second of samples at a time
+            e = min(stop, self.k + 512)
+            events += self.mon.feed(self.t[self.k : e], self.Y[self.k : e])
+            self.k = e
+        for ev in events:
+            ev["source"] = "reference"
+            ev["message"] = "reference (LDS): " + ev.get("message", "")
+        return events
 
 
 def _write_figure(out: Path, history, alarms, layout, t0) -> None:
