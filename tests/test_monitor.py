@@ -322,3 +322,17 @@ def test_replay_of_a_frame_recording(tmp_path):
     assert set(est.axis) == {"z", "x", "y"} and est.plate.nunique() >= 5
     last = est[est.axis == "z"].groupby("plate").tail(1)
     assert np.all(np.abs(last.f0_hz - 3.068) < 4 * last.sigma_f0_hz + 1e-3)
+
+
+@pytest.mark.slow
+def test_coherent_amplitude_change_is_structural(tmp_path):
+    """Every plate's amplitude +4 % (a stiffness change under load control, frequency held): the
+    amplitude alarms are `structural`, none names a single plate as `plate`."""
+    cfg = _tiny_config(
+        tmp_path, '[[change]]\nkind = "stiffness"\nt_s = 330\nf0_change = 0.0\namplitude_change = 0.04\n'
+    )
+    alarms = _run(cfg, 900, seed=8, track=False)
+    amp = [a for a in alarms if a["quantity"] == "amplitude"]
+    assert amp and amp[0]["class"] == "structural", alarms
+    assert not [a for a in amp if a["class"] == "plate"], amp
+    assert abs(amp[0]["size"] - 0.04) < 3 * amp[0]["sigma"] + 0.005
