@@ -15,7 +15,8 @@ started from the same batch fit of the first 10 s):
 
 Printed per estimator: on the stationary part (120–300 s) the RMS error of f0 and of plate 7's z
 amplitude against the truth, their mean reported σ and the share of frames whose error is within
-1 σ (68 % if the σ's are honest); after each step, the time until the error stays below 1/e of
+1 σ (with a memory of minutes one record is nearly one draw: not a calibration test, which the
+tests make on many blocks and seeds); after each step, the time until the error stays below 1/e of
 the step; the mean update time per frame.
 """
 
