@@ -295,7 +295,7 @@ def hammer():
     """0.25-s hammer records of a 696-Hz mode (ζ = 0.8 %) sampled at 10 kHz, 12 hits."""
     rng = np.random.default_rng(21)
     t = np.arange(2500) / 10_000.0
-    truth = dict(fd=696.0, zeta=0.008, a0=0.05)
+    truth = dict(fd=696.0, zeta=0.008, a0=0.05, zeta_rel=0.03)
     series = [damped_series(rng, t, truth["fd"], truth["zeta"], truth["a0"], 0.7, 0.002) for _ in range(12)]
     return windows_of(t, series), truth
 
@@ -305,7 +305,7 @@ def slow_free_vibration():
     """A 4.7-Hz mode (ζ = 2 %) seen by a 30-Hz camera with 3 % drop-outs, 20 s, 12 records."""
     rng = np.random.default_rng(22)
     t = clock(rng, 20.0, 30.0, 0.03, t0=T0)
-    truth = dict(fd=4.7, zeta=0.02, a0=3.0)
+    truth = dict(fd=4.7, zeta=0.02, a0=3.0, zeta_rel=0.2)
     series = [
         damped_series(rng, t, truth["fd"], truth["zeta"], truth["a0"], -1.1, 0.3, rho=0.3, t_hit=T0)
         for _ in range(12)
@@ -330,7 +330,8 @@ def test_damped_agrees_with_scipy_and_recovers_the_mode(case, request):
     ):
         zz = (tab[col] - v) / tab["sigma_" + col]
         assert np.sqrt(np.mean(zz**2)) < 1.6 and np.max(np.abs(zz)) < 4.5, (col, zz.tolist())
-    assert np.all(np.abs(tab["damping_ratio"] / truth["zeta"] - 1) < 0.1)
+    # ζ to 3 % from a hammer hit at 10 kHz, to 20 % from 20 s of a 30-Hz camera (σ_ζ ~5 % there)
+    assert np.all(np.abs(tab["damping_ratio"] / truth["zeta"] - 1) < truth["zeta_rel"])
 
 
 # --------------------------------------------------------------------------------------------
