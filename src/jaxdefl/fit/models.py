@@ -17,7 +17,8 @@ optimistix Gauss-Newton every fit uses (`jaxdefl.fit.harmonic.gauss_newton`), th
 σ0² (JᵀWJ)⁻¹ (thesis 5.42-5.43) and derived quantities (amplitudes, phases, damping ratios) by
 the delta method (5.44-5.45). Lines after the first are found one at a time: the highest
 periodogram peak of the residual of the lines found so far (fitted jointly), then all N lines
-are fitted jointly and ordered by frequency.
+are fitted jointly; they keep the order they were found in (line 1 is the periodogram's highest
+peak, the line the thesis model fits).
 """
 
 from __future__ import annotations
@@ -384,8 +385,8 @@ def model_values(
 class ModelFit(HarmonicFit):
     """Fit of a `SignalModel` to every window (NaN where a window was not fitted).
 
-    The `HarmonicFit` fields describe the first component (the fundamental, or the line of
-    lowest frequency) at the time origin of the windows, so that code written for the default
+    The `HarmonicFit` fields describe the first component (the fundamental, or the first line
+    found) at the time origin of the windows, so that code written for the default
     model reads the first component; ``params``/``cov`` are its [C, D, E, ω] block.
 
     Extra attributes:
@@ -426,7 +427,7 @@ def fit_model(
 
     Lines after the first start at the highest periodogram peak (same band and oversampling)
     of the residual of the lines found so far, fitted jointly; a window whose partial fit fails
-    is not fitted. Lines are returned in increasing frequency.
+    is not fitted. Lines keep the order they were found in.
 
     Returns:
         ModelFit with one entry per window of ``w``.
@@ -471,8 +472,6 @@ def fit_model(
     p[~ok], cov[~ok], fap[~ok] = np.nan, np.nan, np.nan
     for k in scal:
         scal[k][~ok] = np.nan
-    if n_lines > 1:
-        p, cov, fap = _by_frequency(spec, p, cov, fap)
 
     i = [0, 1, spec.offset_index, spec.omega_index(0)]
     c, d = p[:, 0], p[:, 1]
@@ -500,23 +499,6 @@ def fit_model(
         line_fap=fap,
         origin_s=scal["origin"],
     )
-
-
-def _by_frequency(spec: SignalModel, p, cov, fap):
-    """Lines (with their components, decays and FAPs) reordered by increasing frequency."""
-    n_lines = spec.lines
-    omegas = p[:, spec.omega_index(0) : spec.omega_index(0) + n_lines]
-    order = np.argsort(np.where(np.isfinite(omegas), omegas, np.inf), axis=1)
-    # lines == components here (harmonics are 1 when lines > 1)
-    perm = [2 * order, 2 * order + 1]
-    pairs = np.stack(perm, axis=-1).reshape(p.shape[0], -1)
-    parts = [pairs, np.full((p.shape[0], 1), spec.offset_index), spec.omega_index(0) + order]
-    if spec.damped:
-        parts.append(spec.decay_index(0) + order)
-    idx = np.concatenate(parts, axis=1)
-    p = np.take_along_axis(p, idx, axis=1)
-    cov = np.take_along_axis(np.take_along_axis(cov, idx[:, :, None], axis=1), idx[:, None, :], axis=2)
-    return p, cov, np.take_along_axis(fap, order, axis=1)
 
 
 # --------------------------------------------------------------------------------------------
