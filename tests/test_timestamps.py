@@ -48,7 +48,7 @@ def _jittered_table(seed, jitter_s=0.005, dropout=0.03, duration_s=120.0, noise=
     rng = np.random.default_rng(seed)
     k = np.arange(int(duration_s * 20))
     k = k[rng.random(k.size) >= dropout]
-    t = k / 20.0 + rng.normal(0.0, jitter_s, k.size)
+    t = np.sort(k / 20.0 + rng.normal(0.0, jitter_s, k.size))  # a file lists frames in time order
     frames = []
     for p in range(1, n_plates + 1):
         ph = rng.uniform(0, 2 * np.pi)
@@ -160,7 +160,8 @@ def test_merge_averages_duplicates_and_strict_refuses_them(tmp_path, capsys):
 
 @pytest.fixture
 def no_one_window_loop(monkeypatch):
-    """The one-window-at-a-time periodogram must not be reached."""
+    """The non-uniform periodogram must not be reached: jittered windows stay on the batched
+    frame grid."""
     import jaxdefl.spectral.lomb as lomb
 
     def refuse(*a, **k):
@@ -200,6 +201,35 @@ def test_jitter_gives_the_same_estimates_as_a_perfect_clock():
     assert (a["status"] == "converged").all() and (b["status"] == "converged").all()
     assert np.all(np.abs(a["amplitude_mm"] - b["amplitude_mm"]) < 0.5 * b["sigma_amplitude_mm"])
     assert np.all(np.abs(a["f0_hz"] - b["f0_hz"]) < 0.5 * b["sigma_f0_hz"])
+
+
+def test_jitter_beyond_a_quarter_frame_takes_the_batched_non_uniform_path(monkeypatch):
+    """20 ms RMS at 20 Hz is 0.4 frame: off the grid, so nifty-ls, one call per window span for
+    all the plates sharing its frames (not one per window), equal to the direct sums."""
+    import nifty_ls
+
+    from jaxdefl.spectral import lomb_peaks, lomb_slow
+
+    calls = []
+    real = nifty_ls.lombscargle
+
+    def counting(t, y, *a, **k):
+        calls.append(np.shape(y))
+        return real(t, y, *a, **k)
+
+    monkeypatch.setattr(nifty_ls, "lombscargle", counting)
+    df, _ = _jittered_table(seed=8, jitter_s=0.020, duration_s=62.0, n_plates=3)
+    w = make_windows(validate_trajectory(df), axes=("z",), window_s=30.0)
+    assert len(w) == 6 and not w.on_clock.any()
+    p = lomb_peaks(w, keep=(0, 2))
+    assert set(p.method) == {"nufft"}
+    assert len(calls) == 2 and all(shape[0] == 3 for shape in calls)
+    for r in (0, 2):
+        f, power = p.spectra[r]
+        m = w.mask[r]
+        ref = lomb_slow(w.t[r, m], w.y[r, m], f)
+        np.testing.assert_allclose(power, ref, atol=1e-6 * ref.max())
+    assert np.all(np.abs(p.freq_hz - 3.0672) < 0.01)
 
 
 # -- units ------------------------------------------------------------------------------------
