@@ -55,7 +55,9 @@ def _jittered_table(seed, jitter_s=0.005, dropout=0.03, duration_s=120.0, noise=
         e = _ar1(rng, t.size, 0.6, 0.5) if noise == "ar1" else 0.5 * rng.standard_normal(t.size)
         z = 1900.0 + 2.0 * np.cos(2 * np.pi * 3.0672 * t + ph) + e
         frames.append(pd.DataFrame({"t": 1.7e9 + t, "plate": p, "z": z}))
-    return pd.concat(frames, ignore_index=True), 1.0 - k.size / (k[-1] + 1)
+    out = pd.concat(frames, ignore_index=True)
+    out.attrs["frames"] = k  # the true frame index of every stamp (in time order)
+    return out, 1.0 - k.size / (k[-1] + 1)
 
 
 # -- the clock fit against the simulated clock -----------------------------------------------
@@ -230,6 +232,23 @@ def test_jitter_beyond_a_quarter_frame_takes_the_batched_non_uniform_path(monkey
         ref = lomb_slow(w.t[r, m], w.y[r, m], f)
         np.testing.assert_allclose(power, ref, atol=1e-6 * ref.max())
     assert np.all(np.abs(p.freq_hz - 3.0672) < 0.01)
+
+
+@pytest.mark.slow
+def test_diagnosis_grids_follow_the_recovered_clock_and_the_frame_rate():
+    """5 ms of jitter at 20 Hz: the diagnosis' frame grid is the 20 Hz clock (the smallest
+    spacing would be ~30 ms), every sample on its own frame; --frame-rate starts the fit."""
+    from jaxdefl.diagnose._context import build_context
+
+    df, _ = _jittered_table(seed=12, duration_s=40.0, n_plates=2)
+    t = np.unique(df["t"].to_numpy())
+    true_k = df.attrs["frames"] - df.attrs["frames"][0]
+    for rate in (None, 20.0):
+        ctx, _, notes = build_context(df, frame_rate_hz=rate, axes=("z",))
+        assert abs(ctx.dt_s - 0.05) < 1e-5 and ctx.frame_rate_hz == pytest.approx(20.0, rel=1e-4)
+        s = ctx.series[0]
+        np.testing.assert_array_equal(s.k, true_k[np.searchsorted(t - t[0], s.t)])
+        assert not any("not on a regular frame clock" in n for n in notes)
 
 
 # -- units ------------------------------------------------------------------------------------
