@@ -310,3 +310,44 @@ def test_iso_strings_in_a_csv_are_epoch_seconds():
     t = ["2023-11-14T22:13:20.000001Z", "2023-11-14T22:13:20.050001Z", "2023-11-14T23:13:20.1+01:00"]
     got = validate_trajectory(pd.DataFrame({"t": t, "plate": 1, "z": [1.0, 2.0, 3.0]}))
     np.testing.assert_allclose(got["t"], [1700000000.000001, 1700000000.050001, 1700000000.1], rtol=0, atol=1e-7)
+
+
+# -- the other commands that read tables ------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_run_and_diagnose_read_tables_with_the_policy(tmp_path, capsys):
+    """A logger table (five significant digits, stamps repeated past 100 s): `run` with
+    processing.timestamps = "reclock" estimates it, strict fails the unit naming reclock;
+    `diagnose --timestamps reclock` reads it and says so."""
+    rng = np.random.default_rng(4)
+    k = np.arange(14000)
+    t = k * LOGGER_DT
+    frames = []
+    for p in (1, 2):
+        z = 1.5 * p * np.cos(2 * np.pi * 1.0 * t + p) + 0.05 * rng.standard_normal(k.size)
+        frames.append(pd.DataFrame({"t": _five_digits(t), "plate": p, "z": z}))
+    pd.concat(frames).to_csv(tmp_path / "log.csv", index=False)
+    toml = (
+        '[processing]\naxes = ["z"]\nreference_plate = 1\ntimestamps = "{}"\n'
+        '[[recording]]\nday = 1\ncamera = "logger"\ncycles = 1\ntrajectories = "log.csv"\n'
+    )
+    (tmp_path / "strict.toml").write_text(toml.format("strict"))
+    assert cli("run", tmp_path / "strict.toml", "--out", tmp_path / "o1") == 1
+    assert "--timestamps reclock" in capsys.readouterr().err
+    (tmp_path / "re.toml").write_text(toml.format("reclock"))
+    assert cli("run", tmp_path / "re.toml", "--out", tmp_path / "o2") == 0
+    whole = pd.read_csv(tmp_path / "o2" / "estimates_whole.csv")
+    assert (whole["status"] == "converged").all()
+    assert np.all(np.abs(whole["f0_hz"] - 1.0) < 4 * whole["sigma_f0_hz"])
+    # the command-line flag overrides the campaign's policy
+    assert cli("run", tmp_path / "strict.toml", "--out", tmp_path / "o3", "--timestamps", "reclock") == 0
+
+    assert cli("diagnose", tmp_path / "log.csv", "--out", tmp_path / "d.json", "--no-figures") == 2
+    code = cli(
+        "diagnose", tmp_path / "log.csv", "--out", tmp_path / "d.json", "--no-figures", "--timestamps", "reclock"
+    )
+    assert code == 0
+    d = json.loads((tmp_path / "d.json").read_text())
+    assert d["settings"]["timestamps"] == "reclock"
+    assert "timestamps reclocked: interval 0.007753" in capsys.readouterr().err
