@@ -292,6 +292,7 @@ def test_micrometres_are_an_error():
 @pytest.mark.parametrize("tz", [None, "Europe/Berlin"])
 def test_datetime64_parquet_fits_like_float_seconds(tmp_path, tz, capsys):
     df, _ = _jittered_table(seed=5, jitter_s=0.0, duration_s=30.0, n_plates=2)
+    df.attrs = {}
     df["t"] = np.round(df["t"], 6)
     stamps = pd.to_datetime(np.round(df["t"] * 1e6).astype(np.int64), unit="us")
     if tz:
@@ -351,3 +352,26 @@ def test_run_and_diagnose_read_tables_with_the_policy(tmp_path, capsys):
     d = json.loads((tmp_path / "d.json").read_text())
     assert d["settings"]["timestamps"] == "reclock"
     assert "timestamps reclocked: interval 0.007753" in capsys.readouterr().err
+
+
+def test_frame_recordings_take_strict_or_reclock(tmp_path):
+    """An .npz whose frame times a logger rounded (repeats past 100 s): strict refuses it naming
+    reclock; reclock gives every frame its time on the recovered clock; merge is for tables."""
+    from jaxdefl.io.recording import open_recording
+
+    k = np.arange(14000)
+    t = np.array(_five_digits(k * LOGGER_DT), dtype=float)
+    np.savez(
+        tmp_path / "r.npz",
+        depth=np.zeros((k.size, 2, 2), np.float32),
+        timestamps=t,
+        intrinsics=np.array([500.0, 500.0, 1.0, 1.0]),
+    )
+    with pytest.raises(InputError, match=r"r.npz: timestamps: timestamps must increase.*--timestamps reclock"):
+        open_recording(tmp_path / "r.npz")
+    with pytest.raises(ConfigError, match=r"--timestamps merge: frame recordings take strict or reclock"):
+        open_recording(tmp_path / "r.npz", timestamps="merge")
+    rec = open_recording(tmp_path / "r.npz", timestamps="reclock")
+    got = np.concatenate([ch.t for ch in rec.chunks(4096)])
+    np.testing.assert_allclose(got, k * LOGGER_DT, rtol=0, atol=0.01 * LOGGER_DT)  # a hundredth of a frame
+    assert abs(rec.clock["segments"][0]["interval_s"] - LOGGER_DT) < 1e-9

@@ -115,11 +115,19 @@ def extract(
         typer.Option("--realtime/--full", help="Track plates detected once (fast) or detect in every frame."),
     ] = False,
     chunk_frames: Annotated[int, typer.Option(help="Frames per batch (bounds memory).")] = 256,
+    timestamps: Annotated[
+        str,
+        typer.Option(
+            "--timestamps",
+            help="strict (frame times must increase) or reclock (recover the frame clock of rounded "
+            "or jittered frame times).",
+        ),
+    ] = "strict",
 ) -> None:
     """Extract the plates from every frame: 3D centroid trajectories (t, plate, x, y, z)."""
     from .frames import extract_to_table
 
-    extract_to_table(recording, out, realtime=realtime, chunk_frames=chunk_frames)
+    extract_to_table(recording, out, realtime=realtime, chunk_frames=chunk_frames, timestamps=timestamps)
 
 
 @app.command()

@@ -533,7 +533,10 @@ def _reconcile_input(recording: Path, segment: str | None, timestamps: str = "st
         from .frames import extract_recording
         from .io.recording import open_recording
 
-        df = validate_trajectory(extract_recording(open_recording(recording)), recording, timestamps=timestamps)
+        frames_policy = "reclock" if timestamps == "reclock" else "strict"
+        df = validate_trajectory(
+            extract_recording(open_recording(recording, timestamps=frames_policy)), recording, timestamps=timestamps
+        )
     segments = list(pd.unique(df["segment"]))
     if segment is None:
         if len(segments) > 1:

@@ -6,6 +6,8 @@ a `Recording` chunk by chunk; `extract_to_table` is the CLI's entry point.
 
 from __future__ import annotations
 
+import sys
+
 from pathlib import Path
 
 import numpy as np
@@ -166,15 +168,21 @@ def extract_recording(
     return _sort(pd.concat(parts, ignore_index=True))
 
 
-def extract_to_table(recording: Path, out: Path, realtime: bool = False, chunk_frames: int = 256) -> None:
+def extract_to_table(
+    recording: Path, out: Path, realtime: bool = False, chunk_frames: int = 256, timestamps: str = "strict"
+) -> None:
     """Extract every frame of ``recording`` and write the trajectory table ``out`` (CSV/Parquet).
+
+    ``timestamps``: ``strict`` (frame times must increase) or ``reclock`` (rounded or jittered
+    frame times replaced by the recovered clock, `jaxdefl.io.recording.open_recording`; one line
+    on stderr says what was recovered).
 
     Raises:
         InputError: a missing, corrupt, truncated or inconsistent recording, or no plates found.
     """
     from ..io.output import TABLE_SUFFIXES, Outputs
     from ..io.recording import open_recording
-    from ..io.trajectory import write_trajectory
+    from ..io.trajectory import timestamp_note, write_trajectory
 
     if chunk_frames < 1:
         raise ConfigError(f"--chunk-frames: expected an integer >= 1, got {chunk_frames}")
@@ -182,7 +190,9 @@ def extract_to_table(recording: Path, out: Path, realtime: bool = False, chunk_f
     outs.reserve(out, "--out", suffixes=TABLE_SUFFIXES)
     if Path(out).resolve().is_relative_to(Path(recording).resolve()):
         raise ConfigError(f"--out {out}: lies inside the recording {recording}; choose another place")
-    rec = open_recording(recording)
+    rec = open_recording(recording, timestamps=timestamps)
+    if (note := timestamp_note(rec.clock)) is not None:
+        print(f"jaxdefl extract: {rec.path}: {note}", file=sys.stderr)
     df = extract_recording(rec, realtime=realtime, chunk_frames=chunk_frames)
     with outs:
         write_trajectory(df, out, outs)
