@@ -151,9 +151,13 @@ def test_merge_averages_duplicates_and_strict_refuses_them(tmp_path, capsys):
     assert got["t"].tolist() == [0.0, 0.05, 0.10]
     assert got["z"].tolist() == [2.0, 2.0, 4.0]  # a missing value does not count
     assert got.attrs["timestamps"] == {"policy": "merge", "rows_merged": 2, "rows": 3}
-    with pytest.raises(InputError, match=r"dup.csv: row 3: plate 1 repeats t=0.0 of row 2 .*--timestamps merge"):
+    with pytest.raises(
+        InputError, match=r"dup.csv: row 3: plate 1 repeats t=0.0 of row 2 .*--timestamps merge"
+    ):
         validate_trajectory(df, "dup.csv")
-    with pytest.raises(ConfigError, match=r"--timestamps: expected one of strict, reclock, merge, got 'bogus'"):
+    with pytest.raises(
+        ConfigError, match=r"--timestamps: expected one of strict, reclock, merge, got 'bogus'"
+    ):
         validate_trajectory(df, "dup.csv", timestamps="bogus")
 
 
@@ -265,7 +269,9 @@ def _plain_table(t, z, t_name="t", z_name="z"):
 def test_epoch_in_sub_second_units_is_an_error_naming_the_unit(scale, name):
     t = (1.7e9 + np.arange(40) * 0.05) * scale
     z = np.cos(np.arange(40))
-    with pytest.raises(InputError, match=rf"x.csv: column 't' has no unit .* rename the column {name} .* t_s"):
+    with pytest.raises(
+        InputError, match=rf"x.csv: column 't' has no unit .* rename the column {name} .* t_s"
+    ):
         validate_trajectory(_plain_table(t, z), "x.csv")
     got = validate_trajectory(_plain_table(t, z, t_name=name), "x.csv")
     np.testing.assert_allclose(got["t"], 1.7e9 + np.arange(40) * 0.05, rtol=0, atol=2e-6)
@@ -310,7 +316,9 @@ def test_datetime64_parquet_fits_like_float_seconds(tmp_path, tz, capsys):
 def test_iso_strings_in_a_csv_are_epoch_seconds():
     t = ["2023-11-14T22:13:20.000001Z", "2023-11-14T22:13:20.050001Z", "2023-11-14T23:13:20.1+01:00"]
     got = validate_trajectory(pd.DataFrame({"t": t, "plate": 1, "z": [1.0, 2.0, 3.0]}))
-    np.testing.assert_allclose(got["t"], [1700000000.000001, 1700000000.050001, 1700000000.1], rtol=0, atol=1e-7)
+    np.testing.assert_allclose(
+        got["t"], [1700000000.000001, 1700000000.050001, 1700000000.1], rtol=0, atol=1e-7
+    )
 
 
 # -- the other commands that read tables ------------------------------------------------------
@@ -346,7 +354,13 @@ def test_run_and_diagnose_read_tables_with_the_policy(tmp_path, capsys):
 
     assert cli("diagnose", tmp_path / "log.csv", "--out", tmp_path / "d.json", "--no-figures") == 2
     code = cli(
-        "diagnose", tmp_path / "log.csv", "--out", tmp_path / "d.json", "--no-figures", "--timestamps", "reclock"
+        "diagnose",
+        tmp_path / "log.csv",
+        "--out",
+        tmp_path / "d.json",
+        "--no-figures",
+        "--timestamps",
+        "reclock",
     )
     assert code == 0
     d = json.loads((tmp_path / "d.json").read_text())
@@ -367,7 +381,9 @@ def test_frame_recordings_take_strict_or_reclock(tmp_path):
         timestamps=t,
         intrinsics=np.array([500.0, 500.0, 1.0, 1.0]),
     )
-    with pytest.raises(InputError, match=r"r.npz: timestamps: timestamps must increase.*--timestamps reclock"):
+    with pytest.raises(
+        InputError, match=r"r.npz: timestamps: timestamps must increase.*--timestamps reclock"
+    ):
         open_recording(tmp_path / "r.npz")
     with pytest.raises(ConfigError, match=r"--timestamps merge: frame recordings take strict or reclock"):
         open_recording(tmp_path / "r.npz", timestamps="merge")

@@ -17,7 +17,14 @@ from . import __version__
 from ._configs import config_dir
 from ._errors import ConfigError, JaxdeflError
 from .fit import Estimates, compare_with_reference, estimate_windows, fit_reference
-from .io import check_timestamp_policy, load_table, read_reference, read_trajectory, timestamp_note, write_trajectory
+from .io import (
+    check_timestamp_policy,
+    load_table,
+    read_reference,
+    read_trajectory,
+    timestamp_note,
+    write_trajectory,
+)
 from .io.output import TABLE_SUFFIXES, Outputs
 from .series import check_window_plan
 
@@ -535,7 +542,9 @@ def _reconcile_input(recording: Path, segment: str | None, timestamps: str = "st
 
         frames_policy = "reclock" if timestamps == "reclock" else "strict"
         df = validate_trajectory(
-            extract_recording(open_recording(recording, timestamps=frames_policy)), recording, timestamps=timestamps
+            extract_recording(open_recording(recording, timestamps=frames_policy)),
+            recording,
+            timestamps=timestamps,
         )
     segments = list(pd.unique(df["segment"]))
     if segment is None:

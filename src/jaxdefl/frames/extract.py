@@ -7,7 +7,6 @@ a `Recording` chunk by chunk; `extract_to_table` is the CLI's entry point.
 from __future__ import annotations
 
 import sys
-
 from pathlib import Path
 
 import numpy as np

@@ -103,7 +103,9 @@ def _intrinsics(path: Path, src: dict, where: str) -> dict:
     return out
 
 
-def _check_timestamps(path: Path, t: np.ndarray, where: str = "timestamps", policy: str = "strict") -> dict | None:
+def _check_timestamps(
+    path: Path, t: np.ndarray, where: str = "timestamps", policy: str = "strict"
+) -> dict | None:
     """Frame timestamps must be finite and increase (``strict``); with ``reclock`` they are a
     rounded or jittered writing of the frame clock and are replaced, in place, by the clock
     recovered from them (`jaxdefl.series.clock.fit_clock`; the report is returned)."""
@@ -124,13 +126,20 @@ def _check_timestamps(path: Path, t: np.ndarray, where: str = "timestamps", poli
             return {
                 "policy": "reclock",
                 "segments": [
-                    {"segment": "frames", "series": 1, "interval_s": c.dt, "jitter_rms_s": c.jitter_rms,
-                     "drift_ppm": c.drift_ppm}
+                    {
+                        "segment": "frames",
+                        "series": 1,
+                        "interval_s": c.dt,
+                        "jitter_rms_s": c.jitter_rms,
+                        "drift_ppm": c.drift_ppm,
+                    }
                 ],
             }
     if np.any(d <= 0):
         i = int(np.flatnonzero(d <= 0)[0]) + 1
-        hint = "" if policy == "reclock" else "; rerun with --timestamps reclock (a rounded or jittered clock)"
+        hint = (
+            "" if policy == "reclock" else "; rerun with --timestamps reclock (a rounded or jittered clock)"
+        )
         raise _err(
             path, f"{where}: timestamps must increase; frame {i} has t={t[i]:.6f} after {t[i - 1]:.6f}{hint}"
         )
@@ -339,7 +348,16 @@ def _open_tum(
         return t[s:e], out, None
 
     rec = Recording(
-        path, "depth", len(files), h, w, intr, str(cam.get("segment", path.name)), cam, _read=read, clock=clock
+        path,
+        "depth",
+        len(files),
+        h,
+        w,
+        intr,
+        str(cam.get("segment", path.name)),
+        cam,
+        _read=read,
+        clock=clock,
     )
     _geometry(rec, cam)
     return rec
