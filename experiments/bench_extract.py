@@ -1,7 +1,9 @@
-"""Frames/s of plate extraction on SR4000-sized frames (176x144): full detection, real-time
-(tracked) mode, and an OpenCV per-frame pipeline doing the same steps, in the same run.
+"""Frames/s of plate extraction on SR4000-sized frames (176x144): full detection (torch + kornia on
+(B, 1, H, W) frame tensors), real-time (tracked) mode, and an OpenCV per-frame pipeline doing
+the same steps, in the same run; then the labelling and index kernels against their peers.
 
-    .venv/bin/python experiments/bench_extract.py [--frames 2048] [--chunk 256]
+    .venv/bin/python experiments/bench_extract.py [--frames 2048] [--chunk 256] [--threads 1]
+                                                  [--device cpu] [--repeat 5]
 
 Frames come from the simulator (Experiment II, 3 Hz, SR4000 at 20 Hz), tiled to --frames.
 The OpenCV pipeline per frame: z from range (eq. 3.10), depth band relative to the beam top,
@@ -9,15 +11,16 @@ Otsu on the masked amplitude (cv2.threshold, 8-bit), connectedComponentsWithStat
 filter, 3x3 erosion, per-region mean of the 3D points. The three are timed in turns (best of
 --repeat rounds), so a change in the load of a shared machine hits all of them alike. Peak
 memory: the process's max RSS (mostly the simulator's rendering) and the peak of the arrays
-allocated by one `detect_chunk` call (tracemalloc).
+allocated by one `detect_chunk` call (tracemalloc; numpy only, torch's are not traced).
 
-Measured on the 2-core development machine, shared with another job (load average about 2),
-three runs of the command above (defaults: 2048 frames, chunk 256, 2 threads, best of 5):
-full detection 9057-9332 frames/s (27-28 ms per chunk), real-time 150,000-154,000 frames/s,
-OpenCV 2882-2915 frames/s: full / OpenCV 3.1-3.2. Peak memory: max RSS 1232-1243 MB,
-38 MB of arrays per `detect_chunk` call. Before the per-chunk path moved from torch to numpy,
-full detection ran 682-5060 frames/s against OpenCV's 2882-3134 in the same runs: torch's
-two intra-op threads wait for each other on every small op when the other core is busy.
+The kernel peers, on the chunk's band-masked frames (before Otsu), best of --repeat:
+8-connected labelling by `label_components` (run-based union-find in torch), kornia's
+`connected_components_union_find` and `connected_components` (max-pooling; 40 steps, which is
+not even enough for a plate row), and scipy.ndimage.label on the stacked frames; the erosion
+by `erode` (kornia, a row then a column) and by kornia with the 3x3 square at once; index
+lists by `flat_indices` (numpy on the CPU) and torch's `nonzero`.
+
+Figures: see README.md (Extracting the plates), measured with the command above.
 """
 
 from __future__ import annotations
@@ -31,7 +34,15 @@ import cv2
 import numpy as np
 import torch
 
-from jaxdefl.frames import PlateGeometry, Tracker, calibrate_scene, detect_chunk
+from jaxdefl.frames import (
+    PlateGeometry,
+    Tracker,
+    calibrate_scene,
+    detect_chunk,
+    erode,
+    flat_indices,
+    label_components,
+)
 from jaxdefl.simulate import render_frames
 
 
@@ -74,7 +85,8 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--frames", type=int, default=2048)
     ap.add_argument("--chunk", type=int, default=256)
-    ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--device", default="cpu")
     ap.add_argument("--repeat", type=int, default=5)
     args = ap.parse_args()
     torch.set_num_threads(args.threads)
@@ -86,7 +98,7 @@ def main() -> None:
     intr = {k: facts[k] for k in ("fx", "fy", "cx", "cy")}
     geo = PlateGeometry(250.0 * np.arange(13) + 200.0, 1700.0)
     t0 = time.perf_counter()
-    scene = calibrate_scene(rng[:64], amp[:64], intr, "range", geo)
+    scene = calibrate_scene(rng[:64], amp[:64], intr, "range", geo, device=args.device)
     t_cal = time.perf_counter() - t0
     n = args.frames
 
@@ -106,12 +118,7 @@ def main() -> None:
     fns = {"full": full, "tracked": tracked, "opencv": ocv}
     for fn in fns.values():  # warm-up
         fn()
-    best = dict.fromkeys(fns, np.inf)
-    for _ in range(args.repeat):
-        for name, fn in fns.items():
-            s = time.perf_counter()
-            fn()
-            best[name] = min(best[name], time.perf_counter() - s)
+    best = _best(fns, args.repeat)
     rate = {k: n / v for k, v in best.items()}
     found = np.isfinite(detect_chunk(scene, rng[:256], amp[:256])[..., 2]).mean()
     tracemalloc.start()
@@ -120,11 +127,12 @@ def main() -> None:
     tracemalloc.stop()
     print(
         f"frames {n} of {rng.shape[2]}x{rng.shape[1]}, chunk {args.chunk}, threads {args.threads}, "
+        f"device {args.device}, "
         f"best of {args.repeat}; calibration {t_cal * 1e3:.0f} ms, plates {scene.plates.tolist()}, "
         f"found {found:.3f}"
     )
     print(
-        f"full detection (batched numpy/scipy): {rate['full']:9.0f} frames/s  "
+        f"full detection (torch + kornia):      {rate['full']:9.0f} frames/s  "
         f"({best['full'] / n * args.chunk * 1e3:.1f} ms per chunk)"
     )
     print(f"real-time (tracked):                  {rate['tracked']:9.0f} frames/s")
@@ -132,12 +140,61 @@ def main() -> None:
     print(
         f"ratios: full / OpenCV {rate['full'] / rate['opencv']:.2f}, "
         f"real-time / OpenCV {rate['tracked'] / rate['opencv']:.1f}, "
-        f"real-time / 5000 {rate['tracked'] / 5000:.1f}"
+        f"real-time / 20000 {rate['tracked'] / 20000:.1f}"
     )
     print(
         f"peak memory: max RSS {resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024:.0f} MB, "
-        f"detect_chunk arrays {peak_chunk / 2**20:.1f} MB per chunk"
+        f"detect_chunk numpy arrays {peak_chunk / 2**20:.1f} MB per chunk"
     )
+    _kernel_peers(scene, rng[: args.chunk], args.repeat, args.device)
+
+
+def _best(fns: dict, repeat: int) -> dict:
+    """Best wall time of every function, timed in turns (warm-up first)."""
+    for fn in fns.values():
+        fn()
+    best = dict.fromkeys(fns, np.inf)
+    for _ in range(repeat):
+        for name, fn in fns.items():
+            s = time.perf_counter()
+            fn()
+            if torch.cuda.is_available():
+                torch.cuda.synchronize()
+            best[name] = min(best[name], time.perf_counter() - s)
+    return best
+
+
+def _kernel_peers(scene, frames, repeat: int, device: str) -> None:
+    import kornia
+    import scipy.ndimage as ndi
+
+    r0, r1 = scene.rows
+    b = frames.shape[0]
+    f = torch.as_tensor(frames, device=device)
+    inv = torch.as_tensor(scene.inv_norm, device=device)
+    z = f[:, None, r0:r1] * inv[r0:r1]
+    top = torch.nanmedian((f.reshape(b, -1) * inv.reshape(-1))[:, scene.top_idx], dim=1).values
+    rel = z - top[:, None, None, None]
+    fg = (rel > scene.band[0]) & (rel < scene.band[1])
+    tall = np.pad(fg[:, 0].cpu().numpy(), ((0, 0), (0, 1), (0, 0))).reshape(-1, fg.shape[-1])
+    fns = {
+        "label_components (runs, torch)": lambda: label_components(fg),
+        "kornia connected_components_union_find": lambda: kornia.contrib.connected_components_union_find(fg),
+        "kornia connected_components (40 steps)": lambda: kornia.contrib.connected_components(fg.float(), 40),
+        "scipy.ndimage.label (stacked frames)": lambda: ndi.label(tall, structure=np.ones((3, 3))),
+        "erode (kornia, row then column)": lambda: erode(fg),
+        "kornia erosion, 3x3 square": lambda: kornia.morphology.erosion(
+            fg.float(), torch.ones(3, 3, device=device), border_type="constant", border_value=0.0
+        ),
+        "flat_indices": lambda: flat_indices(fg),
+        "torch nonzero": lambda: fg.reshape(-1).nonzero(),
+    }
+    best = _best(fns, repeat)
+    print(
+        f"kernels on one chunk ({b} x {r1 - r0} x {fg.shape[-1]} band pixels, {fg.float().mean():.2f} set):"
+    )
+    for name, t in best.items():
+        print(f"  {name:42s} {t * 1e3:8.2f} ms")
 
 
 if __name__ == "__main__":

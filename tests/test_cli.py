@@ -150,7 +150,9 @@ def test_fit_posterior_writes_flags_and_posteriors(recording, capsys):
     unc = pd.read_csv(recording / "est_uncertainty.csv")
     est = pd.read_csv(out)
     assert len(unc) == len(est)
-    assert set(unc["flag"]) <= {"ok", "low_snr", "few_cycles", "heavy_dropouts", "not_fitted"} | {
+    flags = {"ok", "low_snr", "few_cycles", "heavy_dropouts", "coloured_noise", "inadequate_model"}
+    flags.add("not_fitted")
+    assert set(unc["flag"]) <= flags | {
         f for f in unc["flag"] if "+" in f
     }
     post = pd.read_csv(recording / "est_posterior.csv")
@@ -160,3 +162,5 @@ def test_fit_posterior_writes_flags_and_posteriors(recording, capsys):
     assert (recording / "est_posterior.png").exists()
     assert main([*args[:-1], "-1"]) == 2
     assert "--posterior: expected a number of windows >= 0, got -1" in capsys.readouterr().err
+    assert main([*args, "--posterior-noise", "pink"]) == 2
+    assert "--posterior-noise: expected ar1 or white, got 'pink'" in capsys.readouterr().err

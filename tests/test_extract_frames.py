@@ -115,6 +115,33 @@ def test_npz_roundtrip_and_cli_entry(tmp_path):
     assert set(df.plate) == {4, 5, 6} and (df.segment == "s1").all() and len(df) == 90
 
 
+def test_cli_extract_device_flag(tmp_path, capsys):
+    """`jaxdefl extract --device cpu` gives the default's table; an unknown or absent device: exit 2."""
+    import pandas as pd
+    import torch
+
+    from jaxdefl.cli import main
+
+    t, z, _ = _scene(n=12)
+    np.savez(tmp_path / "rec.npz", timestamps=t, depth=z, intrinsics=[100.0, 100.0, 63.5, 31.5])
+    assert (
+        main(["extract", str(tmp_path / "rec.npz"), "--out", str(tmp_path / "a.csv"), "--device", "cpu"]) == 0
+    )
+    assert main(["extract", str(tmp_path / "rec.npz"), "--out", str(tmp_path / "b.csv")]) == 0
+    a, b = pd.read_csv(tmp_path / "a.csv"), pd.read_csv(tmp_path / "b.csv")
+    assert len(a) == 36
+    np.testing.assert_allclose(a[["x", "y", "z"]], b[["x", "y", "z"]], atol=0.01)
+    bad = [("gpu", "--device gpu: expected cpu, cuda or cuda:N")]
+    if not torch.cuda.is_available():
+        bad.append(("cuda", "--device cuda: CUDA is not available"))
+    for dev, msg in bad:
+        capsys.readouterr()
+        code = main(["extract", str(tmp_path / "rec.npz"), "--out", str(tmp_path / "c.csv"), "--device", dev])
+        err = capsys.readouterr().err
+        assert code == 2 and msg in err, err
+        assert not (tmp_path / "c.csv").exists()
+
+
 def test_tum_folder(tmp_path):
     t, z, _ = _scene(n=6)
     lines = ["# depth maps", "# timestamp filename"]

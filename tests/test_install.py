@@ -13,7 +13,9 @@ from pathlib import Path
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
-SKIP = shutil.ignore_patterns(".venv", ".git", "__pycache__", "*.egg-info", "build", "demo_out", "out", ".*cache")
+SKIP = shutil.ignore_patterns(
+    ".venv", ".git", "__pycache__", "*.egg-info", "build", "demo_out", "out", ".*cache"
+)
 
 
 def _wheel(tmp: Path) -> Path:
@@ -21,7 +23,18 @@ def _wheel(tmp: Path) -> Path:
     shutil.copytree(REPO, src, symlinks=True, ignore=SKIP)
     dist = tmp / "dist"
     subprocess.run(
-        [sys.executable, "-m", "pip", "wheel", "-q", "--no-deps", "--no-build-isolation", "-w", str(dist), str(src)],
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "wheel",
+            "-q",
+            "--no-deps",
+            "--no-build-isolation",
+            "-w",
+            str(dist),
+            str(src),
+        ],
         check=True,
         capture_output=True,
     )
@@ -48,20 +61,32 @@ def test_wheel_installs_and_runs_the_demo_elsewhere(tmp_path):
     env = {**os.environ, "PYTHONPATH": str(target)}
     where = subprocess.run(
         [sys.executable, "-c", "import jaxdefl; print(jaxdefl.__file__)"],
-        cwd=elsewhere, env=env, capture_output=True, text=True, check=True,
+        cwd=elsewhere,
+        env=env,
+        capture_output=True,
+        text=True,
+        check=True,
     ).stdout.strip()
     assert Path(where).is_relative_to(target), where
 
     # a shipped config by name, and the demo, from a directory without configs/
     sim = subprocess.run(
         [sys.executable, "-m", "jaxdefl", "simulate", "exp1", "--out", "sim", "--duration", "2"],
-        cwd=elsewhere, env=env, capture_output=True, text=True,
+        cwd=elsewhere,
+        env=env,
+        capture_output=True,
+        text=True,
     )
     assert sim.returncode == 0, sim.stderr
     assert (elsewhere / "sim" / "truth.csv").is_file()
     demo = subprocess.run(
         [sys.executable, "-m", "jaxdefl", "demo", "--duration", "12", "--out", "demo"],
-        cwd=elsewhere, env=env, capture_output=True, text=True,
+        cwd=elsewhere,
+        env=env,
+        capture_output=True,
+        text=True,
     )
     assert demo.returncode == 0, demo.stderr
-    assert (elsewhere / "demo" / "summary.md").is_file() and (elsewhere / "demo" / "trajectories.csv").is_file()
+    assert (elsewhere / "demo" / "summary.md").is_file() and (
+        elsewhere / "demo" / "trajectories.csv"
+    ).is_file()

@@ -67,6 +67,14 @@ def fit(
         typer.Option(help="Check N windows' σ's against emcee posteriors (0: honesty flags only)."),
     ] = None,
     timestamps: Annotated[str, typer.Option("--timestamps", help=_TIMESTAMPS_HELP)] = "strict",
+    posterior_noise: Annotated[
+        str, typer.Option(help="Noise likelihood of the posteriors: ar1 (coloured, default) or white.")
+    ] = "ar1",
+    model: Annotated[
+        str, typer.Option(help="Signal model: harmonic (thesis) or damped (free vibration).")
+    ] = "harmonic",
+    harmonics: Annotated[int, typer.Option(help="Fit f0 and its harmonics 2 f0 .. K f0.")] = 1,
+    lines: Annotated[int, typer.Option(help="Fit N independent spectral lines (modes).")] = 1,
 ) -> None:
     """Estimate loading frequency and deflection amplitude per segment, window, plate and axis."""
     from . import pipeline
@@ -84,6 +92,10 @@ def fit(
         reference=reference,
         posterior=posterior,
         timestamps=timestamps,
+        posterior_noise=posterior_noise,
+        model=model,
+        harmonics=harmonics,
+        lines=lines,
     )
 
 
@@ -115,6 +127,10 @@ def extract(
         typer.Option("--realtime/--full", help="Track plates detected once (fast) or detect in every frame."),
     ] = False,
     chunk_frames: Annotated[int, typer.Option(help="Frames per batch (bounds memory).")] = 256,
+    device: Annotated[
+        str | None,
+        typer.Option(help="Torch device of the per-frame stages: cpu, cuda, cuda:N [default: cuda if any]."),
+    ] = None,
     timestamps: Annotated[
         str,
         typer.Option(
@@ -127,7 +143,9 @@ def extract(
     """Extract the plates from every frame: 3D centroid trajectories (t, plate, x, y, z)."""
     from .frames import extract_to_table
 
-    extract_to_table(recording, out, realtime=realtime, chunk_frames=chunk_frames, timestamps=timestamps)
+    extract_to_table(
+        recording, out, realtime=realtime, chunk_frames=chunk_frames, device=device, timestamps=timestamps
+    )
 
 
 @app.command()

@@ -16,7 +16,7 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, Ti
 from . import __version__
 from ._configs import config_dir
 from ._errors import ConfigError, JaxdeflError
-from .fit import Estimates, compare_with_reference, estimate_windows, fit_reference
+from .fit import Estimates, compare_with_reference, estimate_windows, fit_reference, signal_model
 from .io import (
     check_timestamp_policy,
     load_table,
@@ -98,45 +98,22 @@ def _check_fit_settings(window_s, step_s, fmin_hz, fmax_hz, oversampling, fap_ma
 
 
 def uncertainty_tables(
-    est: Estimates, n_posterior: int, seed: int = 0
+    est: Estimates, n_posterior: int, seed: int = 0, noise: str = "ar1"
 ) -> tuple[pd.DataFrame, pd.DataFrame | None]:
     """Honesty flags of every window and, for ``n_posterior`` windows (a seeded sample), emcee
     posteriors against the linearised σ's. Returns (uncertainty table, posterior table or None)."""
-    from .uncertainty import (
-        debiased_amplitude,
-        honesty_features,
-        honesty_flags,
-        posterior_table,
-        rice_interval,
-    )
+    from .uncertainty import posterior_table, uncertainty_table
 
     if n_posterior < 0:
         raise ConfigError(f"--posterior: expected a number of windows >= 0, got {n_posterior}")
-    tab = est.table
-    feat = honesty_features(est)
-    flags = honesty_flags(est)
-    lo, hi = rice_interval(tab["amplitude_mm"].to_numpy(), tab["sigma_amplitude_mm"].to_numpy())
-    low = np.char.find(flags.astype(str), "low_snr") >= 0
-    unc = tab[["segment", "window", "plate", "axis"]].assign(
-        snr=feat["snr"].to_numpy(),
-        cycles=feat["cycles"].to_numpy(),
-        missing=feat["missing"].to_numpy(),
-        flag=flags,
-        trust_amplitude=np.where(
-            flags == "ok", "linearised", np.where(low, "rice_or_posterior", "posterior")
-        ),
-        trust_f0=np.where(flags == "ok", "linearised", "posterior"),
-        amplitude_debiased_mm=debiased_amplitude(
-            tab["amplitude_mm"].to_numpy(), tab["sigma_amplitude_mm"].to_numpy()
-        ),
-        amplitude_rice_lo95_mm=lo,
-        amplitude_rice_hi95_mm=hi,
-    )
-    unc.loc[flags == "not_fitted", ["trust_amplitude", "trust_f0"]] = "none"
-    post = posterior_table(est, n_posterior, seed=seed) if n_posterior > 0 else None
-    n_bad = int(((flags != "ok") & (flags != "not_fitted")).sum())
+    unc = uncertainty_table(est)
+    post = posterior_table(est, n_posterior, seed=seed, noise=noise) if n_posterior > 0 else None
+    trust = unc[["trust_amplitude", "trust_f0"]].to_numpy()
+    n_bad = int(((trust != "linearised") & (trust != "none")).any(axis=1).sum())
+    n_model = int((trust[:, 0] == "inadequate_model").sum())
     console.print(
-        f"  uncertainty: {n_bad} of {len(flags)} windows flagged (linearised σ not to be trusted there)"
+        f"  uncertainty: {n_bad} of {len(unc)} windows flagged (linearised σ not to be trusted there)"
+        + (f", {n_model} of them not one harmonic in noise (inadequate_model)" if n_model else "")
     )
     return unc, post
 
@@ -200,8 +177,15 @@ def fit_file(
     reference: Path | None = None,
     posterior: int | None = None,
     timestamps: str = "strict",
+    posterior_noise: str = "ar1",
+    model: str = "harmonic",
+    harmonics: int = 1,
+    lines: int = 1,
 ) -> tuple[pd.DataFrame, pd.DataFrame | None]:
     """`jaxdefl fit`: read, estimate, write OUT (and OUT stem + _reference/_comparison/... beside).
+
+    ``model``, ``harmonics`` and ``lines`` choose the signal model (`jaxdefl.fit.signal_model`;
+    default: the thesis' harmonic + offset).
 
     Order: every argument is checked, the outputs are planned (none may be an input or another
     output), the inputs are read and checked against each other, everything is computed, and only
@@ -211,6 +195,15 @@ def fit_file(
     traj, out = Path(traj), Path(out)
     _check_fit_settings(window_s, step_s, fmin_hz, fmax_hz, oversampling, fap_max, posterior)
     check_timestamp_policy(timestamps)
+    if posterior_noise not in ("ar1", "white"):
+        raise ConfigError(f"--posterior-noise: expected ar1 or white, got {posterior_noise!r}")
+    # signal models other than the thesis' (the posterior check knows only the default model)
+    spec = signal_model(model, harmonics, lines)
+    if posterior is not None and not spec.is_default:
+        raise ConfigError(
+            "--posterior: checks the σ's of the default model only; drop it, or drop "
+            "--model/--harmonics/--lines"
+        )
     outs = Outputs(inputs=[traj, reference])
     outs.reserve(out, "--out", suffixes=TABLE_SUFFIXES)
     paths = companions(out)
@@ -243,14 +236,14 @@ def fit_file(
     check_window_plan(df, axes, window_s, step_s, source=str(traj))
 
     kw = dict(fmin_hz=fmin_hz, fmax_hz=fmax_hz, oversampling=oversampling, fap_max=fap_max)
-    est = _estimate(df, axes=axes, window_s=window_s, step_s=step_s, **kw)
+    est = _estimate(df, axes=axes, window_s=window_s, step_s=step_s, model=spec, **kw)
     tab = est.table
     comparison = ref_tab = unc = post = None
     if ref is not None:
-        ref_tab = fit_reference(ref, est, **kw).table
+        ref_tab = fit_reference(ref, est, model=spec, **kw).table
         comparison = compare_with_reference(tab, ref_tab)
     if posterior is not None:
-        unc, post = uncertainty_tables(est, posterior)
+        unc, post = uncertainty_tables(est, posterior, noise=posterior_noise)
 
     with outs:
         outs.table(out, tab)
@@ -259,6 +252,7 @@ def fit_file(
             settings_record(
                 command="fit",
                 posterior=posterior,
+                posterior_noise=posterior_noise,
                 trajectory=str(traj),
                 window_s=window_s,
                 step_s=step_s,
@@ -267,6 +261,7 @@ def fit_file(
                 timestamps=timestamps,
                 clock={k: v for k, v in clocks.items() if v},
                 **kw,
+                **({} if spec.is_default else dict(model=model, harmonics=harmonics, lines=lines)),
             ),
         )
         if ref_tab is not None:
@@ -541,11 +536,8 @@ def _reconcile_input(recording: Path, segment: str | None, timestamps: str = "st
         from .io.recording import open_recording
 
         frames_policy = "reclock" if timestamps == "reclock" else "strict"
-        df = validate_trajectory(
-            extract_recording(open_recording(recording, timestamps=frames_policy)),
-            recording,
-            timestamps=timestamps,
-        )
+        frames = extract_recording(open_recording(recording, timestamps=frames_policy))
+        df = validate_trajectory(frames, recording, timestamps=timestamps)
     segments = list(pd.unique(df["segment"]))
     if segment is None:
         if len(segments) > 1:

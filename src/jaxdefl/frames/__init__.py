@@ -4,15 +4,15 @@ The only stage that imports torch.
 """
 
 from .ellipse import Ellipse, fit_ellipse
-from .extract import Extractor, extract_frames, extract_recording, extract_to_table
+from .extract import Extractor, extract_frames, extract_recording, extract_to_table, resolve_device
 from .floor import bilinear, floor_targets
 from .kernels import (
     check_frames,
     erode,
+    flat_indices,
     label_components,
+    opening,
     otsu_threshold,
-    points_from_depth,
-    points_from_range,
     region_stats,
 )
 from .pipeline import PlateGeometry, Scene, SceneError, calibrate_scene, detect_chunk, ray_factors
@@ -33,12 +33,13 @@ __all__ = [
     "extract_frames",
     "extract_recording",
     "extract_to_table",
+    "flat_indices",
     "fit_ellipse",
     "floor_targets",
     "label_components",
+    "opening",
     "otsu_threshold",
-    "points_from_depth",
-    "points_from_range",
     "ray_factors",
     "region_stats",
+    "resolve_device",
 ]

@@ -11,13 +11,48 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import torch
 
 from .._errors import ConfigError, InputError
 from .._signals import check_interrupt
 from .pipeline import PlateGeometry, Scene, SceneError, calibrate_scene, detect_chunk
 from .track import Tracker
 
-__all__ = ["Extractor", "centroid_table", "extract_frames", "extract_recording", "extract_to_table"]
+__all__ = [
+    "Extractor",
+    "centroid_table",
+    "extract_frames",
+    "extract_recording",
+    "extract_to_table",
+    "resolve_device",
+]
+
+CPU_THREADS = 1  # torch intra-op threads per extracting process (see `Extractor`)
+
+
+def resolve_device(device: str | None) -> str:
+    """The torch device of the extraction: ``cpu``, ``cuda`` or ``cuda:N``; None: CUDA if available.
+
+    Raises:
+        ConfigError: an unknown device, or CUDA asked for where there is none.
+    """
+    if device is None or device == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    name = str(device).strip().lower()
+    if name == "cpu":
+        return name
+    if name == "cuda" or (name.startswith("cuda:") and name[5:].isdigit()):
+        if not torch.cuda.is_available():
+            raise ConfigError(
+                f"--device {device}: CUDA is not available (torch {torch.__version__}); use --device cpu"
+            )
+        index = int(name[5:]) if ":" in name else 0
+        if index >= torch.cuda.device_count():
+            raise ConfigError(
+                f"--device {device}: this machine has {torch.cuda.device_count()} CUDA device(s)"
+            )
+        return name
+    raise ConfigError(f"--device {device}: expected cpu, cuda or cuda:N")
 
 
 class Extractor:
@@ -26,6 +61,13 @@ class Extractor:
     Real-time mode tracks the calibrated pixel sets; frames where a plate is lost are re-detected
     with the full pipeline, and a chunk where any plate is lost in more than 5 % of the frames
     triggers a new calibration on that chunk (plate numbers kept by position).
+
+    The per-frame stages run on ``device`` (`resolve_device`: None picks CUDA when available).
+    On the CPU the process's torch intra-op threads are pinned to ``threads`` (default
+    `CPU_THREADS` = 1): the kernels are many short passes over a chunk, and two threads on
+    two shared cores wait for each other on every pass (experiments/bench_extract.py
+    --threads 2 runs 2-5x slower than one thread on the 2-core development machine); parallel
+    work comes from processes (`jaxdefl run` units), not threads.
     """
 
     def __init__(
@@ -35,9 +77,14 @@ class Extractor:
         geometry: PlateGeometry | None = None,
         realtime: bool = False,
         source: str = "<frames>",
+        device: str | None = None,
+        threads: int | None = CPU_THREADS,
     ):
         if kind not in ("range", "depth"):
             raise ValueError(f"kind: expected 'range' or 'depth', got {kind!r}")
+        self.device = resolve_device(device)
+        if self.device == "cpu" and threads:
+            torch.set_num_threads(threads)
         self.intrinsics, self.kind, self.geometry = intrinsics, kind, geometry
         self.realtime, self.source = realtime, source
         self.scene: Scene | None = None
@@ -46,7 +93,9 @@ class Extractor:
 
     def _calibrate(self, frames, amplitude):
         try:
-            scene = calibrate_scene(frames, amplitude, self.intrinsics, self.kind, self.geometry)
+            scene = calibrate_scene(
+                frames, amplitude, self.intrinsics, self.kind, self.geometry, device=self.device
+            )
         except SceneError as err:
             raise InputError(f"{self.source}: {err}") from None
         if self.scene is not None and self.geometry is None:
@@ -112,6 +161,7 @@ def extract_frames(
     geometry: PlateGeometry | None = None,
     segment: str = "",
     chunk_frames: int = 256,
+    device: str | None = None,
 ) -> pd.DataFrame:
     """Plate centroid trajectories from in-memory frames.
 
@@ -120,6 +170,7 @@ def extract_frames(
         t_s: (frame,) timestamps. intrinsics: fx, fy, cx, cy (px). amplitude: (frame, h, w) or None.
         realtime: track plates detected once instead of detecting in every frame.
         geometry: plate positions for numbering (None: 1.. by image column).
+        device: torch device (`resolve_device`).
     Returns:
         Trajectory table (segment, t, plate, x, y, z), camera frame, mm; missing = no row.
     """
@@ -129,7 +180,7 @@ def extract_frames(
     t_s = np.asarray(t_s, np.float64)
     if t_s.shape != (frames.shape[0],):
         raise ValueError(f"t_s: expected shape ({frames.shape[0]},), got {t_s.shape}")
-    ex = Extractor(intrinsics, kind, geometry, realtime)
+    ex = Extractor(intrinsics, kind, geometry, realtime, device=device)
     parts = []
     for s in range(0, frames.shape[0], chunk_frames):
         e = min(frames.shape[0], s + chunk_frames)
@@ -139,14 +190,18 @@ def extract_frames(
 
 
 def extract_recording(
-    recording, realtime: bool = False, chunk_frames: int = 256, progress: bool = True
+    recording,
+    realtime: bool = False,
+    chunk_frames: int = 256,
+    progress: bool = True,
+    device: str | None = None,
 ) -> pd.DataFrame:
     """Stream a `jaxdefl.io.recording.Recording` through the extraction, chunk by chunk."""
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
     rec = recording
     geo = PlateGeometry(rec.plate_x_mm, rec.camera_x_mm) if rec.plate_x_mm is not None else None
-    ex = Extractor(rec.intrinsics, rec.kind, geo, realtime, source=str(rec.path))
+    ex = Extractor(rec.intrinsics, rec.kind, geo, realtime, source=str(rec.path), device=device)
     parts = []
     with Progress(
         TextColumn("extract {task.description}"),
@@ -168,7 +223,12 @@ def extract_recording(
 
 
 def extract_to_table(
-    recording: Path, out: Path, realtime: bool = False, chunk_frames: int = 256, timestamps: str = "strict"
+    recording: Path,
+    out: Path,
+    realtime: bool = False,
+    chunk_frames: int = 256,
+    device: str | None = None,
+    timestamps: str = "strict",
 ) -> None:
     """Extract every frame of ``recording`` and write the trajectory table ``out`` (CSV/Parquet).
 
@@ -177,6 +237,7 @@ def extract_to_table(
     on stderr says what was recovered).
 
     Raises:
+        ConfigError: bad ``chunk_frames`` or ``device``, or ``out`` clashing with the input.
         InputError: a missing, corrupt, truncated or inconsistent recording, or no plates found.
     """
     from ..io.output import TABLE_SUFFIXES, Outputs
@@ -185,6 +246,7 @@ def extract_to_table(
 
     if chunk_frames < 1:
         raise ConfigError(f"--chunk-frames: expected an integer >= 1, got {chunk_frames}")
+    device = resolve_device(device)
     outs = Outputs(inputs=[recording])
     outs.reserve(out, "--out", suffixes=TABLE_SUFFIXES)
     if Path(out).resolve().is_relative_to(Path(recording).resolve()):
@@ -192,6 +254,6 @@ def extract_to_table(
     rec = open_recording(recording, timestamps=timestamps)
     if (note := timestamp_note(rec.clock)) is not None:
         print(f"jaxdefl extract: {rec.path}: {note}", file=sys.stderr)
-    df = extract_recording(rec, realtime=realtime, chunk_frames=chunk_frames)
+    df = extract_recording(rec, realtime=realtime, chunk_frames=chunk_frames, device=device)
     with outs:
         write_trajectory(df, out, outs)

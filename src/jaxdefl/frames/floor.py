@@ -1,22 +1,20 @@
 """Floor-target detection for the first depth threshold (thesis 5.1.1.1-5.1.1.3).
 
-Canny edges of the amplitude image (kornia), 8-connected edge regions, the fake eccentricity of
-each region (a ring round a circular target has a round moment ellipse), Fitzgibbon's direct
-ellipse fit through the edge pixels, and the depth at the ellipse centre by bilinear
-interpolation. The mean of those depths is the floor level.
+Canny edges of the amplitude image (kornia), 8-connected edge regions and their fake eccentricity
+(the kernels of `kernels.py`, on any torch device: a ring round a circular target has a round
+moment ellipse), Fitzgibbon's direct ellipse fit through the edge pixels, and the depth at the
+ellipse centre by bilinear interpolation. The mean of those depths is the floor level.
 """
 
 from __future__ import annotations
 
 import numpy as np
-import scipy.ndimage as ndi
 import torch
 
 from .ellipse import fit_ellipse
+from .kernels import label_components, region_stats
 
 __all__ = ["floor_targets", "bilinear"]
-
-_EIGHT = np.ones((3, 3), bool)
 
 
 def bilinear(img: np.ndarray, u: float, v: float) -> float:
@@ -36,34 +34,35 @@ def floor_targets(
     min_axis_px: float = 1.5,
     max_axis_px: float = 40.0,
     min_roundness: float = 0.6,
+    device: str = "cpu",
 ) -> np.ndarray:
     """Circular floor targets in one frame: (target, 3) rows of ellipse centre u, v and depth z.
 
     Args:
         amplitude: (h, w) amplitude (intensity) image. z_mm: (h, w) depth z in mm.
+        device: torch device of the edge detection, labelling and moments.
     Returns:
         (n, 3) float64 array (n may be 0).
     """
     import kornia
 
-    a = torch.as_tensor(np.nan_to_num(amplitude, nan=0.0), dtype=torch.float32)[None, None]
+    a = torch.as_tensor(np.nan_to_num(amplitude, nan=0.0), dtype=torch.float32, device=device)[None, None]
     a = a / a.amax().clamp_min(1e-12)
     _, edges = kornia.filters.canny(a, low_threshold=0.05, high_threshold=0.15)
-    e = edges[0, 0].numpy() > 0
-    lab, n = ndi.label(e, structure=_EIGHT)
+    labels, n = label_components(edges > 0)
+    if n == 0:
+        return np.zeros((0, 3))
+    st = region_stats(labels, n)
+    # edge regions with enough pixels and a round moment ellipse (fake eccentricity)
+    round_ = ((st["area"] >= 8) & (st["eccentricity"] >= min_roundness)).cpu().numpy()
+    lab = labels[0, 0].cpu().numpy().ravel()
+    idx = np.flatnonzero(round_[lab - 1] & (lab > 0))
+    idx = idx[np.argsort(lab[idx], kind="stable")]  # pixels of every such region, in raster order
     out = []
-    for k, sl in enumerate(ndi.find_objects(lab), start=1):
-        if sl is None:
+    for pixels in np.split(idx, np.flatnonzero(np.diff(lab[idx])) + 1):
+        if pixels.size == 0:
             continue
-        vv, uu = np.nonzero(lab[sl] == k)
-        if uu.size < 8:
-            continue
-        uu = uu + sl[1].start
-        vv = vv + sl[0].start
-        cov = np.cov(np.stack([uu, vv]).astype(float))
-        ev = np.linalg.eigvalsh(cov)
-        if ev[1] <= 0 or np.sqrt(max(ev[0], 0) / ev[1]) < min_roundness:  # fake eccentricity
-            continue
+        vv, uu = np.divmod(pixels, amplitude.shape[1])
         ell = fit_ellipse(uu, vv)
         if (
             ell is None

@@ -10,8 +10,11 @@ Stages, on a chunk of frames (B, H, W) at a time:
    simulator's, has them between top and floor, bonded 295 mm below the top; a layer above the
    top is tried too, and the one holding a row of similar, collinear regions wins). Each plate
    found is numbered by its position along the beam and keeps its area, eccentricity and image
-   position as a template.
-2. **Per frame**, batched: depth relative to that frame's beam-top level (a per-frame median,
+   position as a template. The level search, the top surface and the plate layer use the same
+   tensor kernels as the per-frame stages (on a stack of one frame, or of one mask per level).
+2. **Per frame**, batched on (B, 1, h, w) torch tensors on the scene's device (the kernels of
+   `kernels.py`: kornia morphology, run-based labelling, closed-form moments), over the rows
+   where the plates can be: depth relative to that frame's beam-top level (a per-frame median,
    so common depth shifts of structured-light cameras cancel); the plate layer's depth band
    (depth-based classification); ToF: Otsu on the amplitude image masked by the band (eq.
    5.22-5.24); structured light: depth only, smoothed 5x5 for segmentation. 8-connected
@@ -29,13 +32,14 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.ndimage as ndi
+import torch
+import torch.nn.functional as F
 
 from .floor import floor_targets
+from .kernels import all_finite, erode, flat_indices, label_components, opening, otsu_threshold, region_stats
 
 __all__ = ["PlateGeometry", "Scene", "calibrate_scene", "detect_chunk", "ray_factors", "SceneError"]
 
-_EIGHT = np.ones((3, 3), bool)
 _GRAD_MAX_MM_PER_PX = 6.0  # structured light: steepest depth change across a plate (smoothed)
 
 
@@ -109,6 +113,8 @@ class Scene:
     line_tol_px: float
     geometry: PlateGeometry | None
     track: list = field(default_factory=list)  # per plate: flat pixel indices (eroded region)
+    device: str = "cpu"  # torch device of the per-frame stages
+    cache: dict = field(default_factory=dict, repr=False, compare=False)  # tensors on the device
 
     def number(self, x_cam_mm: np.ndarray, u_px: np.ndarray) -> np.ndarray:
         """Plate numbers (0 = none) of regions from their camera X (mm) or image column."""
@@ -133,239 +139,132 @@ def _zimage(frames: np.ndarray, inv_norm: np.ndarray | None) -> np.ndarray:
     return f if inv_norm is None else np.multiply(f, inv_norm, dtype=np.float32)
 
 
-def _box_mean(z: np.ndarray, k: int) -> np.ndarray:
-    """k x k mean of every frame (frame, h, w), over the pixels inside the frame only.
+def _tensors(scene: Scene) -> dict:
+    """The scene's per-pixel arrays as tensors on its device (made once, kept on the scene)."""
+    t = scene.cache
+    if not t:
+        dev = scene.device
+        t["inv"] = torch.as_tensor(scene.inv_norm, device=dev)
+        t["xr"] = torch.as_tensor(scene.xr, device=dev).reshape(-1)
+        t["yr"] = torch.as_tensor(scene.yr, device=dev).reshape(-1)
+        t["top_idx"] = torch.as_tensor(scene.top_idx, device=dev)
+        t["inv_top"] = t["inv"].reshape(-1)[t["top_idx"]]
+    return t
 
-    Equals ``avg_pool2d(z, k, stride=1, padding=k // 2, count_include_pad=False)``; separable
-    shifted sums, so a NaN spreads only to its k x k neighbourhood.
+
+def frames_tensor(frames, device) -> torch.Tensor:
+    """(frame, h, w) frames as a float32 tensor on ``device`` (no copy for float32 on the CPU)."""
+    if isinstance(frames, torch.Tensor):
+        return frames.to(device=device, dtype=torch.float32)
+    return torch.as_tensor(np.asarray(frames, np.float32), device=device)
+
+
+def top_level(ztop: torch.Tensor) -> torch.Tensor:
+    """Per-frame beam-top depth (B,): lower median over the top-surface pixels (B, K), NaN ignored.
+
+    The lower of the two middle values (``torch.nanmedian``); NaN for a frame without valid pixels.
+    On the CPU by a numpy sort, 5-7x faster than torch's selection there.
     """
+    if ztop.device.type != "cpu":
+        return torch.nanmedian(ztop, dim=1).values
+    t = np.sort(ztop.numpy(), axis=1)  # NaN sort last
+    n = (~np.isnan(t)).sum(1)
+    med = t[np.arange(t.shape[0]), np.maximum(n - 1, 0) // 2]
+    med[n == 0] = np.nan
+    return torch.from_numpy(med)
+
+
+def _box_mean(z: torch.Tensor, k: int) -> torch.Tensor:
+    """k x k mean of every frame (B, 1, h, w) over the pixels inside the frame (a NaN spoils its windows)."""
     if k <= 1:
         return z
-    r = k // 2
-    b, h, w = z.shape
-    zp = np.zeros((b, h + 2 * r, w), np.float32)
-    zp[:, r : r + h] = z
-    rows = zp[:, 0:h].copy()
-    for d in range(1, k):
-        rows += zp[:, d : d + h]
-    cp = np.zeros((b, h, w + 2 * r), np.float32)
-    cp[:, :, r : r + w] = rows
-    out = cp[:, :, 0:w].copy()
-    for d in range(1, k):
-        out += cp[:, :, d : d + w]
-    # in-frame pixel count of each window: separable too
-    nv = np.convolve(np.ones(h), np.ones(k))[r : r + h]
-    nu = np.convolve(np.ones(w), np.ones(k))[r : r + w]
-    out *= (1.0 / np.outer(nv, nu)).astype(np.float32)
-    return out
+    return F.avg_pool2d(z, k, stride=1, padding=k // 2, count_include_pad=False)
 
 
-def _erode3(fg: np.ndarray) -> np.ndarray:
-    """3x3 binary erosion of every frame (frame, h, w), zero border (equals `kernels.erode`, size 3).
+def _segment(z: torch.Tensor, amp: torch.Tensor | None, top: torch.Tensor, band, smooth: int) -> torch.Tensor:
+    """Foreground (B, 1, h, w) bool: depth band relative to ``top`` (B,), then Otsu on ``amp``.
 
-    Separable: a pixel survives if its row triple survives in the rows above, at and below.
-    """
-    r = np.zeros_like(fg)
-    np.logical_and(fg[:, :, :-2], fg[:, :, 1:-1], out=r[:, :, 1:-1])
-    r[:, :, 1:-1] &= fg[:, :, 2:]
-    out = np.zeros_like(fg)
-    np.logical_and(r[:, :-2], r[:, 1:-1], out=out[:, 1:-1])
-    out[:, 1:-1] &= r[:, 2:]
-    return out
-
-
-def _otsu_thresholds(hist: np.ndarray, lo: np.ndarray, width: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """Otsu threshold (B,) float32 from per-frame histograms (B, bins) over [lo, lo + bins * width)."""
-    b, bins = hist.shape
-    centers = lo[:, None].astype(np.float64) + width[:, None].astype(np.float64) * (np.arange(bins) + 0.5)
-    w1 = hist.cumsum(1)
-    w2 = w1[:, -1:] - w1 + hist
-    s1 = (hist * centers).cumsum(1)
-    s2 = s1[:, -1:] - s1 + hist * centers
-    m1 = s1 / np.maximum(w1, 1e-300)
-    m2 = s2 / np.maximum(w2, 1e-300)
-    between = w1[:, :-1] * w2[:, 1:] * (m1[:, :-1] - m2[:, 1:]) ** 2
-    k = between.argmax(1)
-    thr = centers[np.arange(b), k].astype(np.float32)
-    return np.where(hi > lo, thr, lo)
-
-
-def _otsu_masked(amp: np.ndarray, bins: int = 256) -> np.ndarray:
-    """Otsu threshold of every frame (frame, h, w) float32 of a masked amplitude image (B,).
-
-    Same convention as `kernels.otsu_threshold` (skimage's): ``bins`` bins between the frame's
-    minimum and maximum, threshold at the centre of the best bin; the bin indices are computed
-    in float32, the class statistics in float64. (Slow reference of `_otsu_in_mask`.)
-    """
-    b = amp.shape[0]
-    v = amp.reshape(b, -1)
-    hi = v.max(1)
-    lo = v.min(1)
-    width = np.maximum((hi - lo) / np.float32(bins), np.float32(1e-12))
-    idx = ((v - lo[:, None]) / width[:, None]).astype(np.int32)
-    np.clip(idx, 0, bins - 1, out=idx)
-    idx += (np.arange(b, dtype=np.int32) * bins)[:, None]
-    hist = np.bincount(idx.ravel(), minlength=b * bins).reshape(b, bins).astype(np.float64)
-    return _otsu_thresholds(hist, lo, width, hi)
-
-
-def _otsu_in_mask(vals: np.ndarray, fr: np.ndarray, n_pix: int, b: int, bins: int = 256) -> np.ndarray:
-    """`_otsu_masked` of ``where(mask, amp, 0)`` from the masked pixels alone (B,) float32.
-
-    Args:
-        vals: amplitudes of the masked pixels, grouped by frame. fr: their frames (sorted).
-        n_pix: pixels per frame; the unmasked ones count as zeros in the histogram.
-    """
-    nfg = np.bincount(fr, minlength=b)
-    nbg = n_pix - nfg
-    lo = np.zeros(b, np.float32)
-    hi = np.zeros(b, np.float32)
-    has = nfg > 0
-    if vals.size:
-        starts = np.concatenate([[0], np.cumsum(nfg)[:-1]])[has]
-        lo[has] = np.minimum.reduceat(vals, starts)
-        hi[has] = np.maximum.reduceat(vals, starts)
-    # the zeros of the unmasked pixels take part in the minimum and maximum
-    lo = np.where(nbg > 0, np.minimum(lo, 0), lo).astype(np.float32)
-    hi = np.where(nbg > 0, np.maximum(hi, 0), hi).astype(np.float32)
-    width = np.maximum((hi - lo) / np.float32(bins), np.float32(1e-12))
-    idx = ((vals - lo[fr]) / width[fr]).astype(np.int32)
-    np.clip(idx, 0, bins - 1, out=idx)
-    idx += fr.astype(np.int32) * bins
-    hist = np.bincount(idx, minlength=b * bins).astype(np.float64)
-    zero = np.clip(((np.float32(0) - lo) / width).astype(np.int32), 0, bins - 1)
-    hist[np.arange(b) * bins + zero] += nbg
-    return _otsu_thresholds(hist.reshape(b, bins), lo, width, hi)
-
-
-def _segment(
-    z: np.ndarray, amp: np.ndarray | None, top: np.ndarray, band, smooth: int, use_amp: bool, r0: int, r1: int
-) -> np.ndarray:
-    """Foreground (frame, h, w) bool: depth band relative to ``top`` (frame,), then Otsu.
-
-    ``z`` holds rows r0:r1 of the frames, ``amp`` the whole frames. Plain numpy on float32:
-    on chunks this small, torch's intra-op threads cost more than they save when the cores
-    are shared (measured in experiments/bench_extract.py).
+    ``z`` and ``amp`` (B, 1, h, w) float32 hold the same rows of the frames.
     """
     zs = _box_mean(z, smooth)
-    rel = zs - top.astype(np.float32)[:, None, None]
-    fg = rel > band[0]
-    fg &= rel < band[1]
+    rel = zs - top[:, None, None, None]
+    fg = (rel > band[0]) & (rel < band[1])
     if smooth > 1:
         # smoothness constraint (as in region growing, Rabbani et al. 2006): the plates are
         # flat, the side faces of the spreader beam and the mixed edges are steep
         lim = 2 * _GRAD_MAX_MM_PER_PX
-        steep = np.zeros_like(fg)
-        steep[:, 1:-1] = ~(np.abs(zs[:, 2:] - zs[:, :-2]) < lim)
-        steep[:, :, 1:-1] |= ~(np.abs(zs[:, :, 2:] - zs[:, :, :-2]) < lim)
-        fg &= ~steep
-    if use_amp and amp is not None:
-        # Otsu on the amplitude masked by the band (eq. 5.22-5.24), from the band's pixels only
-        b, h, w = fg.shape
-        a = np.ascontiguousarray(amp, np.float32)
-        fidx = np.flatnonzero(fg)
-        fr, rem = np.divmod(fidx, h * w)
-        vals = a.reshape(-1)[fr * a[0].size + r0 * w + rem]
-        thr = _otsu_in_mask(vals, fr, h * w, b)
-        fg.reshape(-1)[fidx[~(vals > thr[fr])]] = False
+        flat = torch.ones_like(fg)
+        flat[..., 1:-1] = (zs[..., 2:] - zs[..., :-2]).abs() < lim
+        flat[..., 1:-1, :] &= (zs[..., 2:, :] - zs[..., :-2, :]).abs() < lim
+        fg &= flat
+    if amp is not None:
+        # Otsu on the amplitude masked by the band (eq. 5.22-5.24): the other pixels count as zeros
+        masked = amp * fg if all_finite(amp) else torch.where(fg, amp, 0.0)
+        thr = otsu_threshold(masked).to(amp.dtype)
+        fg &= amp > thr[:, None, None, None]
     return fg
 
 
 def _regions(
-    fg: np.ndarray,
-    z: np.ndarray,
+    fg: torch.Tensor,
+    z: torch.Tensor,
     r0: int,
-    inv_norm,
-    xr,
-    yr,
+    scene_px: dict,
     clip_sigma: float | None,
     keep_pixels: bool = False,
 ) -> dict:
-    """Label, measure, erode and average: per-region arrays (global labels over the stack).
+    """Label, measure, erode and average: per-region numpy arrays (labels over the whole stack).
 
-    ``fg`` and ``z`` (frame, h, w) hold rows r0:r0+h of the frames.
+    ``fg`` and ``z`` (B, 1, h, w) hold rows r0:r0+h of frames ``scene_px["height"]`` rows high;
+    ``scene_px``: ``xr``, ``yr`` (flat, whole frame) tensors. Every array has one entry per region
+    (n of them); ``pixels``: per eroded pixel its region and flat pixel index in the frame.
     """
-    b, h, w = fg.shape
-    # the frames stacked into one tall image, an empty row under each: one 2D labelling
-    # (twice as fast as a 3D one with a flat structure)
-    tall = np.zeros((b, h + 1, w), bool)
-    tall[:, :h] = fg
-    labels, n = ndi.label(tall.reshape(-1, w), structure=_EIGHT)
-    H, W = inv_norm.shape
+    # only the rows where some frame has foreground: the others change no label, moment or erosion
+    rows = flat_indices(fg.any(dim=3).any(dim=0)[0])
+    if rows.numel() == 0:
+        return {"n": 0}
+    c0, c1 = int(rows[0]), int(rows[-1]) + 1
+    fg, z, r0 = fg[:, :, c0:c1], z[:, :, c0:c1], r0 + c0
+    b, _, h, w = fg.shape
+    labels, n = label_components(fg)
     out: dict = {"n": n}
-    if n == 0:
-        return out
-    flat = labels.reshape(-1)
-    idx = np.flatnonzero(tall)
-    lab = flat[idx].astype(np.intp)
-    fr, rem = np.divmod(idx, (h + 1) * w)
-    v, u = np.divmod(rem, w)
-    v = v + r0
-    m = n + 1
-    area = np.bincount(lab, minlength=m).astype(np.float64)
-    a = np.maximum(area, 1)
-    uf, vf = u.astype(np.float64), v.astype(np.float64)
-    su, sv = np.bincount(lab, uf, m), np.bincount(lab, vf, m)
-    ub, vb = su / a, sv / a
-    muu = np.bincount(lab, uf * uf, m) / a - ub**2
-    mvv = np.bincount(lab, vf * vf, m) / a - vb**2
-    muv = np.bincount(lab, uf * vf, m) / a - ub * vb
-    half, disc = 0.5 * (muu + mvv), np.sqrt((0.5 * (muu - mvv)) ** 2 + muv**2)
-    l1, l2 = half + disc, np.maximum(half - disc, 0)
-    border = np.bincount(lab, (u == 0) | (u == W - 1) | (v == 0) | (v == H - 1), m)
-    frame = np.zeros(m, np.int64)
-    frame[lab] = fr
-    out.update(
-        area=area,
-        u=ub,
-        v=vb,
-        ecc=np.sqrt(l2 / np.maximum(l1, 1e-300)),
-        minor=4 * np.sqrt(l2),
-        border=border > 0,
-        frame=frame,
-    )
-    # erosion drops the mixed pixels at plate edges (thesis 5.1.4); the empty rows act as the
-    # zero border of every frame
-    eidx = np.flatnonzero(_erode3(tall))
-    elab = flat[eidx].astype(np.intp)
-    efr, erem = np.divmod(eidx, (h + 1) * w)
-    pix = erem + r0 * w  # flat pixel index in the full frame
-    zz = z.reshape(-1)[efr * (h * w) + erem]  # z holds the rows r0:r0+h only
-    ok = np.isfinite(zz)
-    if not ok.all():
-        elab, pix, zz = elab[ok], pix[ok], zz[ok]
-    zz = zz.astype(np.float64)
-    if clip_sigma is not None and elab.size:
+    st = region_stats(labels, n, row0=r0, height=scene_px["height"])
+    # erosion drops the mixed pixels at plate edges (thesis 5.1.4)
+    idx = flat_indices(erode(fg))
+    zz = z.reshape(-1)[idx].to(torch.float64)
+    finite = torch.isfinite(zz)
+    if not bool(finite.all()):
+        idx, zz = idx[finite], zz[finite]
+    lab = labels.reshape(-1)[idx].long() - 1
+    pix = idx % (h * w) + r0 * w  # flat pixel index in the full frame
+    if clip_sigma is not None and idx.numel():
         # pixels farther than clip_sigma x the region's scatter from its mean depth are not the plate's
-        cnt = np.maximum(np.bincount(elab, minlength=m), 1)
-        mean = np.bincount(elab, zz, m) / cnt
-        res = zz - mean[elab]
-        sd = np.sqrt(np.bincount(elab, res * res, m) / cnt)
-        keep = np.abs(res) <= clip_sigma * sd[elab] + 1e-6
-        elab, pix, zz = elab[keep], pix[keep], zz[keep]
-    ne = np.bincount(elab, minlength=m).astype(np.float64)
-    nn = np.maximum(ne, 1)
-    out.update(
+        cnt = torch.bincount(lab, minlength=n).clamp_min(1)
+        res = zz - (torch.bincount(lab, zz, minlength=n) / cnt)[lab]
+        sd = torch.sqrt(torch.bincount(lab, res * res, minlength=n) / cnt)
+        ok = res.abs() <= clip_sigma * sd[lab] + 1e-6
+        lab, pix, zz = lab[ok], pix[ok], zz[ok]
+    ne = torch.bincount(lab, minlength=n).to(torch.float64)
+    nn = ne.clamp_min(1)
+    xr, yr = scene_px["xr"][pix].to(torch.float64), scene_px["yr"][pix].to(torch.float64)
+    res = dict(
+        area=st["area"],
+        u=st["u"],
+        v=st["v"],
+        ecc=st["eccentricity"],
+        minor=st["minor"],
+        border=st["border"],
+        frame=st["frame"],
         n_eroded=ne,
-        x=np.bincount(elab, zz * xr.reshape(-1)[pix], m) / nn,
-        y=np.bincount(elab, zz * yr.reshape(-1)[pix], m) / nn,
-        z=np.bincount(elab, zz, m) / nn,
+        x=torch.bincount(lab, zz * xr, minlength=n) / nn,
+        y=torch.bincount(lab, zz * yr, minlength=n) / nn,
+        z=torch.bincount(lab, zz, minlength=n) / nn,
     )
     if keep_pixels:
-        out["pixels"] = (elab, pix)
+        res["pixels"] = (lab, pix)
+    for k, v in res.items():
+        out[k] = tuple(x.cpu().numpy() for x in v) if k == "pixels" else v.cpu().numpy()
     return out
-
-
-def top_level(z: np.ndarray, top_idx: np.ndarray) -> np.ndarray:
-    """Per-frame beam-top depth (B,) float64: lower median over the top-surface pixels, NaN ignored.
-
-    The lower of the two middle values, as ``torch.nanmedian``; NaN for a frame without valid pixels.
-    """
-    t = np.sort(z.reshape(z.shape[0], -1)[:, top_idx], axis=1)  # NaN sort last
-    n = (~np.isnan(t)).sum(1)
-    med = t[np.arange(t.shape[0]), np.maximum(n - 1, 0) // 2].astype(np.float64)
-    med[n == 0] = np.nan
-    return med
 
 
 def _line_fit(u: np.ndarray, v: np.ndarray, tol: float) -> tuple[np.ndarray, tuple[float, float]]:
@@ -387,9 +286,8 @@ def _plate_candidates(reg: dict, min_area: float) -> np.ndarray:
     """Regions that look like a row of plates: similar size, off the border, collinear."""
     if reg["n"] == 0:
         return np.zeros(0, np.int64)
-    lab = np.arange(1, reg["n"] + 1)
-    ok = (reg["area"][lab] >= min_area) & ~reg["border"][lab] & (reg["n_eroded"][lab] >= 3)
-    lab = lab[ok]
+    ok = (reg["area"] >= min_area) & ~reg["border"] & (reg["n_eroded"] >= 3)
+    lab = np.flatnonzero(ok)
     if lab.size == 0:
         return lab
     med = np.median(reg["area"][lab])
@@ -401,6 +299,15 @@ def _plate_candidates(reg: dict, min_area: float) -> np.ndarray:
     return lab[keep]
 
 
+def _regions_of(masks: torch.Tensor) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Labels (B, h, w), per-region area (n,) and per-region frame (n,) of masks (B, 1, h, w)."""
+    labels, n = label_components(masks)
+    if n == 0:
+        return labels[:, 0].cpu().numpy(), np.zeros(0), np.zeros(0, np.int64)
+    st = region_stats(labels, n)
+    return labels[:, 0].cpu().numpy(), st["area"].cpu().numpy(), st["frame"].cpu().numpy()
+
+
 def calibrate_scene(
     frames: np.ndarray,
     amplitude: np.ndarray | None,
@@ -408,6 +315,7 @@ def calibrate_scene(
     kind: str,
     geometry: PlateGeometry | None = None,
     n_median: int = 15,
+    device: str = "cpu",
 ) -> Scene:
     """Find the floor, the beam top and the plates in the first frames of a recording.
 
@@ -415,10 +323,12 @@ def calibrate_scene(
         frames: (frame, h, w) range (``kind="range"``) or depth (``"depth"``) in mm.
         amplitude: (frame, h, w) or None. intrinsics: fx, fy, cx, cy.
         geometry: plate positions for numbering; None numbers plates 1.. by image column.
+        device: torch device of the per-frame stages (here and in `detect_chunk`, `Tracker`).
     Raises:
         SceneError: no plate layer found.
     """
     _, h, w = frames.shape
+    dev = torch.device(device)
     inv, xr, yr = ray_factors(
         h, w, intrinsics["fx"], intrinsics["fy"], intrinsics["cx"], intrinsics["cy"], kind
     )
@@ -428,7 +338,11 @@ def calibrate_scene(
         zmed = np.nanmedian(z_all, axis=0).astype(np.float32)
     amed = None if amplitude is None else np.median(np.asarray(amplitude[:nm], np.float32), axis=0)
     # 1. floor targets (first depth threshold)
-    floor = floor_targets(amed, zmed) if amed is not None and np.ptp(amed) > 0 else np.zeros((0, 3))
+    floor = (
+        floor_targets(amed, zmed, device=device)
+        if amed is not None and np.ptp(amed) > 0
+        else np.zeros((0, 3))
+    )
     floor_z = float(np.median(floor[:, 2])) if len(floor) else float("nan")
     # 2. beam top: the dominant depth level nearer than the floor, large and elongated regions
     zv = zmed[np.isfinite(zmed)]
@@ -443,47 +357,51 @@ def calibrate_scene(
     hist = np.convolve(np.pad(hist, 1), np.ones(3), mode="valid")  # a level split between two bins
     hp = np.concatenate([[0.0], hist, [0.0]])
     pk = np.flatnonzero((hist >= 0.1 * hist.max()) & (hist >= hp[:-2]) & (hist > hp[2:]))
-    levels = []
-    for c in centres[pk]:
-        # opened by one pixel: a surface is thicker than the thin strip where a slanted side face
-        # (the beam's, next to the plates bonded at its bottom) crosses the level
-        lab, n = ndi.label(ndi.binary_opening(np.abs(zmed - c) < 10, structure=_EIGHT), structure=_EIGHT)
-        biggest = np.bincount(lab.ravel())[1:].max() if n else 0
-        levels.append((c, biggest))
-    if not levels:
+    if pk.size == 0:
         raise SceneError("no depth level found")
-    biggest_all = max(b for _, b in levels)
-    large = [c for c, b in levels if b >= 0.2 * biggest_all]
+    levels = centres[pk]
+    # opened by one pixel: a surface is thicker than the thin strip where a slanted side face
+    # (the beam's, next to the plates bonded at its bottom) crosses the level; all levels at once
+    near = torch.as_tensor(np.abs(zmed[None] - levels[:, None, None].astype(np.float32)) < 10, device=dev)
+    _, area, frame = _regions_of(opening(near[:, None]))
+    biggest = np.zeros(levels.size)
+    np.maximum.at(biggest, frame, area)
+    large = levels[biggest >= 0.2 * biggest.max()]
     if not np.isfinite(floor_z) and len(large) > 1:
         large = large[:-1]  # no floor targets: the farthest large level is the floor
-    mode = max(large)
-    near = np.abs(zmed - mode) < 10
-    lab, n = ndi.label(near, structure=_EIGHT)
-    sizes = np.bincount(lab.ravel(), minlength=n + 1)
-    sizes[0] = 0
-    big = np.flatnonzero(sizes >= 0.25 * sizes.max())
-    top_mask = ndi.binary_erosion(np.isin(lab, big), structure=_EIGHT, iterations=2)
+    mode = large.max()
+    lab, sizes, _ = _regions_of(torch.as_tensor(np.abs(zmed - mode) < 10, device=dev)[None, None])
+    big = np.flatnonzero(sizes >= 0.25 * sizes.max()) + 1
+    surface = torch.as_tensor(np.isin(lab, big), device=dev)[:, None]
+    top_mask = erode(surface, 5)[0, 0].cpu().numpy()  # two 3x3 erosions
     if top_mask.sum() < 20:
-        top_mask = np.isin(lab, big)
+        top_mask = surface[0, 0].cpu().numpy()
     top_idx = np.flatnonzero(top_mask.ravel())
     top_z = float(np.median(zmed.ravel()[top_idx]))
     if top_idx.size > 2048:
         top_idx = top_idx[np.linspace(0, top_idx.size - 1, 2048).astype(np.int64)]
     smooth = 5 if kind == "depth" else 0
     use_amp = kind == "range" and amplitude is not None
+    zmed_t = torch.as_tensor(zmed, device=dev)[None, None]
     # per-pixel noise of the segmentation image on the top surface (one frame, not the median)
-    zs0 = _box_mean(z_all[:1], smooth)[0].ravel()[top_idx]
+    z0 = torch.as_tensor(z_all[:1], device=dev)[:, None]
+    zs0 = _box_mean(z0, smooth).reshape(-1).cpu().numpy()[top_idx]
     sigma = float(1.4826 * np.nanmedian(np.abs(zs0 - np.nanmedian(zs0))))
     gap = max(5.0, 4.0 * sigma)
     far = (floor_z - top_z - 50.0) if np.isfinite(floor_z) else 400.0
     bands = [(-100.0, -gap), (gap, max(gap + 5.0, min(far, 400.0)))]
     # 3. the plate layer: the band holding the longest row of similar, collinear regions
     best = None
-    top1 = np.array([top_z])
-    amp1 = None if amed is None else amed[None].astype(np.float32)
+    top1 = torch.tensor([top_z], dtype=torch.float32, device=dev)
+    amp1 = torch.as_tensor(amed, device=dev)[None, None] if use_amp else None
+    px = dict(
+        height=h,
+        xr=torch.as_tensor(xr, device=dev).reshape(-1),
+        yr=torch.as_tensor(yr, device=dev).reshape(-1),
+    )
     for band in bands:
-        fg = _segment(zmed[None], amp1, top1, band, smooth, use_amp, 0, h)  # all rows
-        reg = _regions(fg, zmed[None], 0, inv, xr, yr, 3.0 if kind == "depth" else None, keep_pixels=True)
+        fg = _segment(zmed_t, amp1, top1, band, smooth)  # all rows
+        reg = _regions(fg, zmed_t, 0, px, 3.0 if kind == "depth" else None, keep_pixels=True)
         cand = _plate_candidates(reg, min_area=10)
         if geometry is not None and cand.size:
             num = geometry.number(reg["x"][cand])
@@ -540,12 +458,14 @@ def calibrate_scene(
         line_tol_px=tol,
         geometry=geometry,
         track=track,
+        device=str(dev),
     )
 
 
-def detect_chunk(scene: Scene, frames: np.ndarray, amplitude: np.ndarray | None = None) -> np.ndarray:
+def detect_chunk(scene: Scene, frames, amplitude=None) -> np.ndarray:
     """Full detection in every frame of a chunk: (frame, plate, 3) centroids x, y, z in mm.
 
+    ``frames``, ``amplitude``: (frame, h, w) arrays or tensors; the work runs on ``scene.device``.
     Plates follow ``scene.plates``; NaN where a plate was not extracted.
     """
     b = frames.shape[0]
@@ -554,39 +474,40 @@ def detect_chunk(scene: Scene, frames: np.ndarray, amplitude: np.ndarray | None 
     if b == 0 or n_pl == 0:
         return out
     r0, r1 = scene.rows
-    b, h, w = frames.shape
-    rng = scene.kind == "range"
+    t = _tensors(scene)
+    f = frames_tensor(frames, scene.device)
     # only the rows searched and the top-surface pixels are converted to depth
-    z = _zimage(frames[:, r0:r1], scene.inv_norm[r0:r1] if rng else None)
-    ztop = np.asarray(frames.reshape(b, -1)[:, scene.top_idx], np.float32)
-    if rng:
-        ztop = ztop * scene.inv_norm.reshape(-1)[scene.top_idx]
-    top = top_level(ztop, np.arange(ztop.shape[1]))
-    fg = _segment(z, amplitude, top, scene.band, scene.smooth, scene.use_amplitude, r0, r1)
-    reg = _regions(fg, z, r0, scene.inv_norm, scene.xr, scene.yr, 3.0 if scene.kind == "depth" else None)
+    z = f[:, None, r0:r1]
+    ztop = f.reshape(b, -1)[:, t["top_idx"]]
+    if scene.kind == "range":
+        z = z * t["inv"][r0:r1]
+        ztop = ztop * t["inv_top"]
+    amp = None
+    if scene.use_amplitude and amplitude is not None:
+        amp = frames_tensor(amplitude, scene.device)[:, None, r0:r1]
+    fg = _segment(z, amp, top_level(ztop), scene.band, scene.smooth)
+    px = dict(height=scene.height, xr=t["xr"], yr=t["yr"])
+    reg = _regions(fg, z, r0, px, 3.0 if scene.kind == "depth" else None)
     if reg["n"] == 0:
         return out
-    lab = np.arange(1, reg["n"] + 1)
-    num = np.where(reg["n_eroded"][lab] >= 3, scene.number(reg["x"][lab], reg["u"][lab]), 0)
-    slot = np.searchsorted(scene.plates, num)
-    slot = np.clip(slot, 0, n_pl - 1)
+    num = np.where(reg["n_eroded"] >= 3, scene.number(reg["x"], reg["u"]), 0)
+    slot = np.clip(np.searchsorted(scene.plates, num), 0, n_pl - 1)
     known = (num > 0) & (scene.plates[slot] == num)
     # the region must look like its plate did at calibration (size, shape, on the line)
-    ar = reg["area"][lab] / scene.area[slot]
+    ar = reg["area"] / scene.area[slot]
     ok = (
         known
-        & ~reg["border"][lab]
+        & ~reg["border"]
         & (ar > 0.6)
         & (ar < 1.6)
-        & (np.abs(reg["ecc"][lab] - scene.ecc[slot]) < 0.2)
-        & (reg["n_eroded"][lab] >= 3)
-        & (np.abs(reg["v"][lab] - (scene.line[0] + scene.line[1] * reg["u"][lab])) <= 2 * scene.line_tol_px)
+        & (np.abs(reg["ecc"] - scene.ecc[slot]) < 0.2)
+        & (reg["n_eroded"] >= 3)
+        & (np.abs(reg["v"] - (scene.line[0] + scene.line[1] * reg["u"])) <= 2 * scene.line_tol_px)
     )
-    fr = reg["frame"][lab]
+    fr = reg["frame"]
     key = fr * n_pl + slot
     # two plate-like regions claiming one plate in one frame: neither is trusted
     claims = np.bincount(key[ok], minlength=b * n_pl)
     ok &= claims[key] == 1
-    sel = lab[ok]
-    out[fr[ok], slot[ok]] = np.stack([reg["x"][sel], reg["y"][sel], reg["z"][sel]], axis=1)
+    out[fr[ok], slot[ok]] = np.stack([reg["x"][ok], reg["y"][ok], reg["z"][ok]], axis=1)
     return out

@@ -26,10 +26,21 @@ def md_table(df: pd.DataFrame, floatfmt: dict[str, str]) -> str:
 
 def _uncertainty_md(out: Path, unc: pd.DataFrame) -> str:
     counts = unc["flag"].value_counts().to_dict()
+    trust = unc["trust_amplitude"].value_counts().to_dict()
+    fitted = unc[unc["trust_amplitude"] != "none"]
     lines = [
         "Honesty flags of the 30-s windows (`estimates_30s_uncertainty.csv`; thresholds from the "
-        "coverage study): " + ", ".join(f"{k} {v}" for k, v in counts.items()) + ". Where a window is "
-        "flagged, trust the posterior (f0) or the Rice interval (A) rather than the linearised σ.",
+        "coverage study): " + ", ".join(f"{k} {v}" for k, v in counts.items()) + "; trust (A): "
+        + ", ".join(f"{k} {v}" for k, v in trust.items()) + ". Where a window is flagged for "
+        "SNR, cycles or drop-outs, trust the posterior (f0) or the Rice interval (A) rather than "
+        "the linearised σ; `coloured_noise` keeps the default σ's (they use the residual's spectral "
+        "density near f0); `inadequate_model` means the window is not one harmonic in noise.",
+        "",
+        "Model adequacy of the fitted windows: variance explained r2 "
+        + (f"{fitted['r2'].min():.2f}-{fitted['r2'].max():.2f} (median {fitted['r2'].median():.2f}), "
+           f"residual whiteness (Ljung-Box) p {fitted['whiteness_p'].min():.1e}-"
+           f"{fitted['whiteness_p'].max():.2f} (inadequate below 1e-3 with r2 < 0.5)."
+           if len(fitted) else "no window fitted."),
     ]
     post = out / "estimates_30s_posterior.csv"
     if post.exists():
@@ -44,6 +55,7 @@ def _uncertainty_md(out: Path, unc: pd.DataFrame) -> str:
             "sigma_ratio_amplitude",
             "sigma_f0_post_hz",
             "sigma_f0_lin_hz",
+            "rho_post",
             "converged_chain",
         ]
         fmt = {
@@ -53,10 +65,12 @@ def _uncertainty_md(out: Path, unc: pd.DataFrame) -> str:
             "sigma_ratio_amplitude": ".3f",
             "sigma_f0_post_hz": ".2e",
             "sigma_f0_lin_hz": ".2e",
+            "rho_post": "+.2f",
         }
         lines += [
             "",
-            "emcee posteriors of three windows against the linearised σ's "
+            "emcee posteriors (AR(1) noise likelihood, ρ its posterior mean) of three windows "
+            "against the linearised (default) σ's "
             "(`estimates_30s_posterior.csv`, `estimates_30s_posterior.png`):",
             "",
             md_table(p[cols], fmt),
@@ -121,6 +135,8 @@ def write_demo_report(
         "sigma_amplitude_mm",
         "sigma_residual_mm",
         "peak_fap",
+        "r2",
+        "whiteness_p",
         "status",
     ]
     fmt = {
@@ -130,6 +146,8 @@ def write_demo_report(
         "sigma_amplitude_mm": ".4f",
         "sigma_residual_mm": ".3f",
         "peak_fap": ".1e",
+        "r2": ".3f",
+        "whiteness_p": ".2g",
     }
     truth = truth_fit[["plate", "f0_hz", "amplitude_mm"]].rename(
         columns={"f0_hz": "f0_true_hz", "amplitude_mm": "amplitude_true_mm"}
@@ -204,6 +222,10 @@ whole-record fits {timings["fit_whole_s"]:.2f} s, {len(wt)} windowed fits {timin
 ## Whole-record estimates (vertical axis)
 
 {md_table(z[keep_cols], fmt)}
+
+σ's are the default ones (the residual's spectral density near f0, honest under coloured noise;
+the white-noise σ's are `sigma_*_white` in the CSV); r2 is the variance the harmonic explains,
+whiteness_p the Ljung-Box p-value of the residual.
 
 ## Extracted trajectories against the simulator's truth
 

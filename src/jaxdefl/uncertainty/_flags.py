@@ -24,6 +24,23 @@ of A or f0 covers the truth less than 93 % of the time:
   80-85 % drop-outs; a later one took the smallest spacing, which 5 ms of jitter on a 20 Hz
   clock shrinks to half a frame, declaring half the frames missing. Windows now count frames on
   the recovered clock, `jaxdefl.series.clock`, tested at 70 and 85 % drop-outs and with jitter.)
+Two more come from the residual (`jaxdefl.fit.residual_noise`: ``r2`` and ``whiteness_p`` of
+the estimates table):
+
+- ``coloured_noise``: the residual fails the Ljung-Box whiteness test (``whiteness_p`` below
+  ``WHITENESS_P_MIN`` = 1e-3) while the harmonic explains at least ``R2_MIN`` = 0.5 of the
+  window's variance. The default σ's use the residual's spectral density near f0 and stay
+  honest (95 % coverage 0.929-0.963 under white, AR(1) ρ 0.3-0.9, frame-common and 1/f noise
+  and 5 ms stamp jitter at the thesis' SNR, 1 and 3 Hz: ``experiments/coverage.py --section
+  coloured``); the white-noise σ's (``sigma_*_white``) do not (0.71-0.76 at 1 Hz, AR(1) ρ 0.6).
+  Informative: the trust stays with the default σ's.
+- ``inadequate_model``: the residual is not white and the harmonic explains less than half of
+  the variance: the window is not one harmonic in noise (a broadband record, a free vibration,
+  several modes). No interval of the harmonic model is to be trusted there. Filtered random
+  noise (no harmonic) gave ``whiteness_p`` < 1e-40 and ``r2`` 0.003-0.3 in 30-s windows and
+  whole records (up to 0.78 below 0.2 Hz, where few_cycles fires too); harmonics at the thesis'
+  SNR give ``r2`` 0.84-0.87 under any of the noises above, and the thesis' simulated days
+  (configs ``exp2_tof_{1,3}hz``, day 1, every plate and axis) 0.69-0.82.
 Several reasons are joined with ``+``; windows without a converged fit are ``not_fitted``.
 """
 
@@ -32,17 +49,22 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from ..fit import Estimates
+from ..fit import WHITENESS_P_MIN, Estimates
 
-__all__ = ["SNR_MIN", "CYCLES_MIN", "DROPOUT_MAX", "honesty_features", "honesty_flags"]
+__all__ = [
+    "SNR_MIN", "CYCLES_MIN", "DROPOUT_MAX", "R2_MIN", "WHITENESS_P_MIN", "honesty_features",
+    "honesty_flags",
+]
 
 SNR_MIN = 7.0
 CYCLES_MIN = 8.0
 DROPOUT_MAX = 0.7
+R2_MIN = 0.5
 
 
 def honesty_features(estimates: Estimates) -> pd.DataFrame:
-    """Per window: ``snr`` = Â/σ_A, ``cycles`` = f̂0 × span, ``missing`` = fraction of frames lost.
+    """Per window: ``snr`` = Â/σ_A (the table's default σ_A), ``cycles`` = f̂0 × span, ``missing`` =
+    fraction of frames lost, and the table's ``r2`` and ``whiteness_p``.
 
     The span is last minus first valid time plus one frame interval; the missing fraction is
     1 - n / frames, with the frames counted on the window's recovered clock (`Windows.k`, from
@@ -61,12 +83,17 @@ def honesty_features(estimates: Estimates) -> pd.DataFrame:
     with np.errstate(invalid="ignore", divide="ignore"):
         frames = np.where(n > 1, (k_hi - k_lo + 1).astype(np.float64), np.nan)
         missing = np.clip(1.0 - n / frames, 0.0, 1.0)
-        snr = f.amplitude_mm / f.sigma_amplitude_mm
-    return pd.DataFrame({"snr": snr, "cycles": f.f0_hz * span, "missing": missing, "n": n})
+        snr = f.amplitude_mm / estimates.table["sigma_amplitude_mm"].to_numpy()
+    tab = estimates.table
+    return pd.DataFrame({
+        "snr": snr, "cycles": f.f0_hz * span, "missing": missing, "n": n,
+        "r2": tab["r2"].to_numpy(), "whiteness_p": tab["whiteness_p"].to_numpy(),
+    })
 
 
 def honesty_flags(estimates: Estimates) -> np.ndarray:
-    """'ok' or the reasons (``low_snr``, ``few_cycles``, ``heavy_dropouts``, joined by '+') per window.
+    """'ok' or the reasons (``low_snr``, ``few_cycles``, ``heavy_dropouts``, ``coloured_noise``,
+    ``inadequate_model``, joined by '+') per window.
 
     Returns:
         (window,) array of str; ``not_fitted`` where the fit did not converge.
@@ -77,6 +104,9 @@ def honesty_flags(estimates: Estimates) -> np.ndarray:
         ("few_cycles", ~(feat["cycles"].to_numpy() >= CYCLES_MIN)),
         ("heavy_dropouts", feat["missing"].to_numpy() > DROPOUT_MAX),
     ]
+    structured = feat["whiteness_p"].to_numpy() < WHITENESS_P_MIN
+    explains = feat["r2"].to_numpy() >= R2_MIN
+    reasons += [("coloured_noise", structured & explains), ("inadequate_model", structured & ~explains)]
     out = []
     fitted = estimates.fit.converged & (estimates.table["status"].to_numpy() == "converged")
     for i in range(len(feat)):
