@@ -15,8 +15,9 @@ allocated by one `detect_chunk` call (tracemalloc; numpy only, torch's are not t
 
 The kernel peers, on the chunk's band-masked frames (before Otsu), best of --repeat:
 8-connected labelling by `label_components` (run-based union-find in torch), kornia's
-`connected_components_union_find` and `connected_components` (max-pooling; 40 steps, which is
-not even enough for a plate row), and scipy.ndimage.label on the stacked frames; the erosion
+`connected_components_union_find` and `connected_components` (max-pooling, a label travels one
+pixel per step: 40 steps, and the labels it leaves are counted), and scipy.ndimage.label on the
+stacked frames; the erosion
 by `erode` (kornia, a row then a column) and by kornia with the 3x3 square at once; index
 lists by `flat_indices` (numpy on the CPU) and torch's `nonzero`.
 
@@ -198,6 +199,10 @@ def _kernel_peers(scene, frames, repeat: int, device: str) -> None:
     )
     for name, t in best.items():
         print(f"  {name:42s} {t * 1e3:8.2f} ms")
+    pooled = kornia.contrib.connected_components(fg.float(), 40)
+    n_ours, n_scipy = label_components(fg)[1], ndi.label(tall, np.ones((3, 3)))[1]
+    n_pooled = torch.unique(pooled[pooled > 0]).numel()
+    print(f"  components: {n_ours} (scipy {n_scipy}); kornia's 40 pooling steps leave {n_pooled} labels")
 
 
 if __name__ == "__main__":
