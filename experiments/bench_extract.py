@@ -190,10 +190,10 @@ def _kernel_peers(scene, frames, repeat: int, device: str) -> None:
         "torch nonzero": lambda: fg.reshape(-1).nonzero(),
     }
     best = _best(fns, repeat)
-    pooled = {
+    slow = {
         "kornia connected_components (40 steps)": lambda: kornia.contrib.connected_components(fg.float(), 40)
     }
-    best.update(_best(pooled, 1))  # seconds per call: timed once
+    best.update(_best(slow, 1))  # seconds per call: timed once
     print(
         f"kernels on one chunk ({b} x {r1 - r0} x {fg.shape[-1]} band pixels, {fg.float().mean():.2f} set):"
     )
