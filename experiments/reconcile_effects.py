@@ -52,9 +52,10 @@ def main():
                         flagged[key] = flagged.get(key, 0) + 1
                 continue
             row = next(r for r in rec.levels if r["metric"] == CARRIER[eid])
-            named += eid in [e["id"] for e in rec.effects]
+            hit = eid in [e["id"] for e in rec.effects]
+            named += hit
             moved += row["before"] > row["null_95"]
-            fixed += rec.verdict(row) == "reconciled"
+            fixed += hit and rec.verdict(row) == "reconciled"
         n = len(args.seeds)
         if eid is None:
             print(f"controls: metrics outside the null band (count over {n} recordings): {flagged or 'none'}")

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from jaxdefl.diagnose._base import Context, Harmonic, Series, State, loglik
-from jaxdefl.diagnose.effects._common_b import tap_response
+from jaxdefl.diagnose.effects.shared_fits import tap_response
 from jaxdefl.fit.motion import motion_artefact_response
 
 F0 = 3.0672

@@ -16,8 +16,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from jaxdefl.io import read_trajectory, write_trajectory
 from jaxdefl.fit import estimate_table
+from jaxdefl.io import read_trajectory, write_trajectory
 from jaxdefl.simulate import load_config, measured_centroids, render_frames
 from jaxdefl.simulate.tof import (
     TABLE_6_2_MM,

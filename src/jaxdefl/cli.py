@@ -70,6 +70,11 @@ def fit(
     posterior_noise: Annotated[
         str, typer.Option(help="Noise likelihood of the posteriors: ar1 (coloured, default) or white.")
     ] = "ar1",
+    model: Annotated[
+        str, typer.Option(help="Signal model: harmonic (thesis) or damped (free vibration).")
+    ] = "harmonic",
+    harmonics: Annotated[int, typer.Option(help="Fit f0 and its harmonics 2 f0 .. K f0.")] = 1,
+    lines: Annotated[int, typer.Option(help="Fit N independent spectral lines (modes).")] = 1,
 ) -> None:
     """Estimate loading frequency and deflection amplitude per segment, window, plate and axis."""
     from . import pipeline
@@ -88,6 +93,9 @@ def fit(
         posterior=posterior,
         timestamps=timestamps,
         posterior_noise=posterior_noise,
+        model=model,
+        harmonics=harmonics,
+        lines=lines,
     )
 
 

@@ -16,8 +16,15 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, Ti
 from . import __version__
 from ._configs import config_dir
 from ._errors import ConfigError, JaxdeflError
-from .fit import Estimates, compare_with_reference, estimate_windows, fit_reference
-from .io import check_timestamp_policy, load_table, read_reference, read_trajectory, timestamp_note, write_trajectory
+from .fit import Estimates, compare_with_reference, estimate_windows, fit_reference, signal_model
+from .io import (
+    check_timestamp_policy,
+    load_table,
+    read_reference,
+    read_trajectory,
+    timestamp_note,
+    write_trajectory,
+)
 from .io.output import TABLE_SUFFIXES, Outputs
 from .series import check_window_plan
 
@@ -171,8 +178,14 @@ def fit_file(
     posterior: int | None = None,
     timestamps: str = "strict",
     posterior_noise: str = "ar1",
+    model: str = "harmonic",
+    harmonics: int = 1,
+    lines: int = 1,
 ) -> tuple[pd.DataFrame, pd.DataFrame | None]:
     """`jaxdefl fit`: read, estimate, write OUT (and OUT stem + _reference/_comparison/... beside).
+
+    ``model``, ``harmonics`` and ``lines`` choose the signal model (`jaxdefl.fit.signal_model`;
+    default: the thesis' harmonic + offset).
 
     Order: every argument is checked, the outputs are planned (none may be an input or another
     output), the inputs are read and checked against each other, everything is computed, and only
@@ -184,6 +197,13 @@ def fit_file(
     check_timestamp_policy(timestamps)
     if posterior_noise not in ("ar1", "white"):
         raise ConfigError(f"--posterior-noise: expected ar1 or white, got {posterior_noise!r}")
+    # signal models other than the thesis' (the posterior check knows only the default model)
+    spec = signal_model(model, harmonics, lines)
+    if posterior is not None and not spec.is_default:
+        raise ConfigError(
+            "--posterior: checks the σ's of the default model only; drop it, or drop "
+            "--model/--harmonics/--lines"
+        )
     outs = Outputs(inputs=[traj, reference])
     outs.reserve(out, "--out", suffixes=TABLE_SUFFIXES)
     paths = companions(out)
@@ -216,11 +236,11 @@ def fit_file(
     check_window_plan(df, axes, window_s, step_s, source=str(traj))
 
     kw = dict(fmin_hz=fmin_hz, fmax_hz=fmax_hz, oversampling=oversampling, fap_max=fap_max)
-    est = _estimate(df, axes=axes, window_s=window_s, step_s=step_s, **kw)
+    est = _estimate(df, axes=axes, window_s=window_s, step_s=step_s, model=spec, **kw)
     tab = est.table
     comparison = ref_tab = unc = post = None
     if ref is not None:
-        ref_tab = fit_reference(ref, est, **kw).table
+        ref_tab = fit_reference(ref, est, model=spec, **kw).table
         comparison = compare_with_reference(tab, ref_tab)
     if posterior is not None:
         unc, post = uncertainty_tables(est, posterior, noise=posterior_noise)
@@ -241,6 +261,7 @@ def fit_file(
                 timestamps=timestamps,
                 clock={k: v for k, v in clocks.items() if v},
                 **kw,
+                **({} if spec.is_default else dict(model=model, harmonics=harmonics, lines=lines)),
             ),
         )
         if ref_tab is not None:
@@ -514,7 +535,8 @@ def _reconcile_input(recording: Path, segment: str | None, timestamps: str = "st
         from .frames import extract_recording
         from .io.recording import open_recording
 
-        df = validate_trajectory(extract_recording(open_recording(recording)), recording, timestamps=timestamps)
+        frames = extract_recording(open_recording(recording))
+        df = validate_trajectory(frames, recording, timestamps=timestamps)
     segments = list(pd.unique(df["segment"]))
     if segment is None:
         if len(segments) > 1:

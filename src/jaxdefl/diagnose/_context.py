@@ -157,7 +157,10 @@ def build_context(
     ref_harm: dict[int, Harmonic] = {}
     if reference is not None:
         ref = validate_trajectory(
-            reference.reset_index(drop=True), reference_source, required=("t", "plate", "z"), timestamps=timestamps
+            reference.reset_index(drop=True),
+            reference_source,
+            required=("t", "plate", "z"),
+            timestamps=timestamps,
         )
         if (note := timestamp_note(ref.attrs.get("timestamps"))) is not None:
             notes.append(f"{reference_source}: {note}")

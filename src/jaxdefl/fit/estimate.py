@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
@@ -14,6 +15,7 @@ from .._signals import check_interrupt
 from ..series import Windows
 from ..spectral import Periodogram, lomb_peaks
 from .harmonic import N_PARAMS, HarmonicFit, fit_harmonics
+from .models import SignalModel, fit_model, model_columns
 from .residual_noise import ResidualNoise, harmonic_residual, residual_noise
 
 __all__ = ["ESTIMATE_COLUMNS", "STATUSES", "Estimates", "estimate_windows"]
@@ -76,6 +78,7 @@ def estimate_windows(
     block: int = 4096,
     on_block: Callable[[int], None] | None = None,
     workers: int | None = None,
+    model: SignalModel | None = None,
 ) -> Estimates:
     """Estimate f0, A and their σ's for every window; failures become statuses.
 
@@ -89,7 +92,11 @@ def estimate_windows(
         block: most windows per periodogram/fit call; ``on_block(k)`` is called after each
             with the number of windows done (for progress bars).
         workers: threads running blocks at once (default: one per core).
+        model: the signal model (default: the thesis' harmonic + offset); other models add
+            columns (see `jaxdefl.fit.models.model_columns`).
     """
+    if model is not None and model.is_default:
+        model = None
     b = len(w)
     status = w.table["status"].to_numpy(dtype=object).copy()
     wild = (np.abs(np.where(w.mask, w.y, 0.0)) > MAX_ABS_VALUE_MM).any(axis=1)
@@ -124,7 +131,11 @@ def estimate_windows(
             "too_few_cycles",
             np.where(insignificant, "no_significant_peak", "converged"),
         )
-        f = fit_harmonics(w, p.freq_hz, rows=rows[go], weights=weights)
+        if model is None:
+            f = fit_harmonics(w, p.freq_hz, rows=rows[go], weights=weights)
+        else:
+            search = dict(fmin_hz=fmin_hz, fmax_hz=fmax_hz, oversampling=oversampling)
+            f = fit_model(w, p, rows[go], model, weights=weights, **search)
         converged = f.converged[rows]
         return rows, p, np.where(go & ~converged, "did_not_converge", st), f
 
@@ -169,14 +180,26 @@ def estimate_windows(
     tab["peak_fap"] = periodogram.fap
     # Model adequacy and σ's honest under coloured noise (`residual_noise`): the white-noise σ's
     # (thesis 5.43-5.45) are kept beside; the default ones use the residual's density near f0.
-    noise = residual_noise(w, harmonic_residual(w, fit.params), fit.f0_hz, rows=np.flatnonzero(fit.converged))
+    # (Models other than the thesis' keep their white-noise σ's: their residual is not the
+    # harmonic's, and the colour correction is validated for the default model only.)
+    if model is None:
+        noise = residual_noise(
+            w, harmonic_residual(w, fit.params), fit.f0_hz, rows=np.flatnonzero(fit.converged)
+        )
+    else:
+        none = np.array([], dtype=np.int64)
+        noise = dataclasses.replace(residual_noise(w, w.y, fit.f0_hz, rows=none), kappa=np.ones(b))
     tab["r2"] = noise.r2
     tab["whiteness_p"] = noise.whiteness_p
     tab["sigma_amplitude_white_mm"] = fit.sigma_amplitude_mm
     tab["sigma_f0_white_hz"] = fit.sigma_f0_hz
     tab["sigma_amplitude_mm"] = fit.sigma_amplitude_mm * np.sqrt(noise.kappa)
     tab["sigma_f0_hz"] = fit.sigma_f0_hz * np.sqrt(noise.kappa)
-    return Estimates(tab[ESTIMATE_COLUMNS], w, periodogram, fit, noise)
+    columns = ESTIMATE_COLUMNS
+    if model is not None:
+        tab, added = model_columns(tab, fit, model)
+        columns = ESTIMATE_COLUMNS + added
+    return Estimates(tab[columns], w, periodogram, fit, noise)
 
 
 def _span(w: Windows) -> np.ndarray:
@@ -188,7 +211,8 @@ def _span(w: Windows) -> np.ndarray:
 
 
 def _merge_fits(b: int, parts: list[tuple[np.ndarray, HarmonicFit]]) -> HarmonicFit:
-    fields = HarmonicFit.__dataclass_fields__
+    cls = type(parts[0][1]) if parts else HarmonicFit
+    fields = cls.__dataclass_fields__
     out = {}
     for name in fields:
         if parts:
@@ -206,4 +230,4 @@ def _merge_fits(b: int, parts: list[tuple[np.ndarray, HarmonicFit]]) -> Harmonic
         for rows, f in parts:
             arr[rows] = getattr(f, name)[rows]
         out[name] = arr
-    return HarmonicFit(**out)
+    return cls(**out)

@@ -23,7 +23,15 @@ from .._shapes import bucket, pow2_at_least, pow2_at_most
 from .._sincos import sincos
 from ..series import Windows
 
-__all__ = ["HarmonicFit", "fit_harmonic", "fit_harmonics", "N_PARAMS"]
+__all__ = [
+    "HarmonicFit",
+    "fit_harmonic",
+    "fit_harmonics",
+    "N_PARAMS",
+    "batch_windows",
+    "gauss_newton",
+    "normal_equations",
+]
 
 N_PARAMS = 4
 # Step tolerances of Gauss-Newton, in units of each parameter's σ and of the noise σ (the
@@ -63,7 +71,7 @@ def _model_jvp(primals, tangents):
     return out, c * dp[0] + s * dp[1] + dp[2] + slope * (t * dp[3] + p[3] * dt)
 
 
-def _normal_equations(cols, w, y):
+def normal_equations(cols, w, y):
     """GᵀWG and GᵀWy for design columns ``cols`` (explicit sums: XLA fuses them, while a batched
     (sample x param) matmul is slow on the CPU)."""
     k = len(cols)
@@ -73,6 +81,18 @@ def _normal_equations(cols, w, y):
         for j in range(i, k):
             gtg[i][j] = gtg[j][i] = jnp.sum(wc[i] * cols[j])
     return jnp.stack([jnp.stack(row) for row in gtg]), jnp.stack([jnp.sum(a * y) for a in wc])
+
+
+def gauss_newton(residual, n_params: int, rtol: float, atol: float, max_steps: int):
+    """The Gauss-Newton solve of every fit: optimistix from 0 on a problem scaled to units of σ.
+
+    ``residual(u, None)`` is the weighted residual in units of the noise σ at the parameters
+    ``p0 + u * scale`` (the caller's start and scale), so that ``rtol``/``atol`` mean "a step
+    below that many σ". Failure is a value (``sol.result``), never an exception, so a vmapped
+    solve reports per window.
+    """
+    solver = optx.GaussNewton(rtol=rtol, atol=atol, linear_solver=lx.Normal(lx.Cholesky()))
+    return optx.least_squares(residual, solver, jnp.zeros(n_params), max_steps=max_steps, throw=False)
 
 
 def fit_harmonic(t, y, w, omega0, rtol=RTOL, atol=ATOL, max_steps=MAX_STEPS):
@@ -90,7 +110,7 @@ def fit_harmonic(t, y, w, omega0, rtol=RTOL, atol=ATOL, max_steps=MAX_STEPS):
 
     # Linear least squares at the periodogram frequency (5.33-5.35 with R^-1 = diag(w)).
     s0, c0 = sincos(omega0 * t)
-    gtg, gty = _normal_equations([c0, s0, jnp.ones_like(t)], w, yc)
+    gtg, gty = normal_equations([c0, s0, jnp.ones_like(t)], w, yc)
     lin = jnp.linalg.solve(gtg, gty)
 
     # One Gauss-Newton step on all four parameters from the linear fit, with the sines and
@@ -100,7 +120,7 @@ def fit_harmonic(t, y, w, omega0, rtol=RTOL, atol=ATOL, max_steps=MAX_STEPS):
     # quarter cycle over the window (a start far from any optimum) is not taken.
     r_lin = yc - (lin[0] * c0 + lin[1] * s0 + lin[2])
     cols = [c0, s0, jnp.ones_like(t), t * (-lin[0] * s0 + lin[1] * c0)]
-    jtj0, jtr0 = _normal_equations(cols, w, jnp.where(valid, r_lin, 0.0))
+    jtj0, jtr0 = normal_equations(cols, w, jnp.where(valid, r_lin, 0.0))
     step = jnp.linalg.solve(jtj0, jtr0)
     span = jnp.max(jnp.where(valid, jnp.abs(t), 0.0))
     near = jnp.all(jnp.isfinite(step)) & (jnp.abs(step[3]) * span < 0.5 * jnp.pi)
@@ -124,14 +144,13 @@ def fit_harmonic(t, y, w, omega0, rtol=RTOL, atol=ATOL, max_steps=MAX_STEPS):
     def residual(u, _):
         return sw * (yc - _model(p0 + u * scale, t)) / noise
 
-    solver = optx.GaussNewton(rtol=rtol, atol=atol, linear_solver=lx.Normal(lx.Cholesky()))
-    sol = optx.least_squares(residual, solver, jnp.zeros(N_PARAMS), max_steps=max_steps, throw=False)
+    sol = gauss_newton(residual, N_PARAMS, rtol, atol, max_steps)
     p = p0 + sol.value * scale
 
     # Jacobian of the model (5.40, with t_i in every row), covariance (5.42-5.43).
     s, c = sincos(p[3] * t)
     r = yc - (p[0] * c + p[1] * s + p[2])
-    jtj, _ = _normal_equations([c, s, jnp.ones_like(t), t * (-p[0] * s + p[1] * c)], w, r)
+    jtj, _ = normal_equations([c, s, jnp.ones_like(t), t * (-p[0] * s + p[1] * c)], w, r)
     dof = n - N_PARAMS
     s0sq = jnp.sum(w * r**2) / dof
     cov = s0sq * jnp.linalg.inv(jtj)
@@ -214,6 +233,40 @@ def _width(a: np.ndarray, s: int) -> np.ndarray:
     return np.concatenate([a, np.zeros((a.shape[0], s - a.shape[1]), a.dtype)], axis=1)
 
 
+def batch_windows(
+    fit_batch, w: Windows, rows: np.ndarray, weights: np.ndarray | None, *per_window: np.ndarray
+) -> dict[str, np.ndarray]:
+    """Run a batched kernel on the windows at ``rows``, chunk by chunk, in few compiled shapes.
+
+    ``fit_batch(t, y, w, *per_window, group=G)`` takes (window, sample) arrays and (window, ...)
+    arrays and returns a dict of (window, ...) arrays; ``per_window`` are indexed by window of
+    ``w``. Returns the dict for ``rows`` (in their order), as numpy arrays.
+    """
+    s_used = int(w.mask[rows].sum(axis=1).max())
+    # Valid samples come first in every row; pad the sample axis to a shape bucket and
+    # the batch to a power of two so that few shapes are ever compiled.
+    s_pad = bucket(s_used)
+    chunk = min(pow2_at_least(rows.size), pow2_at_most(_CHUNK_CELLS // s_pad))
+    group = min(chunk, pow2_at_most(_GROUP_CELLS // s_pad))
+    res: dict[str, np.ndarray] = {}
+    for c0 in range(0, rows.size, chunk):
+        sel = rows[c0 : c0 + chunk]
+        pad = np.concatenate([sel, np.repeat(sel[:1], chunk - sel.size)])
+        out = fit_batch(
+            jnp.asarray(_width(w.t[pad], s_pad)),
+            jnp.asarray(_width(w.y[pad], s_pad)),
+            jnp.asarray(_width(_weights(w, weights, pad), s_pad)),
+            *(jnp.asarray(np.asarray(a)[pad]) for a in per_window),
+            group=group,
+        )
+        for k, v in out.items():
+            v = np.asarray(v)[: sel.size]
+            if k not in res:
+                res[k] = np.empty((rows.size,) + v.shape[1:], v.dtype)
+            res[k][c0 : c0 + sel.size] = v
+    return res
+
+
 def fit_harmonics(
     w: Windows,
     freq0_hz: np.ndarray,
@@ -256,32 +309,14 @@ def fit_harmonics(
     steps = np.zeros(b, np.int64)
     ok = np.zeros(b, bool)
     if rows.size:
-        s_used = int(w.mask[rows].sum(axis=1).max())
-        # Valid samples come first in every row; pad the sample axis to a shape bucket and
-        # the batch to a power of two so that few shapes are ever compiled.
-        s_pad = bucket(s_used)
-        chunk = min(pow2_at_least(rows.size), pow2_at_most(_CHUNK_CELLS // s_pad))
-        group = min(chunk, pow2_at_most(_GROUP_CELLS // s_pad))
-        for c0 in range(0, rows.size, chunk):
-            sel = rows[c0 : c0 + chunk]
-            pad = np.concatenate([sel, np.repeat(sel[:1], chunk - sel.size)])
-            out = _fit_batch(
-                jnp.asarray(_width(w.t[pad], s_pad)),
-                jnp.asarray(_width(w.y[pad], s_pad)),
-                jnp.asarray(_width(_weights(w, weights, pad), s_pad)),
-                jnp.asarray(2 * np.pi * np.asarray(freq0_hz)[pad]),
-                rtol=rtol,
-                atol=atol,
-                max_steps=max_steps,
-                group=group,
-            )
-            out = {k: np.asarray(v)[: sel.size] for k, v in out.items()}
-            for k in res:
-                res[k][sel] = out[k]
-            cov[sel] = out["cov"]
-            n[sel] = out["n"]
-            steps[sel] = out["steps"]
-            ok[sel] = out["ok"]
+        fit_batch = partial(_fit_batch, rtol=rtol, atol=atol, max_steps=max_steps)
+        out = batch_windows(fit_batch, w, rows, weights, 2 * np.pi * np.asarray(freq0_hz))
+        for k in res:
+            res[k][rows] = out[k]
+        cov[rows] = out["cov"]
+        n[rows] = out["n"]
+        steps[rows] = out["steps"]
+        ok[rows] = out["ok"]
     bad = ~ok
     for k in res:
         res[k][bad] = np.nan

@@ -51,6 +51,7 @@ _LENGTH_MM = {"mm": 1.0, "m": 1000.0, "cm": 10.0, "um": 1e-3, "µm": 1e-3, "micr
 _TIME_S = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "ns": 1e-9}
 # Unit plausibility of headers without a unit (see `_check_plausible`).
 _EPOCH_S_MAX = 1e11  # seconds: the year 5138; beyond, epoch ms, µs or ns
+_METRES_MEDIAN_MIN = 0.5  # a range camera sees from 0.5 m on; a series centred lower is ambiguous
 _METRES_ABS_MAX = 10.0  # |z| below this everywhere ...
 _METRES_SPREAD_MAX = 0.02  # ... and every plate's robust σ below this: metres, not mm
 _MICROMETRES_MEDIAN_MIN = 1e5  # median |z| beyond 100 m: micrometres, not mm
@@ -204,7 +205,9 @@ def _check_plausible(path: Path, col: str, v: np.ndarray, plate: np.ndarray) -> 
             "implausible in mm (beyond 100 m): micrometres? rename the column z_um to read them so, "
             "or z_mm to confirm millimetres"
         )
-    if float(a.max()) >= _METRES_ABS_MAX:
+    if float(a.max()) >= _METRES_ABS_MAX or float(np.median(a)) < _METRES_MEDIAN_MIN:
+        # (values centred near 0 with a tiny motion may be a micrometre-level record in mm:
+        # ambiguous, so read as written; a metre-sized level with a tiny motion is not)
         return
     ser = pd.Series(v[fin]).groupby(plate[fin])
     counts = ser.size()

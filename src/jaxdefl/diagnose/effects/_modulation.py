@@ -17,7 +17,7 @@ import math
 import numpy as np
 
 from .._base import Context, Effect, Proposal, State
-from ._common_b import Carriers, chi2_p_value, one_sided, scan_p_value
+from .shared_fits import Carriers, chi2_p_value, one_sided, scan_p_value
 
 __all__ = ["ModulationEffect", "modulation_band", "depth_and_phase", "P_MAX", "KINDS"]
 

@@ -30,8 +30,8 @@ import math
 import numpy as np
 
 from .._base import Context
-from ._common_b import param
 from ._modulation import ModulationEffect, depth_and_phase
+from .shared_fits import param
 
 __all__ = ["AmplitudeModulation", "EFFECT"]
 

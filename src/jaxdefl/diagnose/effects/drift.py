@@ -30,7 +30,7 @@ import numpy as np
 
 from .._base import Context, Effect, Proposal, State, keep_series, lstsq, peak_offset
 from .._varpro import fit_shared
-from ._common_a import (
+from .screening import (
     chi2_sf,
     combined_p,
     gain,

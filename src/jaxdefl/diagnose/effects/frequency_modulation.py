@@ -33,8 +33,8 @@ import math
 import numpy as np
 
 from .._base import Context
-from ._common_b import param
 from ._modulation import ModulationEffect, depth_and_phase
+from .shared_fits import param
 
 __all__ = ["FrequencyModulation", "EFFECT"]
 

@@ -33,7 +33,7 @@ import math
 import numpy as np
 
 from .._base import Context, Effect, Proposal, State, keep_series, lstsq
-from ._common_a import (
+from .screening import (
     bonferroni,
     chi2_sf,
     combined_p,

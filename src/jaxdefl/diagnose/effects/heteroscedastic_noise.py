@@ -31,7 +31,7 @@ import math
 import numpy as np
 
 from .._base import Context, Effect, Proposal, State, keep_series, lstsq
-from ._common_a import combined_p, gain, median_signed, param, residual, touched, updated
+from .screening import combined_p, gain, median_signed, param, residual, touched, updated
 
 __all__ = ["HeteroscedasticNoise", "EFFECT"]
 

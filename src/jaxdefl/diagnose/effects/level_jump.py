@@ -35,7 +35,7 @@ import math
 import numpy as np
 
 from .._base import Context, Effect, Proposal, State, keep_series
-from ._common_a import (
+from .screening import (
     bonferroni,
     chi2_sf,
     combined_p,
@@ -147,23 +147,18 @@ class LevelJump(Effect):
         where = ", ".join(ctx.series[i].key for i in kept)
         who = "the camera (all these plates at once)" if len(kept) > 1 else "one plate"
         return out + [
-            Proposal(
-                effect=self.id,
-                series=kept,
-                states=new,
-                n_params=1 + len(kept),
-                p_value=p_value,
-                parameters={"t_jump_s": param(t_j, sig_t), "size_mm": param(size, size_sigma)},
-                t_start=float(t_j),
-                t_end=float(ctx.duration_s),
-                band_hz=None,
-                explanation=(
-                    f"The measured position of {where} steps by {size:+.3f} mm at t = {t_j:.2f} s "
-                    f"and stays there: {who}"
-                    " changed its level — a structured-light re-calibration, an integration-time change or "
-                    "a knock."
-                ),
-                detail={
+            self._proposal(
+                ctx,
+                kept,
+                new,
+                1 + len(kept),
+                p_value,
+                (t_j, sig_t, size, size_sigma),
+                f"The measured position of {where} steps by {size:+.3f} mm at t = {t_j:.2f} s "
+                f"and stays there: {who}"
+                " changed its level — a structured-light re-calibration, an integration-time change or "
+                "a knock.",
+                {
                     "mode": "per_series",
                     "sizes_mm": {ctx.series[i].key: float(d) for i, d in zip(kept, deltas, strict=True)},
                 },
@@ -198,22 +193,34 @@ class LevelJump(Effect):
         )
         sig_t = ctx.dt_s * max(0.5, math.sqrt(26.0) / max(snr, 1e-300))
         where = ", ".join(ctx.series[i].key for i in fit.series)
+        return self._proposal(
+            ctx,
+            fit.series,
+            fit.states,
+            2,
+            p_value,
+            (t_j, sig_t, size, size_sigma),
+            f"All of {where} step by {size:+.3f} mm at t = {t_j:.2f} s and stay there: the camera "
+            "changed its levels at once — a structured-light re-calibration or an integration-time "
+            "change.",
+            {"mode": "common"},
+        )
+
+    def _proposal(self, ctx, series, states, n_params, p_value, jump, explanation, detail) -> Proposal:
+        """A jump's proposal: ``jump`` = (t_j, σ_t, size, σ_size); it lasts to the record's end."""
+        t_j, sig_t, size, size_sigma = jump
         return Proposal(
             effect=self.id,
-            series=fit.series,
-            states=fit.states,
-            n_params=2,
+            series=series,
+            states=states,
+            n_params=n_params,
             p_value=p_value,
             parameters={"t_jump_s": param(t_j, sig_t), "size_mm": param(size, size_sigma)},
             t_start=float(t_j),
             t_end=float(ctx.duration_s),
             band_hz=None,
-            explanation=(
-                f"All of {where} step by {size:+.3f} mm at t = {t_j:.2f} s and stay there: the camera "
-                "changed its levels at once — a structured-light re-calibration or an integration-time "
-                "change."
-            ),
-            detail={"mode": "common"},
+            explanation=explanation,
+            detail=detail,
         )
 
     def _at(self, ctx: Context, states: list[State], idx: list[int], m: int, margin: float):

@@ -29,7 +29,7 @@ import math
 import numpy as np
 
 from .._base import Context, Effect, Proposal, State
-from ._common_b import (
+from .shared_fits import (
     AMBIGUOUS_CHI2,
     TiedModel,
     chi2_p_value,
@@ -37,6 +37,7 @@ from ._common_b import (
     param,
     tap_response,
     tied_proposal_states,
+    tied_series,
 )
 
 __all__ = ["MotionArtefact", "EFFECT"]
@@ -51,10 +52,8 @@ class MotionArtefact(Effect):
     min_cycles = 20.0
 
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
-        if self.cannot_tell(ctx) is not None:
-            return []
-        idx = ctx.indices("z", tied=True)
-        if not idx or any(self.id in states[i].effects for i in idx):
+        idx = tied_series(self, ctx, states)
+        if idx is None:
             return []
         model = TiedModel(ctx, states, idx)
         free = [0] + ([1] if "timing_error" in model.accepted else [])

@@ -27,7 +27,7 @@ import numpy as np
 from scipy import stats
 
 from .._base import Context, Effect, Proposal, State, keep_series, lstsq
-from ._common_a import bonferroni, gain, param, residual, touched, updated
+from .screening import bonferroni, gain, param, residual, touched, updated
 
 __all__ = ["Outliers", "EFFECT"]
 

@@ -35,7 +35,7 @@ import math
 import numpy as np
 
 from .._base import Context, Effect, Proposal, State, keep_series, lstsq
-from ._common_a import bonferroni, chi2_sf, gain, param, residual, touched, updated, weights
+from .screening import bonferroni, chi2_sf, gain, param, residual, touched, updated, weights
 
 __all__ = ["Quantization", "EFFECT"]
 

@@ -32,7 +32,7 @@ import math
 import numpy as np
 
 from .._base import Context, Effect, Proposal, State
-from ._common_b import (
+from .shared_fits import (
     AMBIGUOUS_CHI2,
     PPM,
     TiedModel,
@@ -40,6 +40,7 @@ from ._common_b import (
     motion_parameters,
     param,
     tied_proposal_states,
+    tied_series,
 )
 
 __all__ = ["TimingError", "EFFECT"]
@@ -55,10 +56,8 @@ class TimingError(Effect):
     min_cycles = 20.0
 
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
-        if self.cannot_tell(ctx) is not None:
-            return []
-        idx = ctx.indices("z", tied=True)
-        if not idx or any(self.id in states[i].effects for i in idx):
+        idx = tied_series(self, ctx, states)
+        if idx is None:
             return []
         model = TiedModel(ctx, states, idx)
         extra = [0] if "motion_artefact" in model.accepted else []

@@ -1,6 +1,7 @@
-"""Helpers shared by the effect modules harmonic_distortion, drift, level_jump, outliers,
-heteroscedastic_noise and quantization: residuals and weights of the current states, weighted
-projections out of the free nuisance, per-series likelihood gains and scan-corrected p-values.
+"""Screening series for an effect, and the state helpers every effect module uses: residuals and
+weights of the current states, contract parameters, updated states (harmonic_distortion, drift,
+level_jump, outliers, heteroscedastic_noise, quantization screen with the rest: weighted
+projections out of the free nuisance, per-series likelihood gains and scan-corrected p-values).
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""Helpers shared by motion_artefact, timing_error, amplitude_modulation and frequency_modulation.
+"""Fits shared by many series (motion_artefact, timing_error, amplitude_modulation, frequency_modulation).
 
 - `Block`: the weighted projection of one series out of its free nuisance columns.
 - `lm_shared`: Levenberg-Marquardt over a few parameters shared by many series, each series'
@@ -28,6 +28,7 @@ import numpy as np
 from scipy import stats
 
 from .._base import Context, State, keep_series, loglik
+from .screening import param, updated, weights
 
 __all__ = [
     "weights",
@@ -39,6 +40,7 @@ __all__ = [
     "chi2_p_value",
     "tap_response",
     "TiedModel",
+    "tied_series",
     "AMBIGUOUS_CHI2",
     "motion_parameters",
     "Carriers",
@@ -53,28 +55,6 @@ def _dot(a: np.ndarray, b: np.ndarray):
     """Σ a b of two long vectors. Not np.dot / @: OpenBLAS threads its 1-D dot, and on busy
     shared cores that costs 20 ms per call of 35k samples instead of 0.03 ms."""
     return np.einsum("i,i->", a, b)
-
-
-def weights(st: State) -> np.ndarray:
-    """(sample,) least-squares weights of a state: 1/scale² on inliers, 0 on outliers."""
-    return np.where(st.inlier, 1.0 / st.scale**2, 0.0)
-
-
-def param(value, sigma=None) -> dict:
-    """A contract parameter {"value": v, "sigma": s} with JSON-able floats (None for NaN)."""
-
-    def clean(x):
-        if x is None:
-            return None
-        x = float(x)
-        return x if math.isfinite(x) else None
-
-    return {"value": clean(value), "sigma": clean(sigma)}
-
-
-def updated(st: State, effect: str, k_own: int, **kw) -> State:
-    """The state with the effect's changes, its own parameter count and the effect id added."""
-    return st.with_(n_params=st.n_params + int(k_own), effects=st.effects + (effect,), **kw)
 
 
 def chi2_p_value(delta_chi2: float, dof: int) -> float:
@@ -251,6 +231,17 @@ PPM = 1e-6
 AMBIGUOUS_CHI2 = 10.0
 TIED_EFFECTS = ("motion_artefact", "timing_error")
 NAMES = ("tap_spread_s", "offset_s", "rate_ppm")
+
+
+def tied_series(effect, ctx: Context, states: list[State]) -> list[int] | None:
+    """The reference-tied z series a tied effect (motion_artefact, timing_error) may propose on,
+    or None when it cannot tell or is already in the model."""
+    if effect.cannot_tell(ctx) is not None:
+        return None
+    idx = ctx.indices("z", tied=True)
+    if not idx or any(effect.id in states[i].effects for i in idx):
+        return None
+    return idx
 
 
 class TiedModel:

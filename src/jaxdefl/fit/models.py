@@ -1,0 +1,591 @@
+"""Signal models beyond the thesis' single harmonic, batched like it: harmonics of f0, several
+independent lines (modes), damped sinusoids (free-vibration records).
+
+Model of one window, ``t`` centred on the window's samples as for the default fit:
+
+    y(t) = E + Σ_j exp(-λ_l(j) t) [C_j cos(k_j ω_l(j) t) + D_j sin(k_j ω_l(j) t)]
+
+- ``harmonics=K``: components j = 1..K share one frequency ω, k_j = j, no decay.
+- ``lines=N``: N components, each with its own frequency ω_j (k_j = 1), no decay.
+- ``kind="damped"`` (with ``lines=N``, default 1): each line also decays at its own rate
+  λ_j = ζ_j ω_n,j, with ω_n,j² = ω_j² + λ_j² (ω_j is the damped frequency seen in the record).
+
+Parameters p = [C_1, D_1, ..., C_m, D_m, E, ω_1..ω_L, (λ_1..λ_L)]. Per window: the C, D, E by
+linear least squares at the start (periodogram frequencies; for a damped model, decay rates
+from the envelope of a few segments), one Gauss-Newton step from there, then the scaled
+optimistix Gauss-Newton every fit uses (`jaxdefl.fit.harmonic.gauss_newton`), the covariance
+σ0² (JᵀWJ)⁻¹ (thesis 5.42-5.43) and derived quantities (amplitudes, phases, damping ratios) by
+the delta method (5.44-5.45). Lines after the first are found one at a time: the highest
+periodogram peak of the residual of the lines found so far (fitted jointly), then all N lines
+are fitted jointly and ordered by frequency.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from functools import partial
+from typing import Literal
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+import pandas as pd
+
+from .. import _jax  # noqa: F401
+from .._errors import ConfigError
+from .._sincos import sincos
+from ..series import Windows
+from ..spectral import Periodogram, lomb_peaks
+from .harmonic import ATOL, MAX_STEPS, RTOL, HarmonicFit, batch_windows, gauss_newton, normal_equations
+
+__all__ = [
+    "MAX_HARMONICS",
+    "MAX_LINES",
+    "MODEL_KINDS",
+    "ModelFit",
+    "SignalModel",
+    "fit_model",
+    "fit_model_window",
+    "model_columns",
+    "model_values",
+    "signal_model",
+]
+
+ModelKind = Literal["harmonic", "damped"]
+MODEL_KINDS = ("harmonic", "damped")
+MAX_HARMONICS = 20
+MAX_LINES = 8
+# Segments of a window whose amplitudes give a damped model's start decay rate (a weighted
+# straight line through their log amplitudes).
+_ENVELOPE_SEGMENTS = 8
+
+
+@dataclass(frozen=True)
+class SignalModel:
+    """Which model `jaxdefl fit` fits (hashable: it is a static argument of the jitted kernels).
+
+    Attributes:
+        kind: "harmonic" (undamped sinusoids) or "damped" (each line decays exponentially).
+        harmonics: K, components at f0, 2 f0, ..., K f0 (undamped only).
+        lines: N, independent frequencies.
+    """
+
+    kind: ModelKind = "harmonic"
+    harmonics: int = 1
+    lines: int = 1
+
+    @property
+    def is_default(self) -> bool:
+        """The thesis model (one harmonic + offset): fitted by `fit_harmonics`."""
+        return self.kind == "harmonic" and self.harmonics == 1 and self.lines == 1
+
+    @property
+    def damped(self) -> bool:
+        return self.kind == "damped"
+
+    @property
+    def n_components(self) -> int:
+        return self.harmonics * self.lines
+
+    @property
+    def n_params(self) -> int:
+        return 2 * self.n_components + 1 + self.lines * (2 if self.damped else 1)
+
+    def line_of(self, j: int) -> int:
+        """The frequency (line) that component ``j`` oscillates at."""
+        return 0 if self.harmonics > 1 else j
+
+    def multiplier(self, j: int) -> int:
+        """Component ``j`` oscillates at ``multiplier(j)`` times its line's frequency."""
+        return j + 1 if self.harmonics > 1 else 1
+
+    @property
+    def offset_index(self) -> int:
+        return 2 * self.n_components
+
+    def omega_index(self, line: int) -> int:
+        return 2 * self.n_components + 1 + line
+
+    def decay_index(self, line: int) -> int:
+        return 2 * self.n_components + 1 + self.lines + line
+
+
+def signal_model(kind: str = "harmonic", harmonics: int = 1, lines: int = 1) -> SignalModel:
+    """A `SignalModel` from the `fit` flags ``--model``, ``--harmonics`` and ``--lines``.
+
+    Raises:
+        ConfigError: an unknown model, a count out of range, or flags that do not combine.
+    """
+    if kind not in MODEL_KINDS:
+        raise ConfigError(f"--model: expected one of {', '.join(MODEL_KINDS)}, got {kind!r}")
+    for flag, v, top in (("--harmonics", harmonics, MAX_HARMONICS), ("--lines", lines, MAX_LINES)):
+        if isinstance(v, bool) or int(v) != v or not 1 <= v <= top:
+            raise ConfigError(f"{flag}: expected a whole number from 1 to {top}, got {v}")
+    if harmonics > 1 and lines > 1:
+        raise ConfigError(
+            f"--harmonics {harmonics} with --lines {lines}: expected one of them (harmonics of one f0, "
+            "or independent lines), not both"
+        )
+    if kind == "damped" and harmonics > 1:
+        raise ConfigError(
+            f"--harmonics {harmonics} with --model damped: the damped model has no harmonics "
+            "(use --lines N for several modes)"
+        )
+    return SignalModel(kind, int(harmonics), int(lines))
+
+
+# --------------------------------------------------------------------------------------------
+# the kernel (one window)
+
+
+def _evaluate(spec: SignalModel, p, t):
+    """Model value, its Jacobian columns (one per parameter, `SignalModel` order) and d value/dt."""
+    m, n_lines = spec.n_components, spec.lines
+    zero = jnp.zeros_like(t)
+    cols = [None] * spec.n_params
+    cols[spec.offset_index] = jnp.ones_like(t)
+    value = p[spec.offset_index] + zero
+    dvdt = zero
+    om_cols = [zero] * n_lines
+    decay_cols = [zero] * n_lines
+    for j in range(m):
+        line, k = spec.line_of(j), spec.multiplier(j)
+        om = k * p[spec.omega_index(line)]
+        s, c = sincos(om * t)
+        if spec.damped:
+            lam = p[spec.decay_index(line)]
+            env = jnp.exp(-lam * t)
+            c, s = c * env, s * env
+        osc = p[2 * j] * c + p[2 * j + 1] * s
+        slope = p[2 * j + 1] * c - p[2 * j] * s  # d osc / d(ωt)
+        value = value + osc
+        cols[2 * j], cols[2 * j + 1] = c, s
+        om_cols[line] = om_cols[line] + k * t * slope
+        dvdt = dvdt + om * slope
+        if spec.damped:
+            decay_cols[line] = decay_cols[line] - t * osc
+            dvdt = dvdt - lam * osc
+    for line in range(n_lines):
+        cols[spec.omega_index(line)] = om_cols[line]
+        if spec.damped:
+            cols[spec.decay_index(line)] = decay_cols[line]
+    return value, cols, dvdt
+
+
+@partial(jax.custom_jvp, nondiff_argnums=(0,))
+def _model(spec, p, t):
+    return _evaluate(spec, p, t)[0]
+
+
+@_model.defjvp
+def _model_jvp(spec, primals, tangents):
+    # The Jacobian columns reuse the primal's sines, cosines and envelopes (as the default
+    # model's do): no autodiff through the polynomial kernels.
+    p, t = primals
+    dp, dt = tangents
+    value, cols, dvdt = _evaluate(spec, p, t)
+    tangent = dvdt * dt
+    for i, c in enumerate(cols):
+        tangent = tangent + c * dp[i]
+    return value, tangent
+
+
+def _decay_start(spec: SignalModel, t, yc, w, omegas):
+    """Start decay rate of each line: a straight line through the log amplitudes of the line in
+    `_ENVELOPE_SEGMENTS` consecutive segments, weighted by amplitude² x samples (the inverse
+    variance of a log amplitude), so that segments lost in the noise count little."""
+    g_n = _ENVELOPE_SEGMENTS
+    valid = w > 0
+    lo = jnp.min(jnp.where(valid, t, jnp.inf))
+    hi = jnp.max(jnp.where(valid, t, -jnp.inf))
+    seg = jnp.clip(jnp.floor((t - lo) / jnp.maximum(hi - lo, 1e-300) * g_n), 0, g_n - 1)
+    onehot = (seg[None, :] == jnp.arange(g_n)[:, None]) * w[None, :]  # (segment, sample)
+    n_seg = onehot.sum(axis=1)
+    t_seg = (onehot @ t) / jnp.maximum(n_seg, 1e-300)
+    out = []
+    for line in range(spec.lines):
+        s, c = sincos(omegas[line] * t)
+        a11, a12, a22 = onehot @ (c * c), onehot @ (c * s), onehot @ (s * s)
+        b1, b2 = onehot @ (c * yc), onehot @ (s * yc)
+        det = a11 * a22 - a12**2
+        good = (n_seg >= 4) & (det > 1e-3 * (a11 + a22) ** 2 / 4)
+        det = jnp.where(good, det, 1.0)
+        cc = (a22 * b1 - a12 * b2) / det
+        dd = (a11 * b2 - a12 * b1) / det
+        amp2 = cc**2 + dd**2
+        # inverse variance of a log amplitude: (A / σ_A)² = A² n / (2 σ²), σ² from the segment's
+        # residual; segments within 3 σ_A of the noise (whose amplitude is the noise's, and
+        # whose far times would pull the line) are left out
+        noise2 = jnp.maximum(onehot @ (yc * yc) - (cc * b1 + dd * b2), 0.0) / jnp.maximum(n_seg - 2, 1)
+        snr2 = amp2 * n_seg / (2 * jnp.maximum(noise2, 1e-300))
+        good = good & (amp2 > 0) & (snr2 > 9)
+        wt = jnp.where(good, snr2, 0.0)
+        la = 0.5 * jnp.log(jnp.where(good, amp2, 1.0))
+        sw = jnp.sum(wt)
+        tm = jnp.sum(wt * t_seg) / jnp.maximum(sw, 1e-300)
+        lm = jnp.sum(wt * la) / jnp.maximum(sw, 1e-300)
+        stt = jnp.sum(wt * (t_seg - tm) ** 2)
+        slope = jnp.sum(wt * (t_seg - tm) * (la - lm)) / jnp.where(stt > 0, stt, 1.0)
+        out.append(jnp.where((jnp.sum(good) >= 2) & (stt > 0), -slope, 0.0))
+    return jnp.stack(out)
+
+
+def fit_model_window(spec: SignalModel, t, y, w, omega0, rtol=RTOL, atol=ATOL, max_steps=MAX_STEPS):
+    """Fit ``spec`` to one window. Arrays are (sample,); ``w`` weights (0 = masked); ``omega0``
+    (line,) start angular frequencies.
+
+    Returns a dict: ``p`` (param,) with the offset E including the mean of y and time measured
+    from ``origin`` (in the time of ``t``; 0 unless damped), ``cov`` (param,
+    param), variance factor ``s0sq``, residual σ ``sigma_res``, ``n``, ``steps`` and ``ok``
+    (solver converged, numbers finite).
+    """
+    m, n_par = spec.n_components, spec.n_params
+    n_lin = 2 * m + 1
+    valid = w > 0
+    sw = jnp.sqrt(w)
+    n = jnp.sum(valid)
+    ybar = jnp.sum(w * y) / jnp.sum(w)
+    yc = jnp.where(valid, y - ybar, 0.0)
+    theta0 = omega0
+    origin = jnp.zeros(())
+    if spec.damped:
+        lam0 = _decay_start(spec, t, yc, w, omega0)
+        theta0 = jnp.concatenate([omega0, lam0])
+        # Time origin at the centroid of the first line's energy e^{-2λt}: there the model is
+        # nearly linear in the decay over the samples that matter, where at the window's centre
+        # a decay of a few e-folds makes C and D tiny and Gauss-Newton's linearisation poor.
+        x = jnp.where(valid, -2 * lam0[0] * t, -jnp.inf)
+        e = w * jnp.exp(x - jnp.max(x))
+        origin = jnp.sum(e * t) / jnp.sum(e)
+        t = jnp.where(valid, t - origin, 0.0)
+
+    # Linear least squares for the C, D, E at the start frequencies (and decays).
+    _, cols0, _ = _evaluate(spec, jnp.concatenate([jnp.zeros(n_lin), theta0]), t)
+    gtg, gty = normal_equations(cols0[:n_lin], w, yc)
+    p1 = jnp.concatenate([jnp.linalg.solve(gtg, gty), theta0])
+
+    # One Gauss-Newton step on every parameter from there (as in `fit_harmonic`); a step of
+    # more than a quarter cycle, or of more than one e-fold of decay, over the window is not
+    # taken (a start far from any optimum).
+    value, cols, _ = _evaluate(spec, p1, t)
+    r1 = jnp.where(valid, yc - value, 0.0)
+    jtj0, jtr0 = normal_equations(cols, w, r1)
+    step = jnp.linalg.solve(jtj0, jtr0)
+    span = jnp.max(jnp.where(valid, jnp.abs(t), 0.0))
+    k_max = spec.multiplier(m - 1)
+    om_step = step[spec.omega_index(0) : spec.omega_index(0) + spec.lines]
+    near = jnp.all(jnp.isfinite(step)) & jnp.all(jnp.abs(om_step) * k_max * span < 0.5 * jnp.pi)
+    if spec.damped:
+        near = near & jnp.all(jnp.abs(step[spec.decay_index(0) :]) * span < 1.0)
+    p0 = p1 + jnp.where(near, step, 0.0)
+
+    # Scaled to units of σ as in `fit_harmonic`: the noise from the linearised residual after the
+    # step, each parameter's σ from the same normal matrix.
+    rss_lin = jnp.sum(w * r1**2)
+    rss = jnp.where(near, rss_lin - step @ jtr0, rss_lin)
+    rss = jnp.maximum(rss, 1e-20 * rss_lin)
+    noise = jnp.sqrt(jnp.maximum(rss / jnp.maximum(n - n_par, 1), 1e-300))
+    scale = noise * jnp.sqrt(jnp.abs(jnp.diag(jnp.linalg.inv(jtj0))))
+
+    def residual(u, _):
+        return sw * (yc - _model(spec, p0 + u * scale, t)) / noise
+
+    sol = gauss_newton(residual, n_par, rtol, atol, max_steps)
+    p = p0 + sol.value * scale
+
+    value, cols, _ = _evaluate(spec, p, t)
+    r = jnp.where(valid, yc - value, 0.0)
+    jtj, _ = normal_equations(cols, w, r)
+    dof = n - n_par
+    s0sq = jnp.sum(w * r**2) / dof
+    cov = s0sq * jnp.linalg.inv(jtj)
+    diag = jnp.diag(cov)
+    ok = (
+        (sol.result == optx.RESULTS.successful)
+        & jnp.all(jnp.isfinite(p))
+        & jnp.all(jnp.isfinite(diag))
+        & jnp.all(diag >= 0)
+    )
+    return dict(
+        p=p.at[spec.offset_index].add(ybar),
+        origin=origin,
+        cov=cov,
+        s0sq=s0sq,
+        sigma_res=jnp.sqrt(jnp.sum(r**2) / dof),
+        n=n,
+        steps=sol.stats["num_steps"],
+        ok=ok,
+    )
+
+
+@partial(jax.jit, static_argnames=("spec", "rtol", "atol", "max_steps", "group"))
+def _fit_batch(t, y, w, omega0, *, spec, rtol, atol, max_steps, group):
+    """`fit_model_window` over the leading axis, vmapped in groups of ``group`` windows."""
+
+    def one(args):
+        return fit_model_window(spec, *args, rtol, atol, max_steps)
+
+    return jax.lax.map(one, (t, y, w, omega0), batch_size=group)
+
+
+@partial(jax.jit, static_argnames=("spec",))
+def _values(p, t, *, spec):
+    return jax.vmap(lambda pp, tt: _evaluate(spec, pp, tt)[0])(p, t)
+
+
+def model_values(
+    spec: SignalModel, params: np.ndarray, t: np.ndarray, origin_s: np.ndarray | None = None
+) -> np.ndarray:
+    """The model ``spec`` with ``params`` (window, param) at times ``t`` (window, sample),
+    ``t`` relative to each window's ``t_centre`` as in `Windows.t`, the parameters' time origin
+    at ``origin_s`` (window,) from it (`ModelFit.origin_s`; default 0)."""
+    if origin_s is not None:
+        t = t - np.asarray(origin_s)[:, None]
+    return np.asarray(_values(jnp.asarray(params), jnp.asarray(t), spec=spec))
+
+
+# --------------------------------------------------------------------------------------------
+# batches of windows
+
+
+@dataclass(frozen=True)
+class ModelFit(HarmonicFit):
+    """Fit of a `SignalModel` to every window (NaN where a window was not fitted).
+
+    The `HarmonicFit` fields describe the first component (the fundamental, or the line of
+    lowest frequency) at the time origin of the windows, so that code written for the default
+    model reads the first component; ``params``/``cov`` are its [C, D, E, ω] block.
+
+    Extra attributes:
+        model_params: (window, param) every parameter, `SignalModel` order (E with the mean),
+            with time measured from ``origin_s``.
+        model_cov: (window, param, param) their covariance.
+        origin_s: (window,) time origin of the parameters from the window's ``t_centre`` (0
+            unless damped: there the first component's amplitude and phase are at it too).
+        line_fap: (window, line) false-alarm probability of the periodogram peak each line
+            was found at.
+    """
+
+    model_params: np.ndarray
+    model_cov: np.ndarray
+    line_fap: np.ndarray
+    origin_s: np.ndarray
+
+
+def _solve(spec, w, rows, weights, omega0, rtol, atol, max_steps):
+    fit_batch = partial(_fit_batch, spec=spec, rtol=rtol, atol=atol, max_steps=max_steps)
+    return batch_windows(fit_batch, w, rows, weights, omega0)
+
+
+def fit_model(
+    w: Windows,
+    periodogram: Periodogram,
+    rows: np.ndarray,
+    spec: SignalModel,
+    weights: np.ndarray | None = None,
+    fmin_hz: float | None = None,
+    fmax_hz: float | None = None,
+    oversampling: float = 5.0,
+    rtol: float = RTOL,
+    atol: float = ATOL,
+    max_steps: int = MAX_STEPS,
+) -> ModelFit:
+    """Fit ``spec`` to the windows at ``rows``, starting at the periodogram's peak.
+
+    Lines after the first start at the highest periodogram peak (same band and oversampling)
+    of the residual of the lines found so far, fitted jointly; a window whose partial fit fails
+    is not fitted. Lines are returned in increasing frequency.
+
+    Returns:
+        ModelFit with one entry per window of ``w``.
+    """
+    b, n_lines, n_par = len(w), spec.lines, spec.n_params
+    rows = np.asarray(rows, dtype=np.int64)
+    rows = rows[w.mask[rows].sum(axis=1) > n_par + 1]
+    omega0 = np.full((b, n_lines), np.nan)
+    fap = np.full((b, n_lines), np.nan)
+    omega0[:, 0] = 2 * np.pi * periodogram.freq_hz
+    fap[:, 0] = periodogram.fap
+    for line in range(1, n_lines):
+        if not rows.size:
+            break
+        part = dataclasses.replace(spec, lines=line)
+        out = _solve(part, w, rows, weights, omega0[:, :line], rtol, atol, max_steps)
+        rows = rows[out["ok"]]
+        if not rows.size:
+            break
+        sub = w.select(rows)
+        resid = sub.y - model_values(part, out["p"][out["ok"]], sub.t, out["origin"][out["ok"]])
+        sub = dataclasses.replace(sub, y=np.where(sub.mask, resid, 0.0))
+        pk = lomb_peaks(
+            sub, fmin_hz=fmin_hz, fmax_hz=fmax_hz, oversampling=oversampling, search_dtype="float32"
+        )
+        omega0[rows, line] = 2 * np.pi * pk.freq_hz
+        fap[rows, line] = pk.fap
+        rows = rows[np.isfinite(pk.freq_hz)]
+
+    p = np.full((b, n_par), np.nan)
+    cov = np.full((b, n_par, n_par), np.nan)
+    scal = {k: np.full(b, np.nan) for k in ("s0sq", "sigma_res", "origin")}
+    n = np.zeros(b, np.int64)
+    steps = np.zeros(b, np.int64)
+    ok = np.zeros(b, bool)
+    if rows.size:
+        out = _solve(spec, w, rows, weights, omega0, rtol, atol, max_steps)
+        p[rows], cov[rows] = out["p"], out["cov"]
+        for k in scal:
+            scal[k][rows] = out[k]
+        n[rows], steps[rows], ok[rows] = out["n"], out["steps"], out["ok"]
+    p[~ok], cov[~ok], fap[~ok] = np.nan, np.nan, np.nan
+    for k in scal:
+        scal[k][~ok] = np.nan
+    if n_lines > 1:
+        p, cov, fap = _by_frequency(spec, p, cov, fap)
+
+    i = [0, 1, spec.offset_index, spec.omega_index(0)]
+    c, d = p[:, 0], p[:, 1]
+    amp = np.hypot(c, d)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        alpha = np.stack([c, d], axis=-1) / amp[:, None]
+    var_a = np.einsum("bi,bij,bj->b", alpha, cov[:, :2, :2], alpha)
+    two_pi = 2 * np.pi
+    return ModelFit(
+        f0_hz=p[:, spec.omega_index(0)] / two_pi,
+        sigma_f0_hz=np.sqrt(cov[:, i[3], i[3]]) / two_pi,
+        amplitude_mm=amp,
+        sigma_amplitude_mm=np.sqrt(var_a),
+        phase_rad=np.arctan2(d, c),
+        offset_mm=p[:, spec.offset_index],
+        sigma_residual_mm=scal["sigma_res"],
+        variance_factor=scal["s0sq"],
+        params=p[:, i],
+        cov=cov[:, i][:, :, i],
+        n=n,
+        steps=steps,
+        converged=ok,
+        model_params=p,
+        model_cov=cov,
+        line_fap=fap,
+        origin_s=scal["origin"],
+    )
+
+
+def _by_frequency(spec: SignalModel, p, cov, fap):
+    """Lines (with their components, decays and FAPs) reordered by increasing frequency."""
+    n_lines = spec.lines
+    omegas = p[:, spec.omega_index(0) : spec.omega_index(0) + n_lines]
+    order = np.argsort(np.where(np.isfinite(omegas), omegas, np.inf), axis=1)
+    # lines == components here (harmonics are 1 when lines > 1)
+    perm = [2 * order, 2 * order + 1]
+    pairs = np.stack(perm, axis=-1).reshape(p.shape[0], -1)
+    parts = [pairs, np.full((p.shape[0], 1), spec.offset_index), spec.omega_index(0) + order]
+    if spec.damped:
+        parts.append(spec.decay_index(0) + order)
+    idx = np.concatenate(parts, axis=1)
+    p = np.take_along_axis(p, idx, axis=1)
+    cov = np.take_along_axis(np.take_along_axis(cov, idx[:, :, None], axis=1), idx[:, None, :], axis=2)
+    return p, cov, np.take_along_axis(fap, order, axis=1)
+
+
+# --------------------------------------------------------------------------------------------
+# the estimates table
+
+
+def _amp_phase(p, cov, ci, di, oi, k, dt_ref, lam_i=None, t_ref_rel=None):
+    """Amplitude and phase of one component at a reference time, with σ's by the delta method.
+
+    ``dt_ref`` = t_origin - t_ref (phase: + k ω dt_ref, t_origin the parameters' time origin);
+    for a decaying component the amplitude is taken at ``t_ref_rel`` = t_ref - t_origin:
+    A exp(-λ t_ref_rel).
+    """
+    c, d, om = p[:, ci], p[:, di], p[:, oi]
+    amp = np.hypot(c, d)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        # gradients over (C, D, ω[, λ])
+        g_amp = [c / amp, d / amp, np.zeros_like(c)]
+        g_ph = [-d / amp**2, c / amp**2, k * dt_ref]
+    idx = [ci, di, oi]
+    if lam_i is not None:
+        env = np.exp(-p[:, lam_i] * t_ref_rel)
+        g_amp = [g * env for g in g_amp] + [-t_ref_rel * amp * env]
+        g_ph = g_ph + [np.zeros_like(c)]
+        idx.append(lam_i)
+        amp = amp * env
+    sub = cov[:, idx][:, :, idx]
+    ga, gp = np.stack(g_amp, axis=-1), np.stack(g_ph, axis=-1)
+    sa = np.sqrt(np.einsum("bi,bij,bj->b", ga, sub, ga))
+    sp = np.sqrt(np.einsum("bi,bij,bj->b", gp, sub, gp))
+    phase = np.angle(np.exp(1j * (np.arctan2(d, c) + k * om * dt_ref)))
+    return amp, sa, phase, sp
+
+
+def _damping(p, cov, oi, li):
+    """Damping ratio ζ = λ / ω_n and natural frequency ω_n / 2π, with σ's (delta method)."""
+    om, lam = p[:, oi], p[:, li]
+    wn = np.hypot(om, lam)
+    sub = cov[:, [oi, li]][:, :, [oi, li]]
+    g_z = np.stack([-lam * om / wn**3, om**2 / wn**3], axis=-1)
+    g_n = np.stack([om / wn, lam / wn], axis=-1) / (2 * np.pi)
+    return (
+        lam / wn,
+        np.sqrt(np.einsum("bi,bij,bj->b", g_z, sub, g_z)),
+        wn / (2 * np.pi),
+        np.sqrt(np.einsum("bi,bij,bj->b", g_n, sub, g_n)),
+    )
+
+
+def model_columns(tab: pd.DataFrame, fit: HarmonicFit, spec: SignalModel) -> tuple[pd.DataFrame, list[str]]:
+    """The estimates table of a `SignalModel`: the default columns describe the first
+    component, and each further component gets its own (see README, "Signal models").
+
+    ``tab`` is the default table with ``t_start``, ``t_mid`` and ``t_centre``. Phases are at
+    ``t_mid``; for a damped model the amplitude and phase are the initial ones, at ``t_start``.
+    Returns the table and the names of the added columns (in order).
+    """
+    tab = tab.copy()
+    b, n_par = len(tab), spec.n_params
+    if isinstance(fit, ModelFit):
+        p, cov, fap, origin = fit.model_params, fit.model_cov, fit.line_fap, fit.origin_s
+    else:  # no window was fitted
+        p, cov = np.full((b, n_par), np.nan), np.full((b, n_par, n_par), np.nan)
+        fap, origin = np.full((b, spec.lines), np.nan), np.zeros(b)
+    t_org = tab["t_centre"].to_numpy() + np.nan_to_num(origin)  # the parameters' time origin
+    t_ref = (tab["t_start"] if spec.damped else tab["t_mid"]).to_numpy()
+    added: list[str] = []
+    two_pi = 2 * np.pi
+    for j in range(spec.n_components):
+        line, k = spec.line_of(j), spec.multiplier(j)
+        oi = spec.omega_index(line)
+        li = spec.decay_index(line) if spec.damped else None
+        amp, sa, ph, sp = _amp_phase(p, cov, 2 * j, 2 * j + 1, oi, k, t_org - t_ref, li, t_ref - t_org)
+        tag = "" if j == 0 else f"_{j + 1}"
+        new = {}
+        if spec.lines > 1 and j > 0:
+            new[f"f0{tag}_hz"] = p[:, oi] / two_pi
+            new[f"sigma_f0{tag}_hz"] = np.sqrt(cov[:, oi, oi]) / two_pi
+        new[f"amplitude{tag}_mm"] = amp
+        new[f"sigma_amplitude{tag}_mm"] = sa
+        new[f"phase{tag}_rad"] = ph
+        new[f"sigma_phase{tag}_rad"] = sp
+        if spec.lines > 1:
+            new[f"peak_fap{tag}"] = fap[:, j]
+        if spec.damped:
+            z, sz, fn, sfn = _damping(p, cov, oi, li)
+            new[f"damping_ratio{tag}"] = z
+            new[f"sigma_damping_ratio{tag}"] = sz
+            new[f"natural_frequency{tag}_hz"] = fn
+            new[f"sigma_natural_frequency{tag}_hz"] = sfn
+        if j == 0 and "peak_fap" in new:  # a window not fitted keeps its periodogram's FAP
+            new["peak_fap"] = np.where(np.isfinite(fap[:, 0]), fap[:, 0], tab["peak_fap"].to_numpy())
+        for name, v in new.items():
+            tab[name] = v
+            if name not in _DEFAULT_NAMES and name not in added:
+                added.append(name)
+    few = (tab["status"].to_numpy() == "did_not_converge") & (tab["n"].to_numpy() <= n_par + 1)
+    tab.loc[few, "status"] = "too_few_samples"
+    return tab, added
+
+
+_DEFAULT_NAMES = ("f0_hz", "sigma_f0_hz", "amplitude_mm", "sigma_amplitude_mm", "phase_rad", "peak_fap")
