@@ -50,7 +50,8 @@ def _harmonic(b, n, amp=2.5, sigma=0.75, f0=3.0, fs=20.0, seed=0, kind="white", 
 
 @pytest.mark.parametrize("dropout", [0.0, 0.2])
 def test_ljung_box_matches_a_slow_reference(dropout):
-    est = estimate_windows(make_windows(_table(_harmonic(6, 400, seed=1), dropout=dropout, seed=2), axes=("z",)))
+    df = _table(_harmonic(6, 400, seed=1), dropout=dropout, seed=2)
+    est = estimate_windows(make_windows(df, axes=("z",)))
     w, f = est.windows, est.fit
     g, _ = frame_positions(w, np.arange(len(w)))
     for i in range(len(w)):
@@ -75,8 +76,8 @@ def test_whiteness_p_is_uniform_under_white_noise_and_r2_is_the_explained_share(
 @pytest.mark.parametrize("rho,f0", [(0.6, 1.0), (0.9, 3.0), (-0.5, 3.0)])
 def test_kappa_follows_the_ar1_spectrum_at_f0(rho, f0):
     """The residual's density near f0 over its mean is, for AR(1) noise, (1 - ρ²) / |1 - ρ e^{-iωdt}|²."""
-    est = estimate_windows(make_windows(_table(_harmonic(100, 600, f0=f0, seed=5, kind="ar1", rho=rho), seed=6),
-                                        axes=("z",)), fmin_hz=0.6 * f0, fmax_hz=1.4 * f0)
+    df = _table(_harmonic(100, 600, f0=f0, seed=5, kind="ar1", rho=rho), seed=6)
+    est = estimate_windows(make_windows(df, axes=("z",)), fmin_hz=0.6 * f0, fmax_hz=1.4 * f0)
     want = (1 - rho**2) / abs(1 - rho * np.exp(-2j * np.pi * f0 / 20.0)) ** 2
     assert np.median(est.noise.kappa) == pytest.approx(want, rel=0.1)
     assert (est.table["whiteness_p"] < WHITENESS_P_MIN).mean() > 0.9

@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 
 SRC = Path(__file__).resolve().parents[1] / "src" / "jaxdefl"
-STAGES = ("io", "series", "spectral", "fit", "uncertainty", "diagnose", "simulate", "frames", "report")
+STAGES = ("io", "series", "spectral", "fit", "uncertainty", "diagnose", "simulate", "frames", "report", "monitor")
 ORCHESTRATORS = ("pipeline", "bulk", "cli")
 
 

@@ -108,8 +108,21 @@ def simulate(
     session: Annotated[
         str | None, typer.Option(help="A [[session]] of the config (default: the first).")
     ] = None,
+    live: Annotated[
+        bool,
+        typer.Option(
+            "--live",
+            help="A live camera: append measured plate centroids to DIR/trajectory.csv as they come.",
+        ),
+    ] = False,
+    speed: Annotated[float, typer.Option(help="With --live: times real time.")] = 1.0,
 ) -> None:
-    """Simulate a recording: DIR/recording.zarr, DIR/truth.csv, DIR/lds.csv."""
+    """Simulate a recording: DIR/recording.zarr, DIR/truth.csv, DIR/lds.csv (or --live)."""
+    if live:
+        from .simulate import write_live
+
+        write_live(config, out, duration_s=duration, seed=seed, speed=speed, session=session)
+        return
     from .simulate import simulate_to_dir
 
     simulate_to_dir(config, out, duration_s=duration, seed=seed, session=session)
@@ -236,6 +249,61 @@ def reconcile(
 
 
 @app.command()
+def monitor(
+    source: Annotated[
+        Path | None,
+        typer.Argument(help="A trajectory table (CSV) or a .zarr recording, followed as it grows."),
+    ] = None,
+    out: Annotated[Path, typer.Option("--out", help="Output directory.")] = Path("monitor_out"),
+    replay: Annotated[
+        bool, typer.Option("--replay", help="Replay SOURCE (a table or any recording) as if live.")
+    ] = False,
+    config: Annotated[
+        Path | None, typer.Option(help="A simulation config: monitor its live simulated camera.")
+    ] = None,
+    speed: Annotated[
+        float, typer.Option(help="Replay or simulation speed, times real time (0: as fast as possible).")
+    ] = 1.0,
+    until: Annotated[float | None, typer.Option(help="Stop after this many s of data.")] = None,
+    duration: Annotated[float | None, typer.Option(help="Stop after this many s of wall-clock time.")] = None,
+    method: Annotated[str, typer.Option(help="Recursive estimator: ekf or rls.")] = "ekf",
+    alarms_per_day: Annotated[
+        float, typer.Option("--alarms-per-day", help="False alarms allowed per day of data.")
+    ] = 1.0,
+    block: Annotated[float, typer.Option(help="Change-detection block length, s.")] = 5.0,
+    snapshot: Annotated[float, typer.Option(help="Seconds of data between estimate snapshots.")] = 10.0,
+    idle: Annotated[
+        float, typer.Option(help="A followed source ends after this many s without data.")
+    ] = 10.0,
+    seed: Annotated[int | None, typer.Option(help="With --config: the simulation seed.")] = None,
+    reference: Annotated[
+        Path | None, typer.Option(help="Reference (LDS) table t, plate, z, monitored alongside.")
+    ] = None,
+) -> None:
+    """Follow a live camera: f0 and A per plate with σ's, alarms when the structure or a sensor changes."""
+    from .monitor.run import run_monitor
+    from .monitor.sources import open_source, simulated_source
+
+    if config is not None and source is None:
+        src = simulated_source(config, duration_s=until, seed=seed)
+    else:
+        src = open_source(source if not replay else None, source if replay else None, config, idle_s=idle)
+    run_monitor(
+        src,
+        out,
+        speed=speed,
+        until_s=until,
+        duration_s=duration,
+        method=method,
+        alarms_per_day=alarms_per_day,
+        block_s=block,
+        snapshot_s=snapshot,
+        inputs=tuple(p for p in (source, config, reference) if p is not None),
+        reference=reference,
+    )
+
+
+@app.command()
 def demo(
     out: Annotated[Path, typer.Option("--out", help="Report directory.")] = Path("demo_out"),
     duration: Annotated[float, typer.Option(help="Simulated duration, s.")] = 120.0,
@@ -251,6 +319,8 @@ def _interrupted_message(err: Interrupted, argv: list[str]) -> str:
     cmd = next((a for a in argv if not a.startswith("-")), "")
     if cmd == "run":
         return f"interrupted ({err}): finished units are kept; run the same command again to resume"
+    if cmd == "monitor":
+        return f"interrupted ({err}): the monitor stopped; events.jsonl and estimates.csv hold all up to now"
     if committed_under_signal():
         return f"interrupted ({err}) while the outputs were committed: they are whole and new"
     return f"interrupted ({err}): no output was written; earlier outputs are as they were"

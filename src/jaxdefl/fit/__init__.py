@@ -4,7 +4,13 @@ from .estimate import ESTIMATE_COLUMNS, STATUSES, Estimates, estimate_windows
 from .harmonic import N_PARAMS, HarmonicFit, fit_harmonic, fit_harmonics
 from .models import MODEL_KINDS, ModelFit, SignalModel, fit_model, model_values, signal_model
 from .reference import COMPARISON_COLUMNS, compare_with_reference, fit_reference
-from .residual_noise import ResidualNoise, frame_positions, harmonic_residual, residual_noise
+from .residual_noise import (
+    WHITENESS_P_MIN,
+    ResidualNoise,
+    frame_positions,
+    harmonic_residual,
+    residual_noise,
+)
 from .table import estimate_table, windows_for
 
 __all__ = [
@@ -28,6 +34,7 @@ __all__ = [
     "signal_model",
     "windows_for",
     "ResidualNoise",
+    "WHITENESS_P_MIN",
     "frame_positions",
     "harmonic_residual",
     "residual_noise",

@@ -18,7 +18,9 @@ flattens the steep spectra of slow noise (AR(1), 1/f, drift) so the band's avera
 up by its low-frequency side; averaging over the band keeps what AR(1) does not describe. The
 ordinates within 2/T of f0 are left out (the fit removed the residual's power there). The band
 holds about 2·max(30, √n) independent ordinates (σ's within ~7 % under white noise at
-n = 600, 2.6 % at n = 35,000) and reaches at most f0/2 either side. With drop-outs the AR(1)
+n = 600, 2.6 % at n = 35,000) and reaches at most f0/2 either side. A window too short for 16
+independent ordinates (a few cycles) takes the AR(2) spectrum at f0 when its residual fails the
+whiteness test, else κ = 1. With drop-outs the AR(1)
 shape is that of the masked series, (1 - p) h(f) + p for a missing fraction p. All windows are
 done at once with FFTs of the zero-filled frame grid (numpy), in chunks.
 """
@@ -35,13 +37,15 @@ from .._shapes import pow2_at_least
 from ..series import Windows
 
 __all__ = [
-    "BAND_MIN_ORDINATES", "LJUNG_BOX_MAX_LAG", "ResidualNoise", "frame_positions", "harmonic_residual",
-    "residual_noise",
+    "BAND_MIN_ORDINATES", "LJUNG_BOX_MAX_LAG", "WHITENESS_P_MIN", "ResidualNoise", "frame_positions",
+    "harmonic_residual", "residual_noise",
 ]
 
 LJUNG_BOX_MAX_LAG = 20
 BAND_MIN_ORDINATES = 30  # half-band in Fourier bins (1/T): at least this, or √n when larger
 BAND_MAX_FRACTION = 0.5  # of f0, either side
+BAND_MIN_INDEPENDENT = 16  # fewer: no band estimate (σ's within ~12 % from 16 ordinates)
+WHITENESS_P_MIN = 1e-3  # Ljung-Box p below which a short window's residual counts as coloured
 PHI_MAX = 0.97  # prewhitening coefficient bound (Andrews & Monahan 1992)
 _CHUNK_CELLS = 1 << 22
 
@@ -121,7 +125,8 @@ def residual_noise(
         size = max(1, _CHUNK_CELLS // int(m_len))
         for c0 in range(0, same.size, size):
             sel = same[c0 : c0 + size]
-            part = _chunk(w, residual, f0_hz, rows[sel], g_all[sel], dt_all[sel], frames[sel], int(m_len))
+            with np.errstate(invalid="ignore", divide="ignore"):  # a window it cannot assess is NaN
+                part = _chunk(w, residual, f0_hz, rows[sel], g_all[sel], dt_all[sel], frames[sel], int(m_len))
             for k, v in part.items():
                 out[k][rows[sel]] = v
     return ResidualNoise(**out)
@@ -139,16 +144,25 @@ def _chunk(w, residual, f0_hz, rows, g, dt, frames, m_len) -> dict:
     ss_r = np.sum(rc**2, axis=1)
     r2 = 1.0 - np.sum(r**2, axis=1) / ss_y
 
-    bi = np.repeat(np.arange(rows.size), m.shape[1]).reshape(m.shape)
+    # Frame indices are distinct within a window; masked samples all go to the last cell, which
+    # no frame reaches (the grid is longer than the frames plus the lags) and which ends zero.
+    bi = np.arange(rows.size)[:, None]
+    cell = np.where(m, g, m_len - 1)
     grid = np.zeros((rows.size, m_len))
     mgrid = np.zeros((rows.size, m_len))
-    np.add.at(grid, (bi[m], g[m]), rc[m])
-    np.add.at(mgrid, (bi[m], g[m]), 1.0)
-    fr = scipy.fft.rfft(grid, axis=1)
-    fm = scipy.fft.rfft(mgrid, axis=1)
+    grid[bi, cell] = rc
+    mgrid[bi, cell] = m
     n_lag = np.minimum(LJUNG_BOX_MAX_LAG, np.maximum(1, n // 5)).astype(int)
-    acov = scipy.fft.irfft(np.abs(fr) ** 2, n=m_len, axis=1)[:, : LJUNG_BOX_MAX_LAG + 1]
-    pairs = np.rint(scipy.fft.irfft(np.abs(fm) ** 2, n=m_len, axis=1)[:, : LJUNG_BOX_MAX_LAG + 1])
+    # Lag products on the frame grid (a missing frame is a zero), Σ r_k r_{k+h} and the pairs,
+    # from the power spectra: the grid is longer than the frames plus the lags, so the circular
+    # autocorrelation is the plain one; its first lags are one matrix product with cosines.
+    fr_all = scipy.fft.rfft(grid, axis=1)
+    fm = scipy.fft.rfft(mgrid, axis=1)
+    j = np.arange(fr_all.shape[1])
+    weight = np.where((j == 0) | (2 * j == m_len), 1.0, 2.0) / m_len
+    cosines = weight[:, None] * np.cos(2 * np.pi * np.outer(j, np.arange(LJUNG_BOX_MAX_LAG + 1)) / m_len)
+    acov = (fr_all.real**2 + fr_all.imag**2) @ cosines
+    pairs = np.rint((fm.real**2 + fm.imag**2) @ cosines)
 
     # Ljung-Box with the pairs each lag actually has (drop-outs remove some).
     h = np.arange(1, LJUNG_BOX_MAX_LAG + 1)
@@ -171,26 +185,36 @@ def _chunk(w, residual, f0_hz, rows, g, dt, frames, m_len) -> dict:
     phi2 = np.where(stationary, phi2, 0.0)
     missing = np.clip(1.0 - n / frames, 0.0, 1.0)
     span = frames * dt
-    freq = np.arange(fr.shape[1])[None, :] / (m_len * dt[:, None])
     f0 = f0_hz[rows]
-
-    def ar_density(f):
-        z = np.exp(-2j * np.pi * f * dt[:, None])
-        return 1.0 / np.abs(1 - phi1[:, None] * z - phi2[:, None] * z**2) ** 2
-
-    unit = np.mean(ar_density(np.linspace(0, 0.5, 257)[None, :] / dt[:, None]), axis=1)
+    # AR(2) variance per unit innovation variance: the mean of its density over (0, fs/2).
+    gamma0 = (1 - phi2) / ((1 + phi2) * ((1 - phi2) ** 2 - phi1**2))
 
     def shape(f):  # unit-variance AR(2) spectrum of the masked series, fs S(f) / γ0
-        return (1 - missing[:, None]) * ar_density(f) / unit[:, None] + missing[:, None]
+        c1 = np.cos(2 * np.pi * f * dt[:, None])
+        c2 = 2 * c1**2 - 1
+        p1, p2 = phi1[:, None], phi2[:, None]
+        den = 1 + p1**2 + p2**2 - 2 * p1 * (1 - p2) * c1 - 2 * p2 * c2
+        return (1 - missing[:, None]) / (den * gamma0[:, None]) + missing[:, None]
 
     half = np.minimum(np.maximum(BAND_MIN_ORDINATES, np.sqrt(n)) / span, BAND_MAX_FRACTION * f0)
+    # Only the bins of the chunk's bands are transformed into powers.
+    lo_bin, hi_bin = (f0 - half) * m_len * dt, (f0 + half) * m_len * dt
+    finite = np.isfinite(lo_bin) & np.isfinite(hi_bin)
+    lo = int(max(1, np.floor(lo_bin[finite].min()))) if finite.any() else 1
+    hi = int(min(m_len // 2 + 1, np.ceil(hi_bin[finite].max()) + 1)) if finite.any() else 1
+    fr = fr_all[:, lo:hi]
+    freq = np.arange(lo, hi)[None, :] / (m_len * dt[:, None])
     dist = np.abs(freq - f0[:, None])
     nyq = 0.5 / dt[:, None]
-    band = (dist >= 2.0 / span[:, None]) & (dist <= half[:, None]) & (freq > 0) & (freq < nyq)
-    power = np.abs(fr) ** 2 / n[:, None]
+    band = (dist >= 2.0 / span[:, None]) & (dist <= half[:, None]) & (freq < nyq)
+    power = (fr.real**2 + fr.imag**2) / n[:, None]
     with np.errstate(invalid="ignore", divide="ignore"):
         flat = np.where(band, power / shape(freq), 0.0).sum(axis=1) / band.sum(axis=1)
         kappa = shape(f0[:, None])[:, 0] * flat / (ss_r / n)
-    # Too short a window for a band (a few cycles): the AR(2) spectrum alone.
-    kappa = np.where(band.sum(axis=1) >= 4, kappa, shape(f0[:, None])[:, 0])
+    # A band of fewer than BAND_MIN_INDEPENDENT independent ordinates (a window of a few cycles,
+    # 2 T half - 4 of them) would make the σ's noisier than white ones: there, the AR(2)
+    # spectrum at f0 when the residual's colour is significant, else white (κ = 1).
+    independent = 2 * half * span - 4
+    short = np.where(p_white < WHITENESS_P_MIN, shape(f0[:, None])[:, 0], 1.0)
+    kappa = np.where(independent >= BAND_MIN_INDEPENDENT, kappa, short)
     return dict(r2=r2, whiteness_p=p_white, lags=n_lag.astype(float), kappa=kappa, phi=rho1)

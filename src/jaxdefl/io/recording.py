@@ -69,11 +69,11 @@ class Recording:
     camera_x_mm: float | None = None
     _read: Any = None  # (start, stop) -> (t, frames, amplitude | None)
 
-    def chunks(self, chunk_frames: int = 256) -> Iterator[FrameChunk]:
-        """Yield the recording in chunks of at most ``chunk_frames`` frames."""
+    def chunks(self, chunk_frames: int = 256, start: int = 0) -> Iterator[FrameChunk]:
+        """Yield the recording from frame ``start`` in chunks of at most ``chunk_frames`` frames."""
         if chunk_frames < 1:
             raise InputError(f"{self.path}: chunk_frames must be >= 1, got {chunk_frames}")
-        for s in range(0, self.n_frames, chunk_frames):
+        for s in range(start, self.n_frames, chunk_frames):
             e = min(self.n_frames, s + chunk_frames)
             t, fr, amp = self._read(s, e)
             yield FrameChunk(s, t, fr, amp)

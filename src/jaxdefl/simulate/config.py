@@ -23,6 +23,7 @@ from typing import Any
 from .._configs import not_found_hint, resolve_config
 from .._errors import ConfigError
 from .injection import EffectSpec, parse_effects
+from .schedule import Change, parse_changes
 
 __all__ = [
     "SimConfig",
@@ -174,6 +175,7 @@ class SimConfig:
     camera: CameraConfig = field(default_factory=CameraConfig)
     lds: LDSConfig = field(default_factory=LDSConfig)
     effects: tuple[EffectSpec, ...] = ()  # [[effect]] tables (`jaxdefl.simulate.injection`)
+    changes: tuple[Change, ...] = ()  # [[change]] tables (`jaxdefl.simulate.schedule`)
     source: str = "<config>"
 
     def to_dict(self) -> dict:
@@ -190,7 +192,9 @@ class SimConfig:
         return [self.plates.x0_mm + i * self.plates.spacing_mm for i in range(self.plates.count)]
 
 
-_SECTIONS = {f.name: f.type for f in dataclasses.fields(SimConfig) if f.name not in ("source", "effects")}
+_SECTIONS = {
+    f.name: f.type for f in dataclasses.fields(SimConfig) if f.name not in ("source", "effects", "changes")
+}
 _CLASSES = {
     "recording": RecordingConfig,
     "beam": BeamConfig,
@@ -283,13 +287,14 @@ def config_from_dict(raw: dict, source: str = "<config>", session: str | None = 
     raw = dict(raw)
     sessions = raw.pop("session", [])
     effect_tables = raw.pop("effect", [])
+    raw_changes = raw.pop("change", [])
     if not isinstance(sessions, list) or not all(isinstance(s, dict) for s in sessions):
         raise _err(source, "session", "an array of tables [[session]]", sessions)
     for key in raw:
         if key not in _SECTIONS:
             raise ConfigError(
                 f"{source}: unknown key {key!r}; expected one of "
-                f"{', '.join(list(_SECTIONS) + ['session', 'effect'])}"
+                f"{', '.join(list(_SECTIONS) + ['session', 'effect', 'change'])}"
             )
     wanted = session if session is not None else raw.get("recording", {}).get("session", "") or None
     if sessions:
@@ -332,7 +337,8 @@ def config_from_dict(raw: dict, source: str = "<config>", session: str | None = 
         cam = dataclasses.replace(cam, frame_rate_hz=30.0)
     parts["camera"] = cam
     effects = parse_effects(source, effect_tables, parts["plates"].count)
-    cfg = SimConfig(**parts, effects=effects, source=source)
+    changes = parse_changes(source, raw_changes, parts["plates"].count)
+    cfg = SimConfig(**parts, effects=effects, changes=changes, source=source)
     validate(cfg)
     return cfg
 

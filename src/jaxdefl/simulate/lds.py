@@ -43,6 +43,18 @@ def truth_table(cfg: SimConfig, t_s: np.ndarray) -> pd.DataFrame:
     c = plate_centres_world(cfg) - np.array([cfg.camera.x_mm, cfg.camera.y_mm, -cfg.camera.standoff_mm])
     shape = beam_shape(c[:, 0] + cfg.camera.x_mm, cfg.beam.span_mm, cfg.beam.load_a_mm)
     n, m = len(t_s), len(c)
+    motion = shape[None, :] * defl[:, None]
+    dxp, dyp = np.repeat(dx[:, None], m, axis=1), np.repeat(dy[:, None], m, axis=1)
+    for ch in cfg.changes:  # a debonded plate follows the beam only partly
+        if ch.kind == "debond":
+            from .schedule import amplitude_factor
+
+            f = amplitude_factor((ch,), t_s - cfg.t0_s, ch.plate)
+            j = ch.plate - 1
+            rest = cfg.loading.mean_mm * shape[j]
+            motion[:, j] = f * (motion[:, j] - rest) + rest
+            dxp[:, j] *= f
+            dyp[:, j] *= f
     # time-major rows (every plate at one instant, then the next), so that files written in
     # chunks of frames are identical whatever the chunk size
     return pd.DataFrame(
@@ -50,9 +62,9 @@ def truth_table(cfg: SimConfig, t_s: np.ndarray) -> pd.DataFrame:
             "segment": cfg.recording.segment,
             "t": np.repeat(t_s, m),
             "plate": np.tile(np.arange(1, m + 1), n),
-            "x": (c[:, 0][None, :] + dx[:, None]).ravel(),
-            "y": (c[:, 1][None, :] + dy[:, None]).ravel(),
-            "z": (c[:, 2][None, :] + shape[None, :] * defl[:, None]).ravel(),
+            "x": (c[:, 0][None, :] + dxp).ravel(),
+            "y": (c[:, 1][None, :] + dyp).ravel(),
+            "z": (c[:, 2][None, :] + motion).ravel(),
         }
     )
 

@@ -135,6 +135,13 @@ def kinematics(cfg: SimConfig, t_s) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     cycles = cfg.recording.cycles_at_start + ld.frequency_hz * tau
     theta = 2 * np.pi * ld.frequency_hz * tau + ld.phase_rad
     amp = midspan_amplitude_mm(cfg, cycles)
+    if cfg.changes:  # scheduled stiffness changes (jaxdefl.simulate.schedule): phase continuous
+        from .schedule import amplitude_factor, frequency_phase
+
+        phase = frequency_phase(cfg.changes, ld.frequency_hz, tau)
+        cycles = cfg.recording.cycles_at_start + phase / (2 * np.pi)
+        theta = phase + ld.phase_rad
+        amp = midspan_amplitude_mm(cfg, cycles) * amplitude_factor(cfg.changes, tau)
     if not cfg.effects:
         s = np.sin(theta)
         return ld.mean_mm + amp * s, ld.longitudinal_mm * s, ld.lateral_mm * s

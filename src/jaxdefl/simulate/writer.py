@@ -183,6 +183,12 @@ def simulate_to_dir(
         ConfigError: a bad config file or a negative duration.
     """
     cfg = load_config(config_path, session)
+    local = [c.kind for c in cfg.changes if c.kind != "stiffness"]
+    if local:  # rendered frames see the beam's kinematics only
+        raise ConfigError(
+            f"{cfg.source}: key 'change': kind {local[0]} acts on trajectories only; "
+            "use jaxdefl simulate --live (or jaxdefl monitor --config) for it, or remove it"
+        )
     duration = _check_duration(cfg, duration_s)
     seed = cfg.recording.seed if seed is None else int(seed)
     out = Path(out_dir)
