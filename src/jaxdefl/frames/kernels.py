@@ -4,7 +4,7 @@ Every function works on a whole stack of frames at once, on the tensors' device 
 so a recording is processed in chunks of frames rather than frame by frame. Morphology is
 kornia's; the labelling is a run-based union-find in torch (kornia's
 ``connected_components`` needs one max-pooling step per pixel of a component's extent, and
-``connected_components_union_find``, which works on every 2x2 block of the image, is about 10x
+``connected_components_union_find``, which works on every 2x2 block of the image, is 10-12x
 slower than this on the plates' chunks: experiments/bench_extract.py's kernel table). Reference
 implementations the tests compare against: skimage.filters.threshold_otsu, scipy.ndimage.label,
 scipy.ndimage.binary_erosion / binary_opening, skimage.measure.regionprops.
@@ -37,8 +37,8 @@ def check_frames(x: torch.Tensor, name: str = "frames") -> None:
 def flat_indices(mask: torch.Tensor) -> torch.Tensor:
     """Indices (int64, ascending) of the true elements of ``mask`` flattened.
 
-    On the CPU through numpy: torch's ``nonzero`` is 5-10x slower there on a chunk of frames
-    (experiments/bench_extract.py's kernel table).
+    On the CPU through numpy: torch's ``nonzero`` is 2-10x slower there on a chunk of frames,
+    the more so the busier the machine (experiments/bench_extract.py's kernel table).
     """
     if mask.device.type == "cpu":
         return torch.from_numpy(np.flatnonzero(mask.numpy()))
