@@ -66,7 +66,7 @@ class Extractor:
     On the CPU the process's torch intra-op threads are pinned to ``threads`` (default
     `CPU_THREADS` = 1): the kernels are many short passes over a chunk, and two threads on
     two shared cores wait for each other on every pass (experiments/bench_extract.py
-    --threads 2 runs 2-5x slower than one thread on the 2-core development machine); parallel
+    --threads 2 ran 2x slower than one thread at light load, 9x under heavy load); parallel
     work comes from processes (`jaxdefl run` units), not threads.
     """
 
