@@ -156,7 +156,10 @@ def test_a_true_false_column_is_refused_naming_it(work, capsys, col):
     df[col] = df.index % 2 == 0
     df.to_parquet(work / "b.parquet")
     assert_refused(
-        work, capsys, ["fit", work / "b.parquet", "--out", work / "EST.csv"], f"b.parquet: column '{col}' holds true/false"
+        work,
+        capsys,
+        ["fit", work / "b.parquet", "--out", work / "EST.csv"],
+        f"b.parquet: column '{col}' holds true/false",
     )
 
 
@@ -176,11 +179,17 @@ def test_implausible_units_are_refused_naming_the_likely_unit(work, capsys):
     df = pd.read_csv(work / "traj.csv")
     df.assign(t=df["t"] * 1000).to_csv(work / "ms.csv", index=False)
     assert_refused(
-        work, capsys, ["fit", work / "ms.csv", "--out", work / "EST.csv"], "epoch milliseconds? rename the column t_ms"
+        work,
+        capsys,
+        ["fit", work / "ms.csv", "--out", work / "EST.csv"],
+        "epoch milliseconds? rename the column t_ms",
     )
     df.assign(z=df["z"] / 1000.0).to_csv(work / "m.csv", index=False)  # camera ranges in metres
     assert_refused(
-        work, capsys, ["diagnose", work / "m.csv", "--out", work / "d.json"], "metres, not mm? rename the column z_m"
+        work,
+        capsys,
+        ["diagnose", work / "m.csv", "--out", work / "d.json"],
+        "metres, not mm? rename the column z_m",
     )
 
 
@@ -190,15 +199,20 @@ def test_timestamp_policy_errors(work, capsys):
     pd.concat([df, rows]).sort_index(kind="stable").to_csv(work / "dup.csv", index=False)
     args = ["fit", work / "dup.csv", "--out", work / "EST.csv"]
     assert_refused(work, capsys, args, "with different values (1 such rows); rerun with --timestamps reclock")
-    assert_refused(work, capsys, [*args, "--timestamps", "bogus"], "--timestamps: expected one of strict, reclock, merge")
+    bogus = [*args, "--timestamps", "bogus"]
+    assert_refused(work, capsys, bogus, "--timestamps: expected one of strict, reclock, merge")
     assert_refused(
-        work, capsys, ["run", work / "c.toml", "--timestamps", "later"], "--timestamps: expected one of strict"
+        work, capsys, ["run", work / "c.toml", "--timestamps", "later"], "--timestamps: expected one of"
     )
     (work / "c.toml").write_text(
-        '[processing]\ntimestamps = "later"\n[[recording]]\nday = 1\ncamera = "c"\ntrajectories = "traj.csv"\n'
+        '[processing]\ntimestamps = "later"\n'
+        '[[recording]]\nday = 1\ncamera = "c"\ntrajectories = "traj.csv"\n'
     )
     assert_refused(
-        work, capsys, ["run", work / "c.toml", "--out", work / "o"], "key 'processing.timestamps': expected one of"
+        work,
+        capsys,
+        ["run", work / "c.toml", "--out", work / "o"],
+        "key 'processing.timestamps': expected one of",
     )
 
 

@@ -167,5 +167,5 @@ def test_reconcile_cli_on_frames_with_a_camera_warm_up(tmp_path):
         text=True,
     )
     assert again.returncode == 0, again.stderr
-    eff = json.loads((tmp_path / "again" / "config.json").read_text())["effects"]
+    eff = json.loads((tmp_path / "again" / "config.json").read_text())["effect"]
     assert any(e["id"] == "drift" for e in eff)

@@ -97,5 +97,15 @@ def test_timing_error_moves_the_written_stamps_only():
 def test_effects_round_trip_through_the_effective_config():
     tables = [{"id": "drift", "amplitude_mm": 1.0, "tau_s": 60.0, "plates": [3, 5]}]
     cfg = _cfg(*tables)
-    again = config_from_dict({**BASE, "effect": cfg.to_dict()["effects"]}, "<again>")
-    assert again.effects == cfg.effects
+    again = config_from_dict(cfg.to_dict(), "<again>")  # the effective config (config.json) reads back
+    assert again.effects == cfg.effects and again == dataclasses.replace(cfg, source="<again>")
+    changed = config_from_dict(
+        {
+            **BASE,
+            "change": [
+                {"kind": "stiffness", "t_s": 2.0, "stiffness_change": -0.01},
+                {"kind": "sensor_fault", "t_s": 1.0, "plate": 3, "fault": "jump", "size": 2.0},
+            ],
+        }
+    )
+    assert config_from_dict(changed.to_dict()).changes == changed.changes

@@ -48,14 +48,16 @@ def _jittered_table(seed, jitter_s=0.005, dropout=0.03, duration_s=120.0, noise=
     rng = np.random.default_rng(seed)
     k = np.arange(int(duration_s * 20))
     k = k[rng.random(k.size) >= dropout]
-    t = k / 20.0 + rng.normal(0.0, jitter_s, k.size)
+    t = np.sort(k / 20.0 + rng.normal(0.0, jitter_s, k.size))  # a file lists frames in time order
     frames = []
     for p in range(1, n_plates + 1):
         ph = rng.uniform(0, 2 * np.pi)
         e = _ar1(rng, t.size, 0.6, 0.5) if noise == "ar1" else 0.5 * rng.standard_normal(t.size)
         z = 1900.0 + 2.0 * np.cos(2 * np.pi * 3.0672 * t + ph) + e
         frames.append(pd.DataFrame({"t": 1.7e9 + t, "plate": p, "z": z}))
-    return pd.concat(frames, ignore_index=True), 1.0 - k.size / (k[-1] + 1)
+    out = pd.concat(frames, ignore_index=True)
+    out.attrs["frames"] = k  # the true frame index of every stamp (in time order)
+    return out, 1.0 - k.size / (k[-1] + 1)
 
 
 # -- the clock fit against the simulated clock -----------------------------------------------
@@ -149,9 +151,13 @@ def test_merge_averages_duplicates_and_strict_refuses_them(tmp_path, capsys):
     assert got["t"].tolist() == [0.0, 0.05, 0.10]
     assert got["z"].tolist() == [2.0, 2.0, 4.0]  # a missing value does not count
     assert got.attrs["timestamps"] == {"policy": "merge", "rows_merged": 2, "rows": 3}
-    with pytest.raises(InputError, match=r"dup.csv: row 3: plate 1 repeats t=0.0 of row 2 .*--timestamps merge"):
+    with pytest.raises(
+        InputError, match=r"dup.csv: row 3: plate 1 repeats t=0.0 of row 2 .*--timestamps merge"
+    ):
         validate_trajectory(df, "dup.csv")
-    with pytest.raises(ConfigError, match=r"--timestamps: expected one of strict, reclock, merge, got 'bogus'"):
+    with pytest.raises(
+        ConfigError, match=r"--timestamps: expected one of strict, reclock, merge, got 'bogus'"
+    ):
         validate_trajectory(df, "dup.csv", timestamps="bogus")
 
 
@@ -160,7 +166,8 @@ def test_merge_averages_duplicates_and_strict_refuses_them(tmp_path, capsys):
 
 @pytest.fixture
 def no_one_window_loop(monkeypatch):
-    """The one-window-at-a-time periodogram must not be reached."""
+    """The non-uniform periodogram must not be reached: jittered windows stay on the batched
+    frame grid."""
     import jaxdefl.spectral.lomb as lomb
 
     def refuse(*a, **k):
@@ -202,6 +209,52 @@ def test_jitter_gives_the_same_estimates_as_a_perfect_clock():
     assert np.all(np.abs(a["f0_hz"] - b["f0_hz"]) < 0.5 * b["sigma_f0_hz"])
 
 
+def test_jitter_beyond_a_quarter_frame_takes_the_batched_non_uniform_path(monkeypatch):
+    """20 ms RMS at 20 Hz is 0.4 frame: off the grid, so nifty-ls, one call per window span for
+    all the plates sharing its frames (not one per window), equal to the direct sums."""
+    import nifty_ls
+
+    from jaxdefl.spectral import lomb_peaks, lomb_slow
+
+    calls = []
+    real = nifty_ls.lombscargle
+
+    def counting(t, y, *a, **k):
+        calls.append(np.shape(y))
+        return real(t, y, *a, **k)
+
+    monkeypatch.setattr(nifty_ls, "lombscargle", counting)
+    df, _ = _jittered_table(seed=8, jitter_s=0.020, duration_s=62.0, n_plates=3)
+    w = make_windows(validate_trajectory(df), axes=("z",), window_s=30.0)
+    assert len(w) == 6 and not w.on_clock.any()
+    p = lomb_peaks(w, keep=(0, 2))
+    assert set(p.method) == {"nufft"}
+    assert len(calls) == 2 and all(shape[0] == 3 for shape in calls)
+    for r in (0, 2):
+        f, power = p.spectra[r]
+        m = w.mask[r]
+        ref = lomb_slow(w.t[r, m], w.y[r, m], f)
+        np.testing.assert_allclose(power, ref, atol=1e-6 * ref.max())
+    assert np.all(np.abs(p.freq_hz - 3.0672) < 0.01)
+
+
+@pytest.mark.slow
+def test_diagnosis_grids_follow_the_recovered_clock_and_the_frame_rate():
+    """5 ms of jitter at 20 Hz: the diagnosis' frame grid is the 20 Hz clock (the smallest
+    spacing would be ~30 ms), every sample on its own frame; --frame-rate starts the fit."""
+    from jaxdefl.diagnose._context import build_context
+
+    df, _ = _jittered_table(seed=12, duration_s=40.0, n_plates=2)
+    t = np.unique(df["t"].to_numpy())
+    true_k = df.attrs["frames"] - df.attrs["frames"][0]
+    for rate in (None, 20.0):
+        ctx, _, notes = build_context(df, frame_rate_hz=rate, axes=("z",))
+        assert abs(ctx.dt_s - 0.05) < 1e-5 and ctx.frame_rate_hz == pytest.approx(20.0, rel=1e-4)
+        s = ctx.series[0]
+        np.testing.assert_array_equal(s.k, true_k[np.searchsorted(t - t[0], s.t)])
+        assert not any("not on a regular frame clock" in n for n in notes)
+
+
 # -- units ------------------------------------------------------------------------------------
 
 
@@ -216,7 +269,9 @@ def _plain_table(t, z, t_name="t", z_name="z"):
 def test_epoch_in_sub_second_units_is_an_error_naming_the_unit(scale, name):
     t = (1.7e9 + np.arange(40) * 0.05) * scale
     z = np.cos(np.arange(40))
-    with pytest.raises(InputError, match=rf"x.csv: column 't' has no unit .* rename the column {name} .* t_s"):
+    with pytest.raises(
+        InputError, match=rf"x.csv: column 't' has no unit .* rename the column {name} .* t_s"
+    ):
         validate_trajectory(_plain_table(t, z), "x.csv")
     got = validate_trajectory(_plain_table(t, z, t_name=name), "x.csv")
     np.testing.assert_allclose(got["t"], 1.7e9 + np.arange(40) * 0.05, rtol=0, atol=2e-6)
@@ -245,6 +300,7 @@ def test_micrometres_are_an_error():
 @pytest.mark.parametrize("tz", [None, "Europe/Berlin"])
 def test_datetime64_parquet_fits_like_float_seconds(tmp_path, tz, capsys):
     df, _ = _jittered_table(seed=5, jitter_s=0.0, duration_s=30.0, n_plates=2)
+    df.attrs = {}
     df["t"] = np.round(df["t"], 6)
     stamps = pd.to_datetime(np.round(df["t"] * 1e6).astype(np.int64), unit="us")
     if tz:
@@ -262,4 +318,78 @@ def test_datetime64_parquet_fits_like_float_seconds(tmp_path, tz, capsys):
 def test_iso_strings_in_a_csv_are_epoch_seconds():
     t = ["2023-11-14T22:13:20.000001Z", "2023-11-14T22:13:20.050001Z", "2023-11-14T23:13:20.1+01:00"]
     got = validate_trajectory(pd.DataFrame({"t": t, "plate": 1, "z": [1.0, 2.0, 3.0]}))
-    np.testing.assert_allclose(got["t"], [1700000000.000001, 1700000000.050001, 1700000000.1], rtol=0, atol=1e-7)
+    np.testing.assert_allclose(
+        got["t"], [1700000000.000001, 1700000000.050001, 1700000000.1], rtol=0, atol=1e-7
+    )
+
+
+# -- the other commands that read tables ------------------------------------------------------
+
+
+@pytest.mark.slow
+def test_run_and_diagnose_read_tables_with_the_policy(tmp_path, capsys):
+    """A logger table (five significant digits, stamps repeated past 100 s): `run` with
+    processing.timestamps = "reclock" estimates it, strict fails the unit naming reclock;
+    `diagnose --timestamps reclock` reads it and says so."""
+    rng = np.random.default_rng(4)
+    k = np.arange(14000)
+    t = k * LOGGER_DT
+    frames = []
+    for p in (1, 2):
+        z = 1.5 * p * np.cos(2 * np.pi * 1.0 * t + p) + 0.05 * rng.standard_normal(k.size)
+        frames.append(pd.DataFrame({"t": _five_digits(t), "plate": p, "z": z}))
+    pd.concat(frames).to_csv(tmp_path / "log.csv", index=False)
+    toml = (
+        '[processing]\naxes = ["z"]\nreference_plate = 1\ntimestamps = "{}"\n'
+        '[[recording]]\nday = 1\ncamera = "logger"\ncycles = 1\ntrajectories = "log.csv"\n'
+    )
+    (tmp_path / "strict.toml").write_text(toml.format("strict"))
+    assert cli("run", tmp_path / "strict.toml", "--out", tmp_path / "o1") == 1
+    assert "--timestamps reclock" in capsys.readouterr().err
+    (tmp_path / "re.toml").write_text(toml.format("reclock"))
+    assert cli("run", tmp_path / "re.toml", "--out", tmp_path / "o2") == 0
+    whole = pd.read_csv(tmp_path / "o2" / "estimates_whole.csv")
+    assert (whole["status"] == "converged").all()
+    assert np.all(np.abs(whole["f0_hz"] - 1.0) < 4 * whole["sigma_f0_hz"])
+    # the command-line flag overrides the campaign's policy
+    assert cli("run", tmp_path / "strict.toml", "--out", tmp_path / "o3", "--timestamps", "reclock") == 0
+
+    assert cli("diagnose", tmp_path / "log.csv", "--out", tmp_path / "d.json", "--no-figures") == 2
+    code = cli(
+        "diagnose",
+        tmp_path / "log.csv",
+        "--out",
+        tmp_path / "d.json",
+        "--no-figures",
+        "--timestamps",
+        "reclock",
+    )
+    assert code == 0
+    d = json.loads((tmp_path / "d.json").read_text())
+    assert d["settings"]["timestamps"] == "reclock"
+    assert "timestamps reclocked: interval 0.007753" in capsys.readouterr().err
+
+
+def test_frame_recordings_take_strict_or_reclock(tmp_path):
+    """An .npz whose frame times a logger rounded (repeats past 100 s): strict refuses it naming
+    reclock; reclock gives every frame its time on the recovered clock; merge is for tables."""
+    from jaxdefl.io.recording import open_recording
+
+    k = np.arange(14000)
+    t = np.array(_five_digits(k * LOGGER_DT), dtype=float)
+    np.savez(
+        tmp_path / "r.npz",
+        depth=np.zeros((k.size, 2, 2), np.float32),
+        timestamps=t,
+        intrinsics=np.array([500.0, 500.0, 1.0, 1.0]),
+    )
+    with pytest.raises(
+        InputError, match=r"r.npz: timestamps: timestamps must increase.*--timestamps reclock"
+    ):
+        open_recording(tmp_path / "r.npz")
+    with pytest.raises(ConfigError, match=r"--timestamps merge: frame recordings take strict or reclock"):
+        open_recording(tmp_path / "r.npz", timestamps="merge")
+    rec = open_recording(tmp_path / "r.npz", timestamps="reclock")
+    got = np.concatenate([ch.t for ch in rec.chunks(4096)])
+    np.testing.assert_allclose(got, k * LOGGER_DT, rtol=0, atol=0.01 * LOGGER_DT)  # a hundredth of a frame
+    assert abs(rec.clock["segments"][0]["interval_s"] - LOGGER_DT) < 1e-9

@@ -144,11 +144,21 @@ def extract(
         str | None,
         typer.Option(help="Torch device of the per-frame stages: cpu, cuda, cuda:N [default: cuda if any]."),
     ] = None,
+    timestamps: Annotated[
+        str,
+        typer.Option(
+            "--timestamps",
+            help="strict (frame times must increase) or reclock (recover the frame clock of rounded "
+            "or jittered frame times).",
+        ),
+    ] = "strict",
 ) -> None:
     """Extract the plates from every frame: 3D centroid trajectories (t, plate, x, y, z)."""
     from .frames import extract_to_table
 
-    extract_to_table(recording, out, realtime=realtime, chunk_frames=chunk_frames, device=device)
+    extract_to_table(
+        recording, out, realtime=realtime, chunk_frames=chunk_frames, device=device, timestamps=timestamps
+    )
 
 
 @app.command()

@@ -535,7 +535,8 @@ def _reconcile_input(recording: Path, segment: str | None, timestamps: str = "st
         from .frames import extract_recording
         from .io.recording import open_recording
 
-        frames = extract_recording(open_recording(recording))
+        frames_policy = "reclock" if timestamps == "reclock" else "strict"
+        frames = extract_recording(open_recording(recording, timestamps=frames_policy))
         df = validate_trajectory(frames, recording, timestamps=timestamps)
     segments = list(pd.unique(df["segment"]))
     if segment is None:

@@ -6,6 +6,7 @@ a `Recording` chunk by chunk; `extract_to_table` is the CLI's entry point.
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -65,7 +66,7 @@ class Extractor:
     On the CPU the process's torch intra-op threads are pinned to ``threads`` (default
     `CPU_THREADS` = 1): the kernels are many short passes over a chunk, and two threads on
     two shared cores wait for each other on every pass (experiments/bench_extract.py
-    --threads 2 runs 2-5x slower than one thread on the 2-core development machine); parallel
+    --threads 2 ran 2x slower than one thread at light load, 9x under heavy load); parallel
     work comes from processes (`jaxdefl run` units), not threads.
     """
 
@@ -222,9 +223,18 @@ def extract_recording(
 
 
 def extract_to_table(
-    recording: Path, out: Path, realtime: bool = False, chunk_frames: int = 256, device: str | None = None
+    recording: Path,
+    out: Path,
+    realtime: bool = False,
+    chunk_frames: int = 256,
+    device: str | None = None,
+    timestamps: str = "strict",
 ) -> None:
     """Extract every frame of ``recording`` and write the trajectory table ``out`` (CSV/Parquet).
+
+    ``timestamps``: ``strict`` (frame times must increase) or ``reclock`` (rounded or jittered
+    frame times replaced by the recovered clock, `jaxdefl.io.recording.open_recording`; one line
+    on stderr says what was recovered).
 
     Raises:
         ConfigError: bad ``chunk_frames`` or ``device``, or ``out`` clashing with the input.
@@ -232,7 +242,7 @@ def extract_to_table(
     """
     from ..io.output import TABLE_SUFFIXES, Outputs
     from ..io.recording import open_recording
-    from ..io.trajectory import write_trajectory
+    from ..io.trajectory import timestamp_note, write_trajectory
 
     if chunk_frames < 1:
         raise ConfigError(f"--chunk-frames: expected an integer >= 1, got {chunk_frames}")
@@ -241,7 +251,9 @@ def extract_to_table(
     outs.reserve(out, "--out", suffixes=TABLE_SUFFIXES)
     if Path(out).resolve().is_relative_to(Path(recording).resolve()):
         raise ConfigError(f"--out {out}: lies inside the recording {recording}; choose another place")
-    rec = open_recording(recording)
+    rec = open_recording(recording, timestamps=timestamps)
+    if (note := timestamp_note(rec.clock)) is not None:
+        print(f"jaxdefl extract: {rec.path}: {note}", file=sys.stderr)
     df = extract_recording(rec, realtime=realtime, chunk_frames=chunk_frames, device=device)
     with outs:
         write_trajectory(df, out, outs)

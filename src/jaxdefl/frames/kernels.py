@@ -3,9 +3,9 @@
 Every function works on a whole stack of frames at once, on the tensors' device (CPU or CUDA),
 so a recording is processed in chunks of frames rather than frame by frame. Morphology is
 kornia's; the labelling is a run-based union-find in torch (kornia's
-``connected_components`` needs one max-pooling step per pixel of a component's extent and
-``connected_components_union_find`` works on every 2x2 block of the image: 3-4x slower than
-this on the plates' chunks, measured in experiments/bench_extract.py). Reference
+``connected_components`` needs one max-pooling step per pixel of a component's extent, and
+``connected_components_union_find``, which works on every 2x2 block of the image, is 10-12x
+slower than this on the plates' chunks: experiments/bench_extract.py's kernel table). Reference
 implementations the tests compare against: skimage.filters.threshold_otsu, scipy.ndimage.label,
 scipy.ndimage.binary_erosion / binary_opening, skimage.measure.regionprops.
 """
@@ -37,8 +37,8 @@ def check_frames(x: torch.Tensor, name: str = "frames") -> None:
 def flat_indices(mask: torch.Tensor) -> torch.Tensor:
     """Indices (int64, ascending) of the true elements of ``mask`` flattened.
 
-    On the CPU through numpy: torch's ``nonzero`` is single-threaded and two-pass there, 5-6x
-    slower on a chunk of frames (experiments/bench_extract.py --stages).
+    On the CPU through numpy: torch's ``nonzero`` is 2-10x slower there on a chunk of frames,
+    the more so the busier the machine (experiments/bench_extract.py's kernel table).
     """
     if mask.device.type == "cpu":
         return torch.from_numpy(np.flatnonzero(mask.numpy()))
@@ -237,8 +237,8 @@ def erode(mask: torch.Tensor, size: int = 3) -> torch.Tensor:
     """Binary erosion with a size x size square, zero outside the frame (kornia).
 
     Drops the mixed pixels at plate edges (thesis 5.1.4); as ``scipy.ndimage.binary_erosion``
-    with ``border_value=0``. The square is applied as a row then a column (a third of kornia's
-    work for a 3 x 3 square; the same result).
+    with ``border_value=0``. The square is applied as a row then a column (2 x size shifted
+    views instead of size², the same result).
     """
     check_frames(mask, "mask")
     x = mask.to(torch.float32)

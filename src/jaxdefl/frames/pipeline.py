@@ -163,7 +163,7 @@ def top_level(ztop: torch.Tensor) -> torch.Tensor:
     """Per-frame beam-top depth (B,): lower median over the top-surface pixels (B, K), NaN ignored.
 
     The lower of the two middle values (``torch.nanmedian``); NaN for a frame without valid pixels.
-    On the CPU by a numpy sort, 5-7x faster than torch's selection there.
+    On the CPU by a numpy sort: torch's selection (nanmedian, kthvalue) is several times slower there.
     """
     if ztop.device.type != "cpu":
         return torch.nanmedian(ztop, dim=1).values

@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from .kernels import all_finite
 from .pipeline import Scene, frames_tensor, top_level
 
 __all__ = ["Tracker"]
@@ -49,22 +50,23 @@ class Tracker:
         if self.inv is not None:
             vals = vals * self.inv
         top = top_level(vals[:, self.n_pix :]).to(torch.float64)
-        zc = (
-            vals[:, : self.n_pix].to(torch.float64) - top[:, None]
-        )  # small numbers: sums keep their precision
-        valid = torch.isfinite(zc)
-        zc = zc.nan_to_num_(0.0, 0.0, 0.0)
-        w = valid.to(torch.float64)
-        if self.scene.kind == "depth":  # drop pixels > 3 sigma from their plate's mean (region growing)
-            s = torch.stack([w, zc], 1) @ self.m
-            cnt = s[:, 0].clamp_min(1)
-            res = (zc - (s[:, 1] / cnt)[:, self.seg]) * w
-            sd = torch.sqrt((res * res) @ self.m / cnt)
-            w = w * (res.abs() <= 3.0 * sd[:, self.seg] + 1e-6)
-        # per plate: sums of w, w xr, w yr and of z w, z w xr, z w yr
+        zc = vals[:, : self.n_pix].to(torch.float64) - top[:, None]  # small numbers: sums keep precision
         n = self.m.shape[1]
-        sw = (w @ self.sums).reshape(b, 3, n)
-        sz = ((zc * w) @ self.sums).reshape(b, 3, n)
+        if self.scene.kind == "range" and all_finite(zc):
+            sw = self.sums.sum(0).expand(b, -1)  # every pixel counts
+        else:
+            valid = torch.isfinite(zc)
+            zc = zc.nan_to_num_(0.0, 0.0, 0.0)
+            w = valid.to(torch.float64)
+            if self.scene.kind == "depth":  # drop pixels > 3 sigma from their plate's mean (region growing)
+                cnt = (w @ self.m).clamp_min(1)
+                res = (zc - ((zc @ self.m) / cnt)[:, self.seg]) * w
+                sd = torch.sqrt((res * res) @ self.m / cnt)
+                w = w * (res.abs() <= 3.0 * sd[:, self.seg] + 1e-6)
+                zc = zc * w
+            sw = w @ self.sums
+        # per plate: sums of w, w xr, w yr and of z w, z w xr, z w yr (zc is 0 where w is)
+        sw, sz = sw.reshape(b, 3, n), (zc @ self.sums).reshape(b, 3, n)
         cnt = sw[:, 0]
         c = cnt.clamp_min(1)
         rel = sz[:, 0] / c

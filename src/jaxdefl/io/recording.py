@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from .._errors import InputError
+from .._errors import ConfigError, InputError
 
 __all__ = ["Recording", "FrameChunk", "open_recording", "TUM_DEPTH_SCALE_MM"]
 
@@ -68,6 +68,7 @@ class Recording:
     plate_x_mm: np.ndarray | None = None
     camera_x_mm: float | None = None
     _read: Any = None  # (start, stop) -> (t, frames, amplitude | None)
+    clock: dict | None = None  # what --timestamps reclock recovered (`_check_timestamps`)
 
     def chunks(self, chunk_frames: int = 256, start: int = 0) -> Iterator[FrameChunk]:
         """Yield the recording from frame ``start`` in chunks of at most ``chunk_frames`` frames."""
@@ -102,16 +103,47 @@ def _intrinsics(path: Path, src: dict, where: str) -> dict:
     return out
 
 
-def _check_timestamps(path: Path, t: np.ndarray, where: str = "timestamps") -> None:
+def _check_timestamps(
+    path: Path, t: np.ndarray, where: str = "timestamps", policy: str = "strict"
+) -> dict | None:
+    """Frame timestamps must be finite and increase (``strict``); with ``reclock`` they are a
+    rounded or jittered writing of the frame clock and are replaced, in place, by the clock
+    recovered from them (`jaxdefl.series.clock.fit_clock`; the report is returned)."""
+    if policy not in ("strict", "reclock"):
+        raise ConfigError(
+            f"--timestamps {policy}: frame recordings take strict or reclock (merge averages table rows)"
+        )
     if not np.all(np.isfinite(t)):
         i = int(np.flatnonzero(~np.isfinite(t))[0])
         raise _err(path, f"{where}: frame {i} has a non-finite timestamp")
     d = np.diff(t)
+    if policy == "reclock" and t.size >= 3:
+        from ..series.clock import fit_clock
+
+        c = fit_clock(t - t[0])
+        if np.isfinite(c.dt) and not np.any(d < -c.dt):
+            t[:] = t[0] + c.t
+            return {
+                "policy": "reclock",
+                "segments": [
+                    {
+                        "segment": "frames",
+                        "series": 1,
+                        "interval_s": c.dt,
+                        "jitter_rms_s": c.jitter_rms,
+                        "drift_ppm": c.drift_ppm,
+                    }
+                ],
+            }
     if np.any(d <= 0):
         i = int(np.flatnonzero(d <= 0)[0]) + 1
-        raise _err(
-            path, f"{where}: timestamps must increase; frame {i} has t={t[i]:.6f} after {t[i - 1]:.6f}"
+        hint = (
+            "" if policy == "reclock" else "; rerun with --timestamps reclock (a rounded or jittered clock)"
         )
+        raise _err(
+            path, f"{where}: timestamps must increase; frame {i} has t={t[i]:.6f} after {t[i - 1]:.6f}{hint}"
+        )
+    return None
 
 
 def _geometry(rec: Recording, src: dict) -> None:
@@ -137,7 +169,7 @@ def _geometry_from_sim_config(rec: Recording, cfg_path: Path) -> None:
         return  # not a simulator config: ordinal numbering
 
 
-def _open_zarr(path: Path) -> Recording:
+def _open_zarr(path: Path, timestamps: str = "strict") -> Recording:
     import zarr
 
     try:
@@ -181,7 +213,7 @@ def _open_zarr(path: Path) -> Recording:
         t_all = np.asarray(ts[:], np.float64)
     except Exception as err:
         raise _err(path, f"array 'timestamps' cannot be read ({type(err).__name__})") from None
-    _check_timestamps(path, t_all)
+    clock = _check_timestamps(path, t_all, policy=timestamps)
 
     def read(s, e):
         try:
@@ -193,13 +225,15 @@ def _open_zarr(path: Path) -> Recording:
             ) from None
         return t_all[s:e], f, a
 
-    rec = Recording(path, kind, n, h, w, intr, str(attrs.get("segment", path.stem)), attrs, _read=read)
+    rec = Recording(
+        path, kind, n, h, w, intr, str(attrs.get("segment", path.stem)), attrs, _read=read, clock=clock
+    )
     _geometry(rec, attrs)
     _geometry_from_sim_config(rec, path.parent / "config.json")
     return rec
 
 
-def _open_npz(path: Path) -> Recording:
+def _open_npz(path: Path, timestamps: str = "strict") -> Recording:
     try:
         z = np.load(path, allow_pickle=False)
     except Exception as err:
@@ -231,7 +265,7 @@ def _open_npz(path: Path) -> Recording:
     if intr_v.size != 4:
         raise _err(path, f"key 'intrinsics': expected [fx, fy, cx, cy], got {intr_v.tolist()}")
     intr = _intrinsics(path, dict(zip(("fx", "fy", "cx", "cy"), intr_v, strict=True)), "key 'intrinsics'")
-    _check_timestamps(path, t)
+    clock = _check_timestamps(path, t, policy=timestamps)
     seg = str(z["segment"]) if "segment" in keys else path.stem
 
     def read(s, e):
@@ -241,12 +275,14 @@ def _open_npz(path: Path) -> Recording:
             None if amp is None else np.asarray(amp[s:e], np.float32),
         )
 
-    rec = Recording(path, kind, n, h, w, intr, seg, {}, _read=read)
+    rec = Recording(path, kind, n, h, w, intr, seg, {}, _read=read, clock=clock)
     _geometry(rec, {k: z[k] for k in ("plate_x_mm", "camera_x_mm") if k in keys})
     return rec
 
 
-def _open_tum(path: Path, depth_scale_mm: float | None, intrinsics: dict | None) -> Recording:
+def _open_tum(
+    path: Path, depth_scale_mm: float | None, intrinsics: dict | None, timestamps: str = "strict"
+) -> Recording:
     import cv2
 
     listing = path / "depth.txt"
@@ -285,7 +321,7 @@ def _open_tum(path: Path, depth_scale_mm: float | None, intrinsics: dict | None)
     if not files:
         raise _err(listing, "no frames listed")
     t = np.asarray(t, np.float64)
-    _check_timestamps(listing, t)
+    clock = _check_timestamps(listing, t, policy=timestamps)
     first = cv2.imread(str(files[0]), cv2.IMREAD_UNCHANGED)
     if first is None:
         raise _err(files[0], "missing or not a readable PNG (frame 0 of depth.txt)")
@@ -312,20 +348,34 @@ def _open_tum(path: Path, depth_scale_mm: float | None, intrinsics: dict | None)
         return t[s:e], out, None
 
     rec = Recording(
-        path, "depth", len(files), h, w, intr, str(cam.get("segment", path.name)), cam, _read=read
+        path,
+        "depth",
+        len(files),
+        h,
+        w,
+        intr,
+        str(cam.get("segment", path.name)),
+        cam,
+        _read=read,
+        clock=clock,
     )
     _geometry(rec, cam)
     return rec
 
 
 def open_recording(
-    path: Path | str, depth_scale_mm: float | None = None, intrinsics: dict | None = None
+    path: Path | str,
+    depth_scale_mm: float | None = None,
+    intrinsics: dict | None = None,
+    timestamps: str = "strict",
 ) -> Recording:
     """Open and validate a recording (.zarr store, TUM-style depth-PNG folder or .npz).
 
     Args:
         path: the recording. depth_scale_mm: mm per PNG unit (TUM folders; default camera.json's
             ``depth_scale_mm`` or 0.2). intrinsics: fx, fy, cx, cy overriding camera.json (TUM).
+        timestamps: ``strict`` (frame times must increase) or ``reclock`` (rounded or jittered
+            frame times replaced by the recovered clock; the report in `Recording.clock`).
     Raises:
         InputError: missing, corrupt, truncated or inconsistent recording (one line, names the file).
     """
@@ -333,13 +383,13 @@ def open_recording(
     if not path.exists():
         raise _err(path, "recording not found")
     if path.suffix.lower() == ".npz":
-        return _open_npz(path)
+        return _open_npz(path, timestamps)
     if path.is_dir() and (path / "depth.txt").exists():
-        return _open_tum(path, depth_scale_mm, intrinsics)
+        return _open_tum(path, depth_scale_mm, intrinsics, timestamps)
     if path.is_dir() and (path / "recording.zarr").is_dir():
-        return _open_zarr(path / "recording.zarr")
+        return _open_zarr(path / "recording.zarr", timestamps)
     if path.is_dir():
-        return _open_zarr(path)
+        return _open_zarr(path, timestamps)
     raise _err(
         path, "unknown recording format; expected a .zarr store, a folder with depth.txt or an .npz file"
     )

@@ -109,22 +109,44 @@ def _line(k: np.ndarray, t: np.ndarray) -> tuple[float, float, np.ndarray]:
     return a, b, r
 
 
-def _running_median(u: np.ndarray) -> np.ndarray:
+def _running_median(u: np.ndarray, ends: str = "nearest") -> np.ndarray:
+    """Running median of ``_MEDIAN_LEN`` samples. ``ends="nearest"`` extends each end by its
+    last sample (a monotone sequence comes back unchanged); ``ends="median"`` by the median of
+    its own half window (the last sample's noise then does not decide the ends)."""
     from scipy.ndimage import median_filter
 
-    if u.size < _MEDIAN_LEN:
+    h = _MEDIAN_LEN // 2
+    if u.size <= _MEDIAN_LEN:
         return np.full(u.size, np.median(u))
-    return median_filter(u, size=_MEDIAN_LEN, mode="nearest")
+    if ends == "nearest":
+        return median_filter(u, size=_MEDIAN_LEN, mode="nearest")
+    padded = np.concatenate([np.full(h, np.median(u[: h + 1])), u, np.full(h, np.median(u[-h - 1 :]))])
+    return median_filter(padded, size=_MEDIAN_LEN, mode="nearest")[h:-h]
 
 
 def _assign(t: np.ndarray, a: float, b: float) -> np.ndarray:
-    """Frame indices of the stamps ``t`` on the line t = a + b k: the frames skipped before each
-    stamp (u − i, a non-decreasing step function) by a running median, rounded; strictly
-    increasing. Exact where every stamp is within half a frame of the line; where the stamps
-    scatter more (a logger's rounding step above the interval) the median still finds the steps
-    of the drop-outs when they are a few tens of samples apart."""
+    """Frame indices of the stamps ``t`` on the line t = a + b k, strictly increasing.
+
+    x = (t − a)/b − i is the number of frames skipped before stamp i plus its noise in frames:
+    its running median, rounded, ignores the scatter of single stamps (jitter, a logger's
+    rounding step even above the interval) and keeps steps sharp (a monotone sequence is its
+    own running median, so heavy drop-outs stay exact where the scatter is small).
+    """
     idx = np.arange(t.size)
-    g = np.rint(_running_median((t - a) / b - idx))
+    x = (t - a) / b - idx
+    smooth = _running_median(x)
+    g = np.rint(smooth)
+    h = _MEDIAN_LEN // 2
+    if x.size > 2 * _MEDIAN_LEN:
+        # within half a window of an end the running median is the end sample's own value; where
+        # the stamps scatter by a quarter frame or more, take the ends' half-window median instead
+        dev = np.abs(x - smooth)
+        padded = None
+        for end in (slice(0, h), slice(-h, None)):
+            near = dev[:_MEDIAN_LEN] if end.start == 0 else dev[-_MEDIAN_LEN:]
+            if 1.4826 * float(np.median(near)) >= 0.25:
+                padded = np.rint(_running_median(x, ends="median")) if padded is None else padded
+                g[end] = padded[end]
     return idx + np.maximum.accumulate(g)
 
 

@@ -179,9 +179,16 @@ class SimConfig:
     source: str = "<config>"
 
     def to_dict(self) -> dict:
-        d = dataclasses.asdict(self)
-        d.pop("source")
-        d["effects"] = [e.to_dict() for e in self.effects]
+        """The effective config as TOML-shaped tables: `config_from_dict` reads it back."""
+        d = dataclasses.asdict(
+            self, dict_factory=lambda kv: {k: list(v) if isinstance(v, tuple) else v for k, v in kv}
+        )
+        for key in ("source", "effects", "changes"):
+            d.pop(key)
+        if self.effects:
+            d["effect"] = [e.to_dict() for e in self.effects]
+        if self.changes:
+            d["change"] = [c.to_table() for c in self.changes]
         return d
 
     @property

@@ -53,6 +53,14 @@ class Change:
     fault: str = ""
     size: float = 0.0
 
+    def to_table(self) -> dict[str, Any]:
+        """The ``[[change]]`` table this change is read from (`parse_changes` reads it back)."""
+        keys = {"stiffness": ("f0_change", "amplitude_change"), "debond": ("plate", "amplitude_change")}
+        own = keys.get(self.kind, ("plate", "fault", "size"))
+        return {"kind": self.kind, "t_s": self.t_s, "duration_s": self.duration_s} | {
+            k: getattr(self, k) for k in own
+        }
+
     def active(self, tau_s: np.ndarray) -> np.ndarray:
         """Whether the change acts at times ``tau_s`` (s after the recording start)."""
         tau_s = np.asarray(tau_s, np.float64)

@@ -5,7 +5,9 @@ Two ways to get the sums the periodogram needs, chosen per window through `METHO
 - ``"grid"``: samples on a frame clock with drop-outs, t_i = t_0 + k_i dt. On the frequency grid
   f_j = j / (M dt), sum_i h_i exp(-2 pi i f_j t_i) is bin j of the FFT of the zero-filled masked
   grid of length M, and the tau sums are bin 2j of the FFT of the mask. Exact, O(M log M).
-- ``"nufft"``: truly irregular times, through nifty-ls (a non-uniform FFT), one window at a time.
+- ``"nufft"``: truly irregular times, through nifty-ls (a non-uniform FFT), batched over the
+  windows that share their timestamps (the plates and axes of a window: one call per window
+  span, not per window).
 
 Both feed the same peak search: the highest grid bin, refined by a parabola through its
 neighbours, with its false-alarm probability (`jaxdefl.spectral.fap`).
@@ -283,13 +285,23 @@ def _peaks_grid(w: Windows, rows, out, fmin, fmax, oversampling, keep, search_dt
                     out["spectra"][r] = (freqs, power[pos])
 
 
+def _stamp_groups(w: Windows, rows: np.ndarray) -> list[np.ndarray]:
+    """``rows`` grouped by identical valid timestamps (the plates and axes of a window share
+    their frames): each group is one batched non-uniform periodogram."""
+    keys: dict[bytes, list[int]] = {}
+    for r in rows.tolist():
+        keys.setdefault(w.t[r, w.mask[r]].tobytes(), []).append(r)
+    return [np.asarray(g) for g in keys.values()]
+
+
 def _peaks_nufft(w: Windows, rows, out, fmin, fmax, oversampling, keep, search_dtype):
     import nifty_ls
 
-    for r in rows.tolist():
-        m = w.mask[r]
-        t = w.t[r, m]
-        y = w.y[r, m]
+    for group in _stamp_groups(w, rows):
+        r0 = int(group[0])
+        m = w.mask[r0]
+        t = w.t[r0, m]
+        ys = w.y[group][:, m]
         n = t.size
         span = (t[-1] - t[0]) * n / max(n - 1, 1)
         df = 1.0 / (oversampling * span)
@@ -302,7 +314,7 @@ def _peaks_nufft(w: Windows, rows, out, fmin, fmax, oversampling, keep, search_d
             raise ConfigError(f"--fmin/--fmax: the band {f_lo:g}..{f_hi:g} Hz holds fewer than 3 frequencies")
         res = nifty_ls.lombscargle(
             t - t[0],
-            y,
+            ys,
             fmin=f_lo,
             fmax=f_lo + (n_freq - 1) * df,
             Nf=n_freq,
@@ -310,19 +322,21 @@ def _peaks_nufft(w: Windows, rows, out, fmin, fmax, oversampling, keep, search_d
             fit_mean=False,
             normalization="standard",
         )
-        power = np.asarray(res.power) * (n - 1) / 2  # astropy "standard" -> thesis P_N
-        i = int(np.argmax(power))
-        pm = power[max(i - 1, 0)]
-        pp = power[min(i + 1, n_freq - 1)]
-        d = _parabola(np.array(i), np.array(power[i]), np.array(pm), np.array(pp), n_freq)
-        out["freq_hz"][r] = res.fmin + (i + float(d)) * res.df
-        out["power"][r] = power[i]
-        out["fmin_hz"][r] = res.fmin
-        out["fmax_hz"][r] = res.fmin + (n_freq - 1) * res.df
-        out["df_hz"][r] = res.df
-        out["method"][r] = "nufft"
-        if r in keep:
-            out["spectra"][r] = (res.freq(), power)
+        power = np.atleast_2d(np.asarray(res.power)) * (n - 1) / 2  # astropy "standard" -> thesis P_N
+        i = np.argmax(power, axis=1)
+        at = np.arange(group.size)
+        pm = power[at, np.maximum(i - 1, 0)]
+        pp = power[at, np.minimum(i + 1, n_freq - 1)]
+        d = _parabola(i, power[at, i], pm, pp, n_freq)
+        out["freq_hz"][group] = res.fmin + (i + d) * res.df
+        out["power"][group] = power[at, i]
+        out["fmin_hz"][group] = res.fmin
+        out["fmax_hz"][group] = res.fmin + (n_freq - 1) * res.df
+        out["df_hz"][group] = res.df
+        out["method"][group] = "nufft"
+        for pos, r in enumerate(group.tolist()):
+            if r in keep:
+                out["spectra"][r] = (res.freq(), power[pos])
 
 
 METHODS = {"grid": _peaks_grid, "nufft": _peaks_nufft}
