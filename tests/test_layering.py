@@ -5,6 +5,7 @@
 - No private name crosses a module: ``from .x import _name`` is allowed only for a package's
   own private *modules* (``from . import _jax``), never for an underscored function or class.
 - Importing ``jaxdefl`` alone loads no JAX, torch or pandas (checked in a fresh interpreter).
+- The status vocabulary is one enum (`jaxdefl.status.Status`): no other module spells a status.
 """
 
 from __future__ import annotations
@@ -17,7 +18,19 @@ from pathlib import Path
 import pytest
 
 SRC = Path(__file__).resolve().parents[1] / "src" / "jaxdefl"
-STAGES = ("io", "series", "spectral", "fit", "uncertainty", "diagnose", "simulate", "frames", "report", "monitor")
+STAGES = (
+    "io",
+    "series",
+    "spectral",
+    "fit",
+    "uncertainty",
+    "diagnose",
+    "simulate",
+    "frames",
+    "report",
+    "monitor",
+    "reconcile",
+)
 ORCHESTRATORS = ("pipeline", "bulk", "cli")
 
 
@@ -95,3 +108,26 @@ def test_importing_the_package_is_light():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "", out.stdout
+
+
+@pytest.mark.parametrize("path", FILES, ids=lambda p: str(p.relative_to(SRC)))
+def test_statuses_are_named_not_spelled(path):
+    from jaxdefl.status import STATUSES
+
+    if path.name == "status.py":
+        return
+    tree = ast.parse(path.read_text())
+    docstrings = {
+        id(n.body[0].value)
+        for n in ast.walk(tree)
+        if isinstance(n, (ast.Module, ast.FunctionDef, ast.ClassDef, ast.AsyncFunctionDef))
+        and n.body
+        and isinstance(n.body[0], ast.Expr)
+        and isinstance(n.body[0].value, ast.Constant)
+    }
+    spelled = [
+        f"line {n.lineno}: {n.value!r}"
+        for n in ast.walk(tree)
+        if isinstance(n, ast.Constant) and n.value in STATUSES and id(n) not in docstrings
+    ]
+    assert not spelled, spelled

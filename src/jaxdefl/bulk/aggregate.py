@@ -9,6 +9,7 @@ import numpy as np
 import pandas as pd
 
 from ..fit import ESTIMATE_COLUMNS
+from ..status import Status
 from ..synthetic import beam_shape
 from .campaign import Campaign
 from .store import atomic_write_text
@@ -96,7 +97,7 @@ def fit_profile(whole: pd.DataFrame, plate_x_mm, span_mm: float, load_a_mm: floa
     RMS misfit of the plates' amplitudes about the curve.
     """
     rows = []
-    z = whole[(whole["axis"] == "z") & (whole["status"] == "converged")]
+    z = whole[(whole["axis"] == "z") & (whole["status"] == Status.CONVERGED)]
     for (day, cam), g in z.groupby(["day", "camera"]):
         idx = g["plate"].to_numpy() - 1
         ok = (idx >= 0) & (idx < len(plate_x_mm))

@@ -12,6 +12,7 @@ from pathlib import Path
 import pandas as pd
 
 from .._errors import JaxdeflError
+from ..status import Status
 from .campaign import Processing, Recording
 from .store import atomic_write_text, digest_path, is_finished, write_manifest
 
@@ -83,7 +84,7 @@ def estimate_unit(
             model=signal_model(proc.model, proc.harmonics, proc.lines),
         )
         whole = estimate_table(traj, axes=axes, **kw)
-        if not (whole.table["status"] == "converged").any():
+        if not (whole.table["status"] == Status.CONVERGED).any():
             raise JaxdeflError(
                 f"{rec.trajectories}: no plate and axis could be fitted "
                 f"({', '.join(sorted(set(whole.table['status'])))})"

@@ -14,6 +14,7 @@ from ..fit.estimate import MAX_ABS_VALUE_MM
 from ..io import timestamp_note, validate_trajectory
 from ..series import make_windows
 from ..series.windows import frame_clock, windows_like
+from ..status import Status
 from ._base import Context, Harmonic, Series, State, lstsq
 
 __all__ = ["build_context", "SENSORS"]
@@ -25,7 +26,7 @@ MIN_SAMPLES = 64
 def _harmonic_rows(est: pd.DataFrame, t0: float) -> dict[tuple[int, str], Harmonic]:
     out = {}
     for row in est.itertuples():
-        if row.status != "converged":
+        if row.status != Status.CONVERGED:
             continue
         om = 2 * math.pi * row.f0_hz
         out[(int(row.plate), row.axis)] = Harmonic(
@@ -136,12 +137,14 @@ def build_context(
             if (np.abs(y[ok]) > MAX_ABS_VALUE_MM).any():
                 notes.append(f"plate {plate} {axis}: values beyond {MAX_ABS_VALUE_MM:g} mm, left out")
                 left_out.append(
-                    dict(plate=int(plate), axis=axis, status="value_out_of_range", n=int(ok.sum()))
+                    dict(plate=int(plate), axis=axis, status=Status.VALUE_OUT_OF_RANGE, n=int(ok.sum()))
                 )
                 continue
             if ok.sum() < MIN_SAMPLES:
                 notes.append(f"plate {plate} {axis}: {int(ok.sum())} samples, left out")
-                left_out.append(dict(plate=int(plate), axis=axis, status="too_few_samples", n=int(ok.sum())))
+                left_out.append(
+                    dict(plate=int(plate), axis=axis, status=Status.TOO_FEW_SAMPLES, n=int(ok.sum()))
+                )
                 continue
             s = Series(int(plate), axis, t[ok], y[ok], k[ok])
             h = free.get((int(plate), axis))

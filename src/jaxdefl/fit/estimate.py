@@ -13,6 +13,7 @@ import pandas as pd
 from .._signals import check_interrupt
 from ..series import Windows
 from ..spectral import Periodogram, lomb_peaks
+from ..status import STATUSES, Status
 from .harmonic import N_PARAMS, HarmonicFit, fit_harmonics
 from .models import SignalModel, fit_model, model_table
 from .residual_noise import ResidualNoise, harmonic_residual, residual_noise
@@ -41,14 +42,7 @@ ESTIMATE_COLUMNS = [
     "sigma_amplitude_white_mm",
     "sigma_f0_white_hz",
 ]
-STATUSES = (
-    "converged",
-    "too_few_samples",
-    "too_few_cycles",
-    "no_significant_peak",
-    "did_not_converge",
-    "value_out_of_range",
-)
+# the status vocabulary (`jaxdefl.status.Status`)
 # A deflection beyond 1000 km is a logger's sentinel or a corrupt cell, not a measurement; its
 # square would overflow the sums of the fit. Such a window gets a status, its neighbours go on.
 MAX_ABS_VALUE_MM = 1e9
@@ -99,9 +93,9 @@ def estimate_windows(
     b = len(w)
     status = w.table["status"].to_numpy(dtype=object).copy()
     wild = (np.abs(np.where(w.mask, w.y, 0.0)) > MAX_ABS_VALUE_MM).any(axis=1)
-    status[(status == "converged") & wild] = "value_out_of_range"
-    todo = np.flatnonzero((status == "converged") & (w.mask.sum(axis=1) > N_PARAMS + 1))
-    status[(status == "converged") & (w.mask.sum(axis=1) <= N_PARAMS + 1)] = "too_few_samples"
+    status[(status == Status.CONVERGED) & wild] = Status.VALUE_OUT_OF_RANGE
+    todo = np.flatnonzero((status == Status.CONVERGED) & (w.mask.sum(axis=1) > N_PARAMS + 1))
+    status[(status == Status.CONVERGED) & (w.mask.sum(axis=1) <= N_PARAMS + 1)] = Status.TOO_FEW_SAMPLES
     nan = np.full(b, np.nan)
     per = {k: nan.copy() for k in ("freq_hz", "power", "fap", "n_indep", "fmin_hz", "fmax_hz", "df_hz")}
     method = np.full(b, "", dtype=object)
@@ -127,8 +121,8 @@ def estimate_windows(
         go = ~few_cycles & ~insignificant
         st = np.where(
             few_cycles,
-            "too_few_cycles",
-            np.where(insignificant, "no_significant_peak", "converged"),
+            Status.TOO_FEW_CYCLES,
+            np.where(insignificant, Status.NO_SIGNIFICANT_PEAK, Status.CONVERGED),
         )
         if model is None:
             f = fit_harmonics(w, p.freq_hz, rows=rows[go], weights=weights)
@@ -136,7 +130,7 @@ def estimate_windows(
             search = dict(fmin_hz=fmin_hz, fmax_hz=fmax_hz, oversampling=oversampling)
             f = fit_model(w, p, rows[go], model, weights=weights, **search)
         converged = f.converged[rows]
-        return rows, p, np.where(go & ~converged, "did_not_converge", st), f
+        return rows, p, np.where(go & ~converged, Status.DID_NOT_CONVERGE, st), f
 
     # Blocks run on a thread per core: XLA and the FFTs release the GIL.
     workers = max(1, os.cpu_count() or 1) if workers is None else max(1, workers)

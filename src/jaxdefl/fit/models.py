@@ -39,6 +39,7 @@ from .._errors import ConfigError
 from .._sincos import sincos
 from ..series import Windows
 from ..spectral import Periodogram, lomb_peaks
+from ..status import Status
 from .harmonic import ATOL, MAX_STEPS, RTOL, HarmonicFit, batch_windows, gauss_newton, normal_equations
 from .residual_noise import ResidualNoise, residual_noise
 
@@ -601,8 +602,8 @@ def model_columns(
             tab[name] = v
             if name not in _DEFAULT_NAMES and name not in added:
                 added.append(name)
-    few = (tab["status"].to_numpy() == "did_not_converge") & (tab["n"].to_numpy() <= n_par + 1)
-    tab.loc[few, "status"] = "too_few_samples"
+    few = (tab["status"].to_numpy() == Status.DID_NOT_CONVERGE) & (tab["n"].to_numpy() <= n_par + 1)
+    tab.loc[few, "status"] = Status.TOO_FEW_SAMPLES
     return tab, added
 
 

@@ -15,6 +15,7 @@ import pandas as pd
 
 from .._errors import InputError
 from ..fit import ESTIMATE_COLUMNS
+from ..status import Status
 from .blocks import BlockAccumulator
 from .detect import ChangeDetector, DetectorSettings
 from .estimator import HarmonicTracker, TrackerSettings, initial_state
@@ -168,7 +169,7 @@ class Monitor:
         t_mid = 0.5 * (t_start + t_end)
         phase = np.mod(tr.x[0] * (t_end - t_mid) - est["psi_rad"] + np.pi, 2 * np.pi) - np.pi
         lost = self.detector.lost if self.detector is not None else np.zeros(self.layout.n, bool)
-        status = np.where(lost, "too_few_samples", "converged")
+        status = np.where(lost, Status.TOO_FEW_SAMPLES, Status.CONVERGED)
         nan = np.full(self.layout.n, np.nan)
         df = pd.DataFrame(
             {

@@ -37,6 +37,8 @@ from typing import Literal
 import numpy as np
 import pandas as pd
 
+from ..status import Status
+
 __all__ = ["TrackerSettings", "HarmonicTracker", "initial_state", "METHODS"]
 
 Method = Literal["ekf", "rls"]
@@ -238,7 +240,8 @@ def initial_state(
     Raises:
         ValueError: no series converged (no loading frequency to start from).
     """
-    ok = (fit_table["status"].to_numpy() == "converged") & np.isfinite(fit_table["sigma_f0_hz"].to_numpy())
+    converged = fit_table["status"].to_numpy() == Status.CONVERGED
+    ok = converged & np.isfinite(fit_table["sigma_f0_hz"].to_numpy())
     if not ok.any():
         raise ValueError("no series of the first frames gives a loading frequency (none converged)")
     f = fit_table["f0_hz"].to_numpy()[ok]

@@ -11,6 +11,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
+from ..status import Status
 from ..synthetic import beam_shape  # noqa: E402
 from .summary import md_table  # noqa: E402
 
@@ -62,7 +63,7 @@ def plot_profiles(
     """Amplitude along the beam per day with the fitted elastic curve."""
     fig, ax = plt.subplots(figsize=(6.5, 3.6), constrained_layout=True)
     xs = np.linspace(0, span_mm, 200)
-    z = whole[(whole["axis"] == "z") & (whole["status"] == "converged")]
+    z = whole[(whole["axis"] == "z") & (whole["status"] == Status.CONVERGED)]
     cmap = plt.cm.viridis
     days = sorted(profile["day"].unique())
     for i, row in enumerate(profile.itertuples()):

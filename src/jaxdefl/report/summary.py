@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from ..status import Status
 from .figures import plot_fit, plot_frame, plot_periodogram
 
 __all__ = ["md_table", "write_demo_report"]
@@ -173,7 +174,7 @@ def write_demo_report(
         "f0_error_hz": "+.2e",
     }
     wt = windowed.table
-    ok = wt[(wt["status"] == "converged") & (wt["axis"] == "z")]
+    ok = wt[(wt["status"] == Status.CONVERGED) & (wt["axis"] == "z")]
     per_plate = (
         ok.groupby("plate")
         .agg(

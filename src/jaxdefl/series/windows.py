@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 
 from .._errors import ConfigError
+from ..status import Status
 from .clock import SNAP_MAX, fit_clock
 
 __all__ = [
@@ -28,8 +29,8 @@ __all__ = [
     "STATUS_FEW_SAMPLES",
 ]
 
-STATUS_OK = "converged"
-STATUS_FEW_SAMPLES = "too_few_samples"
+STATUS_OK = Status.CONVERGED
+STATUS_FEW_SAMPLES = Status.TOO_FEW_SAMPLES
 
 MAX_GRID_FILL = 64
 

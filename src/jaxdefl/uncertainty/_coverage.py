@@ -26,6 +26,7 @@ from scipy import stats
 from ..fit import Estimates, estimate_windows
 from ..io import validate_trajectory
 from ..series import make_windows
+from ..status import Status
 from ._posterior import PosteriorSummary
 
 __all__ = [
@@ -179,7 +180,7 @@ def case_coverage(est: Estimates, truth: dict, post: PosteriorSummary | None = N
     ``lin_*``: the estimates table's default σ's (honest under coloured noise); ``white_*``: the
     white-noise σ's (thesis 5.42-5.45, ``sigma_*_white``); ``post_*``: the posterior's quantiles.
     """
-    ok = np.flatnonzero(est.table["status"].to_numpy() == "converged")
+    ok = np.flatnonzero(est.table["status"].to_numpy() == Status.CONVERGED)
     tab = est.table
     a, sa = tab["amplitude_mm"].to_numpy()[ok], tab["sigma_amplitude_mm"].to_numpy()[ok]
     fr, sf = tab["f0_hz"].to_numpy()[ok], tab["sigma_f0_hz"].to_numpy()[ok]
@@ -223,7 +224,7 @@ def window_scores(est: Estimates, truth: dict) -> pd.DataFrame:
     linearised 95 % interval covers the truth (for choosing flag thresholds)."""
     from ._flags import honesty_features
 
-    ok = np.flatnonzero(est.table["status"].to_numpy() == "converged")
+    ok = np.flatnonzero(est.table["status"].to_numpy() == Status.CONVERGED)
     feat = honesty_features(est).iloc[ok].reset_index(drop=True)
     tab = est.table.iloc[ok]
     a, sa = tab["amplitude_mm"].to_numpy(), tab["sigma_amplitude_mm"].to_numpy()

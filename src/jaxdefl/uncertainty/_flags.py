@@ -50,6 +50,7 @@ import numpy as np
 import pandas as pd
 
 from ..fit import WHITENESS_P_MIN, Estimates
+from ..status import Status
 
 __all__ = [
     "SNR_MIN", "CYCLES_MIN", "DROPOUT_MAX", "R2_MIN", "WHITENESS_P_MIN", "honesty_features",
@@ -108,7 +109,7 @@ def honesty_flags(estimates: Estimates) -> np.ndarray:
     explains = feat["r2"].to_numpy() >= R2_MIN
     reasons += [("coloured_noise", structured & explains), ("inadequate_model", structured & ~explains)]
     out = []
-    fitted = estimates.fit.converged & (estimates.table["status"].to_numpy() == "converged")
+    fitted = estimates.fit.converged & (estimates.table["status"].to_numpy() == Status.CONVERGED)
     for i in range(len(feat)):
         if not fitted[i]:
             out.append("not_fitted")

@@ -7,6 +7,7 @@ import pandas as pd
 
 from .._errors import ConfigError
 from ..fit import Estimates
+from ..status import Status
 from ._coverage import debiased_amplitude, rice_interval
 from ._flags import honesty_features, honesty_flags
 from ._posterior import sample_posteriors
@@ -74,7 +75,7 @@ def choose_windows(estimates: Estimates, n_windows: int, seed: int = 0) -> np.nd
     """
     if not (isinstance(n_windows, int | np.integer) and n_windows >= 1):
         raise ConfigError(f"--posterior: expected a positive number of windows, got {n_windows}")
-    ok = np.flatnonzero(estimates.table["status"].to_numpy() == "converged")
+    ok = np.flatnonzero(estimates.table["status"].to_numpy() == Status.CONVERGED)
     if ok.size <= n_windows:
         return ok
     return np.sort(np.random.default_rng(seed).choice(ok, n_windows, replace=False))
