@@ -110,27 +110,17 @@ def specs_from_diagnosis(
         elif eid == "timing_error":
             params = {k: p[k] for k in ("offset_s", "rate_ppm") if p.get(k) is not None}
             plates = ()
-        elif eid == "amplitude_modulation":
-            detail = e.get("detail") or {}
-            if "relative_rate_per_s" in p:
-                params = {"relative_rate_per_s": p["relative_rate_per_s"], "t_ref_s": duration_s / 2}
+        elif eid in ("amplitude_modulation", "frequency_modulation"):
+            linear, depth = (
+                ("relative_rate_per_s", "depth")
+                if eid == "amplitude_modulation"
+                else ("drift_hz_per_s", "depth_rad")
+            )
+            if linear in p:  # about the record's middle, as the diagnosis fits it
+                params = {linear: p[linear], "t_ref_s": duration_s / 2}
             else:
-                params = {
-                    "depth": p["depth"],
-                    "freq_hz": p["freq_hz"],
-                    "phase_rad": detail.get("phase_rad", 0.0),
-                }
-            plates = ()
-        elif eid == "frequency_modulation":
-            detail = e.get("detail") or {}
-            if "drift_hz_per_s" in p:
-                params = {"drift_hz_per_s": p["drift_hz_per_s"], "t_ref_s": duration_s / 2}
-            else:
-                params = {
-                    "depth_rad": p["depth_rad"],
-                    "freq_hz": p["freq_hz"],
-                    "phase_rad": detail.get("phase_rad", 0.0),
-                }
+                phase = (e.get("detail") or {}).get("phase_rad", 0.0)
+                params = {depth: p[depth], "freq_hz": p["freq_hz"], "phase_rad": phase}
             plates = ()
         elif eid == "extra_periodic":
             params = {"freq_hz": p["freq_hz"], "amplitude_mm": p["amplitude_mm"]}
