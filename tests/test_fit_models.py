@@ -421,7 +421,9 @@ def _three_plates(seed: int) -> pd.DataFrame:
     return pd.concat(
         pd.DataFrame(
             dict(
-                t=t, plate=p, z=harmonic_series(rng, t, 3.0672, (2.4, 0.5, 0.3), (0.1, 0.2, 0.3), 0.0, 0.5, 20.0)
+                t=t,
+                plate=p,
+                z=harmonic_series(rng, t, 3.0672, (2.4, 0.5, 0.3), (0.1, 0.2, 0.3), 0.0, 0.5, 20.0),
             )
         )
         for p in (1, 2, 3)
