@@ -336,3 +336,33 @@ def test_coherent_amplitude_change_is_structural(tmp_path):
     assert amp and amp[0]["class"] == "structural", alarms
     assert not [a for a in amp if a["class"] == "plate"], amp
     assert abs(amp[0]["size"] - 0.04) < 3 * amp[0]["sigma"] + 0.005
+
+
+def test_replay_of_a_logger_table_with_a_repeated_stamp_takes_a_timestamp_policy(tmp_path, capsys):
+    """A logger that wrote one stamp twice with other values (and a drifting, rounded clock):
+    strict refuses naming the policies; merge and reclock replay it; a followed source stays
+    strict."""
+    import pandas as pd
+
+    cfg = _tiny_config(tmp_path, duration=40.0)
+    truth, _ = simulate_trajectories(cfg, 40.0, 0)
+    rng = np.random.default_rng(5)
+    t_true = np.sort(truth["t"].unique())
+    t_logged = np.round(1000.0 + (t_true - t_true[0]) * (1 + 7e-5), 4)  # drifting, 0.1 ms rounding
+    rows = truth.assign(t=truth["t"].map(dict(zip(t_true, t_logged, strict=True))))
+    rows["z"] = rows["z"] + 0.5 * rng.standard_normal(len(rows))
+    # a repeated stamp with another value (the logger wrote one frame twice, re-read)
+    dup = rows.iloc[[130]].assign(z=rows["z"].iloc[130] + 1.0)
+    table = tmp_path / "logger.csv"
+    pd.concat([rows.iloc[:131], dup, rows.iloc[131:]]).to_csv(table, index=False)
+    base = ["monitor", "--replay", str(table), "--speed", "0", "--until", "30"]
+    assert main([*base, "--out", str(tmp_path / "strict")]) == 2
+    assert "--timestamps reclock" in capsys.readouterr().err
+    assert not (tmp_path / "strict").exists()
+    for policy in ("merge", "reclock"):
+        assert main([*base, "--out", str(tmp_path / policy), "--timestamps", policy]) == 0
+        est = pd.read_csv(tmp_path / policy / "estimates.csv")
+        z7 = est[(est.plate == 7) & (est.axis == "z")].iloc[-1]
+        assert abs(z7.f0_hz - 3.068 * (1 - 7e-5)) < 4 * z7.sigma_f0_hz  # on the logger's clock
+    assert main(["monitor", str(table), "--out", str(tmp_path / "f"), "--timestamps", "reclock"]) == 2
+    assert "applies to --replay of a table" in capsys.readouterr().err

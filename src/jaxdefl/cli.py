@@ -289,15 +289,28 @@ def monitor(
     reference: Annotated[
         Path | None, typer.Option(help="Reference (LDS) table t, plate, z, monitored alongside.")
     ] = None,
+    timestamps: Annotated[
+        str, typer.Option("--timestamps", help=_TIMESTAMPS_HELP + " (a replayed table only)")
+    ] = "strict",
 ) -> None:
     """Follow a live camera: f0 and A per plate with σ's, alarms when the structure or a sensor changes."""
     from .monitor.run import run_monitor
     from .monitor.sources import open_source, simulated_source
 
     if config is not None and source is None:
+        if timestamps != "strict":
+            raise ConfigError(
+                f"--timestamps {timestamps}: applies to --replay of a table, not to a simulated camera"
+            )
         src = simulated_source(config, duration_s=until, seed=seed)
     else:
-        src = open_source(source if not replay else None, source if replay else None, config, idle_s=idle)
+        src = open_source(
+            source if not replay else None,
+            source if replay else None,
+            config,
+            idle_s=idle,
+            timestamps=timestamps,
+        )
     run_monitor(
         src,
         out,

@@ -47,11 +47,14 @@ def _split(t: np.ndarray, Y: np.ndarray, chunk: int) -> Iterator[tuple[np.ndarra
         yield t[s : s + chunk], Y[s : s + chunk]
 
 
-def table_source(path: Path, axes: tuple[str, ...] | None = None, chunk: int = 32) -> Source:
-    """Replay a whole trajectory table (validated by `jaxdefl.io.read_trajectory`)."""
+def table_source(
+    path: Path, axes: tuple[str, ...] | None = None, chunk: int = 32, timestamps: str = "strict"
+) -> Source:
+    """Replay a whole trajectory table (validated by `jaxdefl.io.read_trajectory` under the
+    ``timestamps`` policy)."""
     from ..io import read_trajectory
 
-    df = read_trajectory(path)
+    df = read_trajectory(path, timestamps=timestamps)
     if df["segment"].nunique() > 1:
         first = df["segment"].iloc[0]
         df = df[df["segment"] == first]
@@ -222,10 +225,25 @@ def simulated_source(config: Path, duration_s: float | None = None, seed: int | 
 
 
 def open_source(
-    source: Path | None, replay: Path | None, config: Path | None, idle_s: float = 10.0
+    source: Path | None,
+    replay: Path | None,
+    config: Path | None,
+    idle_s: float = 10.0,
+    timestamps: str = "strict",
 ) -> Source:
-    """The source the CLI's arguments name (exactly one of SOURCE, --replay, --config)."""
+    """The source the CLI's arguments name (exactly one of SOURCE, --replay, --config).
+
+    ``timestamps``: the policy of `jaxdefl.io` for a replayed table; a followed source is read
+    as it arrives, where a clock can only be recovered from what came so far: strict only."""
     from .._errors import ConfigError
+    from ..io import check_timestamp_policy
+
+    check_timestamp_policy(timestamps)
+    if timestamps != "strict" and replay is None:
+        raise ConfigError(
+            f"--timestamps {timestamps}: applies to --replay of a table; a followed or simulated "
+            "source is read as it arrives (strict)"
+        )
 
     given = [x for x in (source, replay, config) if x is not None]
     if len(given) != 1:
@@ -240,7 +258,11 @@ def open_source(
         raise InputError(f"{path}: not found; expected a trajectory table or a recording")
     is_table = path.suffix.lower() in TABLE_SUFFIXES
     if replay is not None:
-        return table_source(path) if is_table else recording_source(path)
+        if is_table:
+            return table_source(path, timestamps=timestamps)
+        if timestamps != "strict":
+            raise ConfigError(f"--timestamps {timestamps}: applies to --replay of a table, not of frames")
+        return recording_source(path)
     if is_table:
         return follow_table(path, idle_s=idle_s)
     if not path.exists():
