@@ -565,6 +565,8 @@ def reconcile_file(
     import json
     import tomllib
 
+    import matplotlib.pyplot as plt
+
     from ._configs import resolve_config
     from .reconcile import calibrate, effect_tables_toml, reconcile
     from .report.reconcile import plot_level, reconcile_markdown
@@ -634,8 +636,6 @@ def reconcile_file(
             fig = plot_level(rec, level)
             outs.figure(out / f"{level}.png", fig, dpi=110)
             figs.append(f"{level}.png")
-            import matplotlib.pyplot as plt
-
             plt.close(fig)
         outs.text(out / "report.md", reconcile_markdown(rec, d, figs, str(recording), str(config)))
     verdicts = ", ".join(f"{r['metric']} {r['verdict']}" for r in d["levels"])

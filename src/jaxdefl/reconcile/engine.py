@@ -54,10 +54,10 @@ def _value(p) -> float | str | None:
     return p.get("value") if isinstance(p, dict) else p
 
 
-def _per_range(e: dict, detail_key: str, value: float, calibration) -> float:
+def _per_range(sizes: dict, value: float, calibration) -> float:
     """A trajectory-level size as the range size that makes it: the median over the effect's
-    series of size / gain, where the range-to-centroid gain is large enough to tell."""
-    sizes = (e.get("detail") or {}).get(detail_key) or {}
+    series ({"4z": size, ...}) of size / gain, where the range-to-centroid gain is large enough
+    to tell; ``value`` without a calibration or per-series sizes."""
     if calibration is None or not sizes:
         return value
     ratios = []
@@ -83,7 +83,8 @@ def specs_from_diagnosis(
     for e in effects:
         eid = e["id"]
         p = {k: _value(v) for k, v in e.get("parameters", {}).items()}
-        kind = p.get("kind") or (e.get("detail") or {}).get("kind")
+        detail = e.get("detail") or {}
+        kind = p.get("kind") or detail.get("kind")
         plates = tuple(int(x) for x in e.get("plates", ()))
         params: dict[str, float] = {}
         if eid not in INJECTABLE:
@@ -93,19 +94,19 @@ def specs_from_diagnosis(
             continue
         whole = n_plates > 0 and len(plates) * 2 >= n_plates
         if eid == "drift":
-            amp = _per_range(e, "amplitudes_mm", p["amplitude_mm"], calibration)
+            amp = _per_range(detail.get("amplitudes_mm") or {}, p["amplitude_mm"], calibration)
             # a polynomial drift (slower than the record) is simulated as a warm-up whose time
             # constant starts at the record's length (`refine_range_effects` fits it)
             tau = p["tau_s"] if kind == "exponential" and p.get("tau_s") else duration_s
             params = {"amplitude_mm": amp, "tau_s": tau}
             plates = () if whole else plates
         elif eid == "level_jump":
-            size = _per_range(e, "sizes_mm", p["size_mm"], calibration)
+            size = _per_range(detail.get("sizes_mm") or {}, p["size_mm"], calibration)
             params = {"t_jump_s": p["t_jump_s"], "size_mm": size}
             plates = () if whole else plates
         elif eid == "outliers":
-            scales = {k: abs(float(v)) for k, v in ((e.get("detail") or {}).get("scales_mm") or {}).items()}
-            scale = abs(_per_range({"detail": {"s": scales}}, "s", p["scale_mm"], calibration))
+            scales = {k: abs(float(v)) for k, v in (detail.get("scales_mm") or {}).items()}
+            scale = abs(_per_range(scales, p["scale_mm"], calibration))
             params = {"fraction": p["fraction"], "scale_mm": scale}
         elif eid == "timing_error":
             params = {k: p[k] for k in ("offset_s", "rate_ppm") if p.get(k) is not None}
@@ -119,7 +120,7 @@ def specs_from_diagnosis(
             if linear in p:  # about the record's middle, as the diagnosis fits it
                 params = {linear: p[linear], "t_ref_s": duration_s / 2}
             else:
-                phase = (e.get("detail") or {}).get("phase_rad", 0.0)
+                phase = detail.get("phase_rad", 0.0)
                 params = {depth: p[depth], "freq_hz": p["freq_hz"], "phase_rad": phase}
             plates = ()
         elif eid == "extra_periodic":

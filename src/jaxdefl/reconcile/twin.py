@@ -72,12 +72,14 @@ class Twin:
         out = self.df.copy()
         rng = np.random.default_rng([int(seed), 9301])
         gain, shift, extra = motion_modulations(effects, 0.0)
-        n_plates = max(self.plates)
         stamps = stamp_times(effects, self.df["t"].to_numpy(), self.t_first)
         cal = self.calibration
         n_frames = int(self.frame.max()) + 1
         common = {a: rng.standard_normal(n_frames) for a in ("z", "x", "y")}
-        ranged = any(e.level == "range" for e in effects)
+        off = None
+        if any(e.level == "range" for e in effects):  # once per frame, indexed per series below
+            frame_t = np.unique(self.df["t"].to_numpy()) - self.t_first
+            off = range_offset(effects, frame_t, 0.0, max(self.plates), seed)
         for s in self.series:
             t = s.t
             c, a, b = s.coef
@@ -90,10 +92,9 @@ class Twin:
                 shape = self.shape.get(s.plate, 0.0)
                 for f in extra:
                     y = y + shape * f(t, theta + math.pi / 2)
-            if ranged:
+            if off is not None:
                 g_range = cal.gain_of(s.plate, s.axis) if cal is not None else float(s.axis == "z")
-                off = range_offset(effects, t, 0.0, n_plates, seed)
-                y = y + g_range * off[:, s.plate]
+                y = y + g_range * off[self.frame[s.rows], s.plate]
             rho = cal.frame_common.get(s.axis, 0.0) if cal is not None else 0.0
             eps = (
                 math.sqrt(1 - rho) * rng.standard_normal(t.size)
