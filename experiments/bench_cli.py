@@ -15,9 +15,9 @@ Usage: python experiments/bench_cli.py [--windows-per-series 60] [--loop-sample 
 Measured (2 cores, 2026-11-25, load 1-2 unless said):
 - 08:23 (before the r2/whiteness/κ and clock-recovery merges; load ~1): --help 0.16 s, fit
   cold 6.5 s, warm 4.3 s, kernel 0.50 + 0.81 s, loop 37.5 s (machine busier while it ran): 8.6x.
-- 10:00, after them: warm 5.7 s (3.6 s of it overhead: 3.0 s of imports, scipy.stats among
-  them), kernel 0.42 + 0.80 s, loop 16.4 s: 2.9x.
-- 10:02, residual_noise without scipy.stats (imports 1.2 s): --help 0.18 s, cold 7.3 s, warm
+- 10:00, after them: warm 5.7 s, kernel 0.42 + 0.80 s, loop 16.4 s: 2.9x.
+- 10:02, residual_noise without scipy.stats (`python -X importtime -c "import jaxdefl.pipeline"`:
+  1.17-1.34 s; importing scipy.stats as well took 0.69-0.85 s more): --help 0.18 s, cold 7.3 s, warm
   4.8 s, kernel 0.46 + 0.82 s, loop 13.0 s: CLI 2.7x, kernel 15.9x. What remains: JAX's tracing of
   the batched kernels in every fresh process (~1.5 s: the persistent cache skips the XLA compile,
   not the trace), imports (~1.2 s), the residual-noise statistics (~0.8 s single-threaded).
