@@ -183,3 +183,5 @@ def test_diagnose_reports_structure_it_cannot_name_on_a_short_record(tmp_path):
     reasons = {c["id"]: c["reason"] for c in d["cannot_tell"]}
     assert "too short" in reasons["harmonic_distortion"] and "too short" in reasons["amplitude_modulation"]
     assert "reference" in reasons["motion_artefact"]
+    report = out.with_suffix(".md").read_text()
+    assert "not white" in report and "consistent with the nominal model" not in report
