@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pandas as pd
 import pytest
-from scipy import optimize, stats
+from scipy import optimize, signal, stats
 
 from jaxdefl._errors import ConfigError, InputError
 from jaxdefl.cli import main
@@ -31,11 +31,14 @@ def record(
     t0=1.7e9,
     with_lds=False,
     rho=0.0,
+    drift=None,
+    ar=0.0,
 ):
     """Harmonic plates (+ white noise, drop-outs) and optionally a line (freq, amp) on z.
 
     ``rho``: share of the noise variance common to all plates of a frame (a ToF camera's
-    frame-wide range error).
+    frame-wide range error). ``drift``: (amp mm, τ s) of a warm-up a·exp(−t/τ) on every z.
+    ``ar``: lag-one autocorrelation of the noise on the frame clock (AR(1), same variance).
     """
     rng = np.random.default_rng(seed)
     n = int(minutes * 60 * fs)
@@ -45,7 +48,10 @@ def record(
     common = {a: rng.standard_normal(t.size) for a in "xz"} if rho > 0 else {"x": 0.0, "z": 0.0}
 
     def noise(axis, s):
-        return s * (math.sqrt(rho) * common[axis] + math.sqrt(1 - rho) * rng.standard_normal(t.size))
+        e = math.sqrt(rho) * common[axis] + math.sqrt(1 - rho) * rng.standard_normal(t.size)
+        if ar:
+            e = signal.lfilter([math.sqrt(1 - ar * ar)], [1.0, -ar], e)
+        return s * e
 
     rows = []
     for p in range(1, plates + 1):
@@ -54,6 +60,8 @@ def record(
         x = 10 + 0.5 * np.cos(2 * np.pi * F0 * t + ph) + noise("x", 0.3)
         if line is not None:
             z = z + line[1] * np.cos(2 * np.pi * line[0] * t + 0.4)
+        if drift is not None:
+            z = z + drift[0] * np.exp(-t / drift[1])
         rows.append(pd.DataFrame({"t": t0 + t, "plate": p, "x": x, "z": z}))
     traj = pd.concat(rows, ignore_index=True)
     if not with_lds:
@@ -238,6 +246,41 @@ def test_a_common_line_is_still_found_under_frame_common_noise():
     e = d["effects"][0]
     assert e["plates"] == list(range(1, 10)) and e["axes"] == ["z"]
     assert e["parameters"]["amplitude_mm"]["value"] == pytest.approx(0.3, rel=0.25)
+
+
+def test_a_camera_warm_up_under_the_noise_is_a_drift_not_a_jump():
+    # 0.12 mm decaying over 200 s on every plate (S ≈ 19 per series, too little alone): one
+    # warm-up shared by the plates (τ and one amplitude) against one jump shared by them (a time
+    # and one size) on the same data; the smooth approach fits better and is not called a step.
+    d = diagnose(record(plates=9, seed=5, drift=(0.12, 200.0)))
+    assert [e["id"] for e in d["effects"]] == ["drift"]
+    e = d["effects"][0]
+    assert e["plates"] == list(range(1, 10)) and e["axes"] == ["z"] and e["detail"]["mode"] == "common"
+    p = e["parameters"]
+    assert p["kind"]["value"] == "exponential"
+    assert p["amplitude_mm"]["value"] == pytest.approx(0.12, rel=0.3)
+    assert p["tau_s"]["value"] == pytest.approx(200.0, rel=0.4)
+
+
+def test_a_line_below_every_plate_is_found_by_their_coherent_sum():
+    # 0.04 mm at 2.31 Hz on every plate (S ≈ 16 per series: no plate pays for its own two
+    # amplitudes): the plates' Fourier coefficients summed coherently find it, one amplitude
+    # shared by the plates (3 parameters) models it.
+    d = diagnose(record(plates=9, seed=4, line=(2.31, 0.04)))
+    assert [e["id"] for e in d["effects"]] == ["extra_periodic"]
+    e = d["effects"][0]
+    assert e["plates"] == list(range(1, 10)) and e["detail"]["mode"] == "common"
+    f = e["parameters"]["freq_hz"]
+    assert abs(f["value"] - 2.31) < 4 * f["sigma"] < 1e-3
+    assert e["parameters"]["amplitude_mm"]["value"] == pytest.approx(0.04, rel=0.3)
+
+
+@pytest.mark.parametrize("ar, seed", [(0.6, 6), (0.8, 7)])
+def test_noise_correlated_from_frame_to_frame_is_not_an_effect(ar, seed):
+    # AR(1) noise wanders: counted as white it reads as level jumps on most plates (8 of them at
+    # ρ = 0.8). The slow signatures weigh their statistics by the long-run variance.
+    d = diagnose(record(plates=9, seed=seed, ar=ar))
+    assert d["effects"] == []
 
 
 def test_a_noise_free_table_says_cannot_tell():

@@ -264,11 +264,17 @@ def test_extra_periodic_amplitude_is_the_depth_axis():
         return clean + sig * eps + a * np.cos(2 * np.pi * 4.1 * t + 0.7)
 
     ctx, states = make_case(inject, seed=12, n_plates=5)
-    (prop,) = passing(ctx, states, EFFECT.propose(ctx, states))
+    good = passing(ctx, states, EFFECT.propose(ctx, states))
+    (prop,) = [p for p in good if p.detail.get("mode") != "common"]  # amplitudes per series
     assert {ctx.series[i].axis for i in prop.series} == {"z", "x"}
     assert close(value(prop, "freq_hz"), 4.1, 0.001)
     assert close(value(prop, "amplitude_mm"), 0.3, 0.1)
     assert close(prop.detail["median_amplitude_by_axis_mm"]["x"], 0.1, 0.25)
+    # and one amplitude shared by the plates of each axis
+    common = {p.detail["amplitude_axis"]: p for p in good if p.detail.get("mode") == "common"}
+    assert sorted(common) == ["x", "z"] and all(p.n_params == 3 for p in common.values())
+    assert close(value(common["z"], "amplitude_mm"), 0.3, 0.1)
+    assert close(value(common["x"], "amplitude_mm"), 0.1, 0.25)
 
 
 # ---------------------------------------------------------------------------------------------

@@ -50,6 +50,7 @@ __all__ = [
     "regress",
     "regress_offset",
     "keep_series",
+    "masked_fourier",
     "masked_periodogram",
     "peak_offset",
     "LOG_2PI",
@@ -401,19 +402,30 @@ def peak_offset(p_left: float, p_mid: float, p_right: float) -> float:
     return float(np.clip(0.5 * (a - c) / den, -0.5, 0.5)) if den < 0 else 0.0
 
 
-def masked_periodogram(ctx: Context, i: int, r: np.ndarray, oversample: int = 1):
-    """Classical periodogram of a residual on the frame clock (zero-filled gaps), normalised by
-    the residual variance so that white noise gives Exp(1) powers.
+def masked_fourier(ctx: Context, i: int, r: np.ndarray, oversample: int = 1):
+    """Fourier coefficients of a residual on the frame clock (zero-filled gaps), normalised by
+    the residual variance so that white noise gives unit mean power (complex: a line common to
+    several series adds up coherently in their sum).
 
-    Returns (freq_hz (freq,), power (freq,)), frequencies k/(M dt) from 1/(M dt) to Nyquist,
-    M = oversample × frames.
+    Returns (freq_hz (freq,), coef (freq,) complex), frequencies k/(M dt) from 1/(M dt) to
+    Nyquist, M = oversample × frames.
     """
     s = ctx.series[i]
     m = int(ctx.n_frames * oversample)
     g = np.zeros(m)
     g[s.k] = r - r.mean()
-    spec = np.fft.rfft(g)[1:]
     var = float(np.mean((r - r.mean()) ** 2)) or 1e-300
-    power = np.abs(spec) ** 2 / (s.n * var)
+    coef = np.fft.rfft(g)[1:] / math.sqrt(s.n * var)
     freq = np.arange(1, m // 2 + 1) / (m * ctx.dt_s)
-    return freq, power
+    return freq, coef
+
+
+def masked_periodogram(ctx: Context, i: int, r: np.ndarray, oversample: int = 1):
+    """Classical periodogram of a residual on the frame clock (`masked_fourier`'s |·|²): white
+    noise gives Exp(1) powers.
+
+    Returns (freq_hz (freq,), power (freq,)), frequencies k/(M dt) from 1/(M dt) to Nyquist,
+    M = oversample × frames.
+    """
+    freq, coef = masked_fourier(ctx, i, r, oversample)
+    return freq, coef.real**2 + coef.imag**2

@@ -10,11 +10,19 @@ first timestamp) with the free nuisance (offset; C and D on untied series), over
 from a few loading cycles to twice the record; each series' statistic is χ²_1 at a fixed τ. The
 p-value is the largest single-series statistic Bonferroni-corrected over series × grid, or the
 statistic summed over all series (χ²_S) corrected over the grid, whichever is smaller (doubled).
-The polynomial alternative (Legendre polynomials of degree 1..3 in the centred time, the degree
-chosen by BIC over the series) is proposed beside it; BIC decides between them and a level jump.
+Common mode: a camera's warm-up shifts the range of the whole image alike, so the same grid also
+scores one amplitude shared by the series of an axis ((Σ β·info)²/Σ info at each τ, χ²_1,
+Bonferroni over the grid and the axes): the form under the noise, where no series pays for an
+amplitude of its own. The polynomial alternative (Legendre polynomials of degree 1..3 in the
+centred time, the degree chosen by BIC over the series) is proposed beside them; BIC decides
+between them and a level jump on the same data (a common warm-up and a common jump both cost 2
+parameters: the better fit wins, and a smooth approach fits an exponential better than a step).
+Every statistic uses the series' long-run variance (`screening.long_run_factor`): noise
+correlated from frame to frame has its power where a drift lives.
 
 Model term: y += a_s exp(−t/τ), τ shared by the series it touches (refined by variable
-projection on log τ, optimistix Levenberg-Marquardt), a_s per series (signed): 1 + S parameters.
+projection on log τ, optimistix Levenberg-Marquardt), a_s per series (signed): 1 + S parameters;
+common mode y += a exp(−t/τ) on every series of the axis, τ refined on a fine grid: 2 parameters.
 Polynomial: y += Σ_d c_sd P_d(u), u = (t − t_mid)/(duration/2): degree × S parameters.
 
 Plausible magnitudes: 0.1-5 mm over τ = 1-30 min for ToF warm-up (more when the camera starts
@@ -31,13 +39,16 @@ import numpy as np
 from .._base import Context, Effect, Proposal, State, keep_series, lstsq, peak_offset
 from .._varpro import fit_shared
 from .screening import (
+    bonferroni,
     chi2_sf,
     combined_p,
     gain,
+    long_run_factor,
     median_signed,
     param,
     residual,
     screen_grid,
+    shared_amplitude,
     touched,
     updated,
     weights,
@@ -80,27 +91,36 @@ class Drift(Effect):
             return []
         nus = {i: ctx.nuisance(i) for i in idx}
         out = []
-        exp_prop = self._exponential(ctx, states, idx, nus)
+        exp_prop, common = self._exponential(ctx, states, idx, nus)
         if exp_prop is not None:
             out.append(exp_prop)
+        out += common
         poly_prop = self._polynomial(ctx, states, idx, nus)
         if poly_prop is not None:
             out.append(poly_prop)
         return out
 
     # -- exponential -------------------------------------------------------------------------
-    def _exponential(self, ctx: Context, states: list[State], idx: list[int], nus: dict) -> Proposal | None:
+    def _exponential(self, ctx: Context, states: list[State], idx: list[int], nus: dict):
+        """(per-series proposal or None, [common-mode proposals, one per axis])."""
         dur = float(ctx.duration_s)
         tau_lo = max(5.0 / max(ctx.f0_hz, 1e-9), 10 * ctx.dt_s, 0.01 * dur)
         grid = np.geomspace(tau_lo, 2.0 * dur, N_GRID)
         # the columns on the frame clock once (exp is the cost), screened for all series by GEMMs
         e_grid = np.exp(-(np.arange(ctx.n_frames) * ctx.dt_s)[:, None] / grid[None, :])
-        stat = screen_grid(ctx, states, idx, nus, e_grid)[0]
+        stat, beta, info = screen_grid(ctx, states, idx, nus, e_grid)
+        axes = sorted({ctx.series[i].axis for i in idx})
+        common = []
+        for ax in axes:
+            rows = [j for j, i in enumerate(idx) if ctx.series[i].axis == ax]
+            prop = self._common(ctx, states, [idx[j] for j in rows], nus, grid, beta[rows], info[rows], len(axes))
+            if prop is not None:
+                common.append(prop)
         logn = np.array([math.log(ctx.series[i].n) for i in idx])
         crit = np.maximum(stat - logn[:, None], 0.0).sum(axis=0)
         g = int(np.argmax(crit))
         if crit[g] <= 0:
-            return None
+            return None, common
         p_value = combined_p(
             stat.ravel(),
             1,
@@ -117,9 +137,82 @@ class Drift(Effect):
         sel = [i for j, i in enumerate(idx) if stat[j, g] > logn[j]]
         prop = self._linear(ctx, states, sel, nus, math.exp(log_tau), None, p_value)
         if prop is None:
-            return None
+            return None, common
         prop.refine = lambda: self._refined(ctx, states, prop, nus, p_value)
+        return prop, common
+
+    def _common(self, ctx, states, idx, nus, grid, beta, info, n_axes) -> Proposal | None:
+        """One warm-up of the same size on every series of an axis (the camera's range offset
+        drifts for the whole image): τ and one amplitude, 2 parameters. Against per-series
+        amplitudes (1 + S parameters) it is what a camera warm-up under the noise looks like,
+        and against a common level jump (also 2 parameters) BIC compares the two shapes on the
+        same data: a smooth approach is not a step.
+
+        Signature: the shared coefficient's χ²_1 statistic (Σ β info)² / Σ info at each τ of the
+        grid, Bonferroni over the grid and the axes; τ refined (``refine``) on a finer grid about
+        the peak."""
+        if len(idx) < 2:
+            return None
+        c = (beta * info).sum(axis=0) ** 2 / np.maximum(info.sum(axis=0), 1e-300)
+        g = int(np.argmax(c))
+        n_tot = sum(ctx.series[i].n for i in idx)
+        if c[g] <= 2 * math.log(n_tot):
+            return None
+        p_value = bonferroni(float(chi2_sf(c[g], 1)), N_GRID * n_axes)
+        prop = self._common_at(ctx, states, idx, nus, float(grid[g]), None, p_value)
+        if prop is not None:
+            lo, hi = math.log(grid[max(g - 1, 0)]), math.log(grid[min(g + 1, grid.size - 1)])
+            prop.refine = lambda: self._common_refined(ctx, states, idx, nus, lo, hi, p_value)
         return prop
+
+    def _common_refined(self, ctx, states, idx, nus, lo, hi, p_value) -> Proposal | None:
+        """τ of the common warm-up on a fine grid in log τ between the screening grid's
+        neighbours of the peak, with its σ from the curvature of the profile (Δχ² = 1)."""
+        fine = np.exp(np.linspace(lo, hi, 17))
+        cols = np.exp(-(np.arange(ctx.n_frames) * ctx.dt_s)[:, None] / fine[None, :])
+        _, b2, i2 = screen_grid(ctx, states, idx, nus, cols)
+        c2 = (b2 * i2).sum(axis=0) ** 2 / np.maximum(i2.sum(axis=0), 1e-300)
+        k = int(np.argmax(c2))
+        tau = float(fine[k])
+        sig_tau = None
+        if 0 < k < fine.size - 1:  # a parabola in log τ through the peak
+            x = np.log(fine[k - 1 : k + 2])
+            curv = (c2[k - 1] - 2 * c2[k] + c2[k + 1]) / (x[1] - x[0]) ** 2
+            if curv < 0:
+                sig_tau = tau * math.sqrt(2.0 / -curv)
+        return self._common_at(ctx, states, idx, nus, tau, sig_tau, p_value)
+
+    def _common_at(self, ctx, states, idx, nus, tau, sig_tau, p_value) -> Proposal | None:
+        """The common warm-up at a given τ: its shared amplitude by weighted least squares."""
+        fit = shared_amplitude(
+            ctx, states, idx, lambda i: np.exp(-ctx.series[i].t / tau)[:, None], nus, self.id
+        )
+        if fit is None:
+            return None
+        amp = float(fit.beta[0])
+        amp_sigma = math.sqrt(max(float(fit.cov[0, 0]), 0.0))
+        where = ", ".join(ctx.series[i].key for i in fit.series)
+        return Proposal(
+            effect=self.id,
+            series=fit.series,
+            states=fit.states,
+            n_params=2,
+            p_value=p_value,
+            parameters={
+                "amplitude_mm": param(amp, amp_sigma),
+                "tau_s": param(tau, sig_tau),
+                "kind": param("exponential"),
+            },
+            t_start=0.0,
+            t_end=float(min(ctx.duration_s, 3.0 * tau)),
+            band_hz=[0.0, float(1.0 / (2 * math.pi * tau))],
+            explanation=(
+                f"The measured positions of {where} all drift by {amp:+.3f} mm at the start of the "
+                f"record, decaying with a time constant of {tau / 60:.1f} min: the camera warming up "
+                "shifts its range for the whole image alike."
+            ),
+            detail={"mode": "common"},
+        )
 
     def _linear(self, ctx, states, sel, nus, tau, sig_tau, p_value) -> Proposal | None:
         """The exponential at a given τ on each series (linear amplitude + nuisance); the series
@@ -210,7 +303,7 @@ class Drift(Effect):
                 sub = gtg[np.ix_(cols, cols)]
                 rss[d] = rr - float(b[cols] @ np.linalg.lstsq(sub, b[cols], rcond=None)[0])
             n_used = max(int((w > 0).sum()) - MAX_DEGREE - q, 1)
-            s2 = max(rss[MAX_DEGREE] / n_used, 1e-300)
+            s2 = max(rss[MAX_DEGREE] / n_used, 1e-300) * long_run_factor(ctx, i, r)
             for d in range(1, MAX_DEGREE + 1):
                 stat[j, d - 1] = max(rss[0] - rss[d], 0.0) / s2
             grams[i] = g

@@ -12,7 +12,8 @@ a fixed split), summed over the series (χ²_S) for a common jump, and its spars
 (Σ max(T_s − log n, 0)) for a jump on a few series. The p-value is the largest single-series
 statistic Bonferroni-corrected over series × candidate splits, or the summed statistic corrected
 over the candidate splits, whichever is smaller (doubled): conservative, since neighbouring splits
-are strongly correlated. The jump time is refined to the frame on the series that keep it.
+are strongly correlated. The jump time is refined to the frame on the series that keep it. σ̂²
+is the long-run variance (`screening.long_run_factor`): AR(1)-like noise wanders like steps.
 
 Common mode: the same scan with one size shared by the series of an axis (Σ_s b_s/σ_s² over
 Σ_s M_s/σ_s² of the CUSUM pieces: χ²_1 at a fixed split, Bonferroni over splits × axes): the
@@ -40,6 +41,7 @@ from .screening import (
     chi2_sf,
     combined_p,
     gain,
+    long_run_factor,
     median_signed,
     param,
     project_out,
@@ -62,7 +64,8 @@ def _cusum(ctx: Context, i: int, st: State):
     nu = ctx.nuisance(i)
     r0 = project_out(nu, w, r[:, None])[:, 0]
     n_used = max(int((w > 0).sum()) - nu.shape[1], 1)
-    s2 = float(np.sum(w * r0 * r0) / n_used) or 1e-300
+    # frame-to-frame correlated noise wanders like a jump: its long-run variance is the scale
+    s2 = (float(np.sum(w * r0 * r0) / n_used) or 1e-300) * long_run_factor(ctx, i, r0)
     wk = np.zeros(ctx.n_frames)
     rk = np.zeros(ctx.n_frames)
     wk[s.k] = w

@@ -27,6 +27,7 @@ __all__ = [
     "screen_columns",
     "screen_grid",
     "touched",
+    "long_run_factor",
     "median_signed",
     "SharedAmplitude",
     "shared_amplitude",
@@ -136,6 +137,25 @@ def screen_columns(nu: np.ndarray, w: np.ndarray, r: np.ndarray, cols: np.ndarra
     return ctr * ctr / ctc / s2, beta
 
 
+def long_run_factor(ctx: Context, i: int, r: np.ndarray) -> float:
+    """(1 + ρ)/(1 − ρ), at least 1: how much more a slow term's statistic varies than white
+    noise predicts, ρ the lag-one autocorrelation of the residual ``r`` of series i on the
+    frame clock (pairs of consecutive frames). Noise correlated from frame to frame (AR(1),
+    a camera's slowly wandering range error) has its power near zero frequency raised by this
+    factor, where drifts and jumps live; the slow signatures divide their statistics by it.
+    A slow effect in ``r`` raises ρ by its share of the variance (conservative)."""
+    s = ctx.series[i]
+    g = np.full(ctx.n_frames, np.nan)
+    g[s.k] = r - r.mean()
+    a, b = g[:-1], g[1:]
+    ok = np.isfinite(a) & np.isfinite(b)
+    if ok.sum() < 32:
+        return 1.0
+    rho = float(np.sum(a[ok] * b[ok]) / math.sqrt(np.sum(a[ok] ** 2) * np.sum(b[ok] ** 2)))
+    rho = min(max(rho, 0.0), 0.95)
+    return (1.0 + rho) / (1.0 - rho)
+
+
 def median_signed(values: np.ndarray) -> float:
     """The median of signed per-series amplitudes; of their sizes when the signs disagree
     (between 20 and 80 % positive)."""
@@ -155,13 +175,16 @@ def screen_grid(
         idx: the series; nus: {series: (sample, q) nuisance}; cols: (frame, c) candidate columns
             on the frame clock (``k`` of each sample picks its row).
     Returns:
-        (stat (series, c), beta (series, c)): χ²_1 statistic and coefficient of every column
-        alone (nuisance free) on every series. The products are GEMMs over the frame clock,
-        a few series at a time (memory).
+        (stat (series, c), beta (series, c), info (series, c)): χ²_1 statistic, coefficient and
+        Fisher information (1/variance of the coefficient) of every column alone (nuisance free)
+        on every series; stat = beta² info. A coefficient shared by several series has the
+        information Σ info and the statistic (Σ beta info)² / Σ info. The products are GEMMs
+        over the frame clock, a few series at a time (memory).
     """
     nf, c = cols.shape
     stat = np.zeros((len(idx), c))
     beta = np.zeros((len(idx), c))
+    info = np.zeros((len(idx), c))
     sq = cols * cols
     for start in range(0, len(idx), chunk):
         part = idx[start : start + chunk]
@@ -180,7 +203,7 @@ def screen_grid(
             r = s.y - st.mean
             r0 = r - nu @ np.linalg.solve(gram, nw.T @ r)
             n_used = max(int((w > 0).sum()) - nu.shape[1], 1)
-            s2.append(float(np.sum(w * r0 * r0)) / n_used or 1e-300)
+            s2.append((float(np.sum(w * r0 * r0)) / n_used or 1e-300) * long_run_factor(ctx, i, r0))
             wg[s.k, j] = w
             rg[s.k, j] = w * r0
             ng[s.k, j * qmax : j * qmax + nu.shape[1]] = nw
@@ -196,7 +219,8 @@ def screen_grid(
             row = start + j
             beta[row] = ctr[:, j] / den
             stat[row] = ctr[:, j] ** 2 / den / s2[j]
-    return stat, beta
+            info[row] = den / s2[j]
+    return stat, beta, info
 
 
 @dataclass
