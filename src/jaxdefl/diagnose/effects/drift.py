@@ -113,7 +113,8 @@ class Drift(Effect):
         common = []
         for ax in axes:
             rows = [j for j, i in enumerate(idx) if ctx.series[i].axis == ax]
-            prop = self._common(ctx, states, [idx[j] for j in rows], nus, grid, beta[rows], info[rows], len(axes))
+            on_axis = [idx[j] for j in rows]
+            prop = self._common(ctx, states, on_axis, nus, grid, beta[rows], info[rows], len(axes))
             if prop is not None:
                 common.append(prop)
         logn = np.array([math.log(ctx.series[i].n) for i in idx])

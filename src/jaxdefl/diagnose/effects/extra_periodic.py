@@ -171,7 +171,9 @@ class ExtraPeriodic(Effect):
             s, st = ctx.series[i], states[i]
             w = np.where(st.inlier, 1.0 / st.scale**2, 0.0)
             r = s.y - st.mean
-            rs[i] = (s.t, w * (r - np.sum(w * r) / max(np.sum(w), 1e-300)), w)
+            rc = r - np.sum(w * r) / max(np.sum(w), 1e-300)
+            sw = float(np.sum(w))
+            rs[i] = (s.t, w * rc, sw * sw / max(float(np.sum(w * rc * rc)), 1e-300))  # Σw / σ̂²
         step = 1.0 / (ctx.n_frames * ctx.dt_s)
         grid = f_peak + np.linspace(-step, step, 21)
 
@@ -193,13 +195,12 @@ class ExtraPeriodic(Effect):
         g = fit.beta / max(amp, 1e-300)
         amp_sig = math.sqrt(max(float(g @ fit.cov @ g), 0.0))
         # σ_f of a line of amplitude a in noise of total information I = Σ n/σ²:
-        # √(6) / (π T a √I) (the Cramér-Rao bound of a sinusoid's frequency)
-        info = sum(float(np.sum(rs[i][2])) for i in fit.series)
-        sigma_f = math.sqrt(6.0) / (math.pi * ctx.duration_s * max(amp, 1e-300) * math.sqrt(max(info, 1e-300)))
+        # √6 / (π T a √I) (the Cramér-Rao bound of a sinusoid's frequency), I = Σ n/σ̂²
+        info = sum(rs[i][2] for i in fit.series)
+        sigma_f = math.sqrt(6.0 / max(info, 1e-300)) / (math.pi * ctx.duration_s * max(amp, 1e-300))
         half = max(3 * sigma_f, 0.5 / ctx.duration_s)
-        where = f"{len(fit.series)} plate(s)" if len(fit.series) > 3 else ", ".join(
-            ctx.series[i].key for i in fit.series
-        )
+        keys = [ctx.series[i].key for i in fit.series]
+        where = f"{len(keys)} series" if len(keys) > 3 else ", ".join(keys)
         return Proposal(
             effect=self.id,
             series=fit.series,
