@@ -261,7 +261,11 @@ class Quantization(Effect):
             s2[i] = float(np.sum(w * r * r) / max(int((w > 0).sum()), 1))
         n_tot = sum(ctx.series[i].n for i in idx)
         sigma = math.sqrt(float(np.median(list(s2.values()))))
-        q_min = max(Q_MIN_MM, sigma * math.sqrt(360.0 / max(n_tot / len(idx), 1.0)))
+        # the smallest step whose staircase could pay for its parameters on all the series
+        # together: n_tot (q²/12)/σ² > (1 + S) log n_tot + 10 (a per-series floor would miss
+        # the steps that only the plates together show)
+        need = (1 + len(idx)) * math.log(max(n_tot, 2)) + 10.0
+        q_min = max(Q_MIN_MM, sigma * math.sqrt(12.0 * need / max(n_tot, 1)))
         q_max = min(Q_MAX_MM, max(spans.values()))
         if q_max <= q_min:
             return []
