@@ -7,8 +7,9 @@ and keeps a residual step. The signal is quantised before the sensor noise is ad
 residual against a smooth model is a deterministic sawtooth of the position:
 y − h = −q·saw((h − o)/q), saw(x) = x − round(x).
 
-Signature test: the residual binned by the current model value h (z series; ToF recordings are
-skipped), then for every step q of a grid uniform in 1/q (the "frequency" along h, spaced a
+Signature test: the residual binned by the current model value h (z series, whatever the
+``--sensor`` hint says: the data decide — a ToF camera's range comes in steps too, and a wrong
+hint must not hide a staircase), then for every step q of a grid uniform in 1/q (the "frequency" along h, spaced a
 quarter of a cycle over the motion's span) the first harmonic of the sawtooth, cos and sin of
 2π h/q, is regressed on the binned residual with the offset and h itself free (the harmonic's
 cosine is a function of h): a χ²_2 statistic per series, summed over the series for a common
@@ -243,8 +244,6 @@ class Quantization(Effect):
     min_cycles = 20.0
 
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
-        if ctx.sensor == "tof":
-            return []
         idx = []
         for i in ctx.indices("z"):
             if touched(states[i], self.id) or ctx.series[i].n < 64:
