@@ -40,7 +40,17 @@ class ModulationEffect(Effect):
 
     demodulation: str = ""
     trend: bool = False
-    min_cycles = 50.0
+    plausible_depth = 0.02  # the sinusoidal kind: relative depth (AM) or β in rad (FM)
+    gate_params = 3
+
+    def plausible_rms(self, ctx: Context, i: int) -> float:
+        """The larger of the linear kind's term (``plausible`` × `linear_shape`) and, when the
+        record spans the modulation band, the sinusoidal kind's (``plausible_depth``)."""
+        u = self.linear_shape(ctx, np.linspace(0.0, ctx.duration_s, 257))
+        lin = self.plausible * float(np.std(u))
+        f_lo, f_hi = modulation_band(ctx)
+        sin = self.plausible_depth / math.sqrt(2) if f_hi > f_lo else 0.0
+        return ctx.nominal[i].amplitude / math.sqrt(2) * max(lin, sin)
 
     @property
     def twin(self) -> str:

@@ -43,6 +43,7 @@ class AmplitudeModulation(ModulationEffect):
     )
     demodulation = "in_phase"
     trend = False
+    plausible = 1e-4  # linear kind: relative change per s (fatigue: 1e-5 to 1e-4 /s)
 
     def linear_shape(self, ctx: Context, t: np.ndarray) -> np.ndarray:
         return t - 0.5 * ctx.duration_s

@@ -72,7 +72,7 @@ def _legendre(u: np.ndarray, degree: int) -> np.ndarray:
 class Drift(Effect):
     id = "drift"
     meaning = "slow drift of the measured position (camera warm-up, settling): exponential or polynomial"
-    min_cycles = 60.0
+    plausible, plausible_unit, gate_params = 1.0 / 600, "mm_per_s", 2  # 1 mm in 10 minutes (warm-up)
 
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
         idx = [i for i in range(len(ctx.series)) if not touched(states[i], self.id) and ctx.series[i].n >= 64]

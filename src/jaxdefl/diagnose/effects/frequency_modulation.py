@@ -44,6 +44,7 @@ class FrequencyModulation(ModulationEffect):
     meaning = "the loading frequency wanders or drifts during the record alike on every plate"
     demodulation = "quadrature"
     trend = True
+    plausible = 3e-7  # linear kind: Hz/s of frequency drift
 
     def linear_shape(self, ctx: Context, t: np.ndarray) -> np.ndarray:
         """π ((t − t_mid)² − D²/12): the phase of a unit linear frequency drift, its mean removed."""

@@ -120,7 +120,7 @@ def _binned(x: np.ndarray, v: np.ndarray, key: np.ndarray, n_bins: int):
 class HeteroscedasticNoise(Effect):
     id = "heteroscedastic_noise"
     meaning = "noise level that depends on the motion's phase or changes over the record"
-    min_cycles = 20.0
+    plausible, plausible_unit, gate_params = 0.15, "noise", 2  # the variance ±30 % with the phase
 
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
         idx = [i for i in range(len(ctx.series)) if not touched(states[i], self.id) and ctx.series[i].n >= 64]

@@ -49,7 +49,7 @@ class MotionArtefact(Effect):
     id = "motion_artefact"
     meaning = "gain loss and lag of the camera against the LDS from its sequential four-phase sampling"
     needs_reference = True
-    min_cycles = 20.0
+    plausible, plausible_unit, gate_params = 0.001, "seconds", 1  # 1 ms of lag against the LDS
 
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
         idx = tied_series(self, ctx, states)

@@ -53,7 +53,7 @@ class TimingError(Effect):
     id = "timing_error"
     meaning = "the camera's clock runs late or at another rate than the reference's"
     needs_reference = True
-    min_cycles = 20.0
+    plausible, plausible_unit, gate_params = 0.002, "seconds", 1  # 2 ms late (stamped on delivery)
 
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
         idx = tied_series(self, ctx, states)

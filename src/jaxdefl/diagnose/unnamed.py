@@ -1,0 +1,562 @@
+"""The open world: residual structure that no named effect explains, located and modelled by
+generic terms, reported under ``"unnamed"`` and never given a vocabulary name.
+
+After the named search (`_search`) the residuals are searched again, greedily, with three
+generic terms, each chosen by BIC:
+
+- ``line``: a sinusoid at the peak of the residual periodograms summed over an axis' series
+  (per-series amplitudes, shared frequency), optionally decaying, e^{−λ(t − t_s)} from the
+  series' start (a free vibration: its damping ratio ζ = λ / 2πf is reported). Sparse: one line
+  per round, the next one from the new residual.
+- ``envelope``: a smooth complex envelope u(t) of the loading line, shared by the series that
+  carry the motion: y += a_s Re[u(t) e^{i arg_s(t)}], u a cubic B-spline with K interior knots
+  (K by BIC), or an exponential e^{−λ(t − t_ref)} (a free decay: ζ reported).
+- ``trend``: a slow additive cubic B-spline in time per series (K by BIC), its constant free.
+
+Evidence. The noise of the residual is modelled as AR(1) on the frame clock, ρ estimated per
+series from the lag-1 autocorrelation of the residual's first differences (−(1 − ρ)/2 for
+AR(1); slow structure hardly moves it) and re-estimated after the term is added, σ profiled.
+So coloured noise is not taken for structure. Terms shared by the plates are discounted by the
+frame correlation's design effect (`_correlation`). A term is accepted when
+
+    ΔBIC = −2 Δlog L + k log N < −10
+
+(N all samples of the record, k every parameter added: frequencies, decay rates, amplitudes,
+spline coefficients). Reported: where (plates, axes, time span, band), the term's parameters,
+ΔBIC and the residual RMS of the series it touches before and after.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import jax.numpy as jnp
+import numpy as np
+from scipy.interpolate import BSpline
+
+from ._base import LOG_2PI, Context, State, masked_periodogram, peak_offset
+from ._correlation import FrameCorrelation
+from ._varpro import fit_shared
+
+__all__ = ["UnnamedTerm", "search_unnamed", "best_term", "apply_term", "ar1_loglik", "ar1_rho", "MAX_TERMS", "KINDS"]
+
+KINDS = ("line", "envelope", "trend")
+MAX_TERMS = 4
+DELTA_BIC_MAX = -10.0
+MAX_KNOTS = 12
+# λ grid of the decays, in units of 1/duration (e-folds over the record)
+_DECAY_GRID = np.concatenate([[0.0], np.geomspace(0.05, 40.0, 28)])
+
+
+@dataclass
+class UnnamedTerm:
+    """An accepted generic term.
+
+    Attributes:
+        kind: ``line``, ``envelope`` or ``trend``.
+        series: indices into `Context.series`; means: {series index: new mean}.
+        n_params: parameters added; parameters: {name: {"value", "sigma"}} (JSON-able).
+        t_start, t_end: located span (s since t0); band_hz: [lo, hi] or None.
+        delta_bic, rms_before_mm, rms_after_mm: evidence and the plain residual RMS of its series.
+        explanation: one or two sentences for a structural engineer.
+    """
+
+    kind: str
+    series: list[int]
+    means: dict[int, np.ndarray]
+    n_params: int
+    parameters: dict
+    t_start: float
+    t_end: float
+    band_hz: list[float] | None
+    explanation: str
+    delta_bic: float = math.nan
+    rms_before_mm: float = math.nan
+    rms_after_mm: float = math.nan
+    detail: dict = field(default_factory=dict)
+
+
+# ---------------------------------------------------------------------------------------------
+# AR(1) noise
+
+
+def ar1_rho(r: np.ndarray, k: np.ndarray) -> float:
+    """ρ of AR(1) noise from the lag-1 autocorrelation c of first differences on consecutive
+    frames: c = −(1 − ρ)/2, so ρ = 1 + 2c, clipped to [0, 0.95]; 0 when not above 3 standard
+    errors (white noise stays white)."""
+    cons = np.diff(k) == 1
+    d = np.diff(r)
+    both = cons[1:] & cons[:-1]
+    if both.sum() < 16:
+        return 0.0
+    a, b = d[1:][both], d[:-1][both]
+    c = float(np.sum(a * b) / max(math.sqrt(float(np.sum(a * a) * np.sum(b * b))), 1e-300))
+    rho = 1.0 + 2.0 * c
+    # under white noise c ≈ −1/2 with σ_c ≈ √(1/(2m)) (difference lags overlap): 3 σ in ρ
+    if rho < 3.0 * 2.0 * math.sqrt(0.5 / both.sum()):
+        return 0.0
+    return float(min(rho, 0.95))
+
+
+def ar1_loglik(r: np.ndarray, k: np.ndarray, rho: float) -> float:
+    """Exact Gaussian log-likelihood of r under AR(1) noise on the frame clock k (gaps allowed),
+    the innovation σ profiled: e_j = r_j − ρ^g r_{j−1}, var ∝ 1 − ρ^{2g}, g the frame gap."""
+    n = r.size
+    if n == 0:
+        return -math.inf
+    if rho <= 0.0:
+        s2 = max(float(np.mean(r * r)), 1e-300)
+        return -0.5 * n * (math.log(s2) + LOG_2PI + 1.0)
+    g = np.diff(k).astype(np.float64)
+    rg = rho**g
+    # the first sample at the stationary variance 1/(1 − ρ²), the others at 1 − ρ^{2g} (× σ²)
+    v = np.concatenate([[1.0 / (1.0 - rho * rho)], 1.0 - rg * rg])
+    e = np.concatenate([r[:1], r[1:] - rg * r[:-1]])
+    s2 = max(float(np.mean(e * e / v)), 1e-300)
+    return -0.5 * (n * (math.log(s2) + LOG_2PI + 1.0) + float(np.sum(np.log(v))))
+
+
+class _Noise:
+    """Per series: the inlier times, frames, the scale, and the AR(1) log-likelihood of a mean."""
+
+    def __init__(self, ctx: Context, states: list[State]):
+        self.ctx = ctx
+        self.states = states
+
+    def loglik(self, i: int, mean: np.ndarray) -> float:
+        s, st = self.ctx.series[i], self.states[i]
+        inl = st.inlier
+        z = ((s.y - mean) / st.scale)[inl]
+        k = s.k[inl]
+        z = z - z.mean()
+        return ar1_loglik(z, k, ar1_rho(z, k)) - (st.log_scale_sum if not st.unit_scale else 0.0)
+
+
+# ---------------------------------------------------------------------------------------------
+# linear fits
+
+
+def _wls(cols: np.ndarray, r: np.ndarray, w: np.ndarray):
+    gw = cols * w[:, None]
+    beta = np.linalg.lstsq(gw.T @ cols, gw.T @ r, rcond=None)[0]
+    return beta, cols @ beta
+
+
+def _weights(st: State) -> np.ndarray:
+    return np.where(st.inlier, 1.0 / st.scale**2, 0.0)
+
+
+def _nuisance(ctx: Context, i: int, offset_only: bool = False) -> np.ndarray:
+    nu = ctx.nuisance(i)
+    return nu[:, :1] if offset_only else nu
+
+
+def _bspline(t: np.ndarray, t_lo: float, t_hi: float, knots: int) -> np.ndarray:
+    """(sample, knots + 4) cubic B-spline basis on [t_lo, t_hi] with ``knots`` interior knots."""
+    inner = np.linspace(t_lo, t_hi, knots + 2)
+    kv = np.concatenate([[t_lo] * 3, inner, [t_hi] * 3])
+    x = np.clip(t, t_lo, t_hi - 1e-12 * max(1.0, abs(t_hi)))
+    return BSpline.design_matrix(x, kv, 3).toarray()
+
+
+def _line_columns(theta, t, aux):
+    """A line at θ0 Hz decaying at θ1 /s from the series' start."""
+    e = jnp.exp(-theta[1] * (t - aux["t_s"]))
+    a = 2 * jnp.pi * theta[0] * t
+    return jnp.stack([e * jnp.cos(a), e * jnp.sin(a)], axis=1)
+
+
+def _decay_columns(theta, t, aux):
+    """The loading line's carrier scaled by e^{−θ0 (t − t_mid)}."""
+    e = jnp.exp(-theta[0] * (t - aux["t_mid"]))
+    return jnp.stack([e * aux["c"], e * aux["s"]], axis=1)
+
+
+def _varpro(ctx, states, idx, columns, theta0, scale, aux, offset_only):
+    """Refine shared nonlinear θ (optimistix, `_varpro.fit_shared`): {i: new mean} and θ, or None."""
+    ts = [ctx.series[i].t for i in idx]
+    rs = [ctx.series[i].y - states[i].mean for i in idx]
+    ws = [_weights(states[i]) for i in idx]
+    nus = [_nuisance(ctx, i, offset_only) for i in idx]
+    fit = fit_shared(columns, np.asarray(theta0, float), ts, rs, ws, nus, aux=aux, scale=np.asarray(scale))
+    if not fit.converged or not np.all(np.isfinite(fit.theta)):
+        return None
+    return {i: states[i].mean + fit.fitted[j] for j, i in enumerate(idx)}, np.asarray(fit.theta), fit
+
+
+@dataclass
+class _Candidate:
+    kind: str
+    series: list[int]
+    means: dict[int, np.ndarray]
+    n_params: int
+    info: dict
+
+
+def _score(ctx, noise, states, corr, cand, n_total) -> float:
+    dll = {}
+    for i in cand.series:
+        dll[i] = noise.loglik(i, cand.means[i]) - noise.loglik(i, states[i].mean)
+    if corr is not None:
+        d = corr.design_effect(cand.series)
+        gain = sum(v / d[ctx.series[i].axis] for i, v in dll.items())
+    else:
+        gain = sum(dll.values())
+    return -2.0 * gain + cand.n_params * math.log(n_total)
+
+
+# ---------------------------------------------------------------------------------------------
+# the generic terms
+
+
+def _line(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> list[_Candidate]:
+    """One sparse sinusoid per axis at the peak of the summed AR(1)-normalised periodograms."""
+    out = []
+    by_axis: dict[str, list[int]] = {}
+    for i, s in enumerate(ctx.series):
+        by_axis.setdefault(s.axis, []).append(i)
+    for axis, idx in by_axis.items():
+        total = None
+        freq = None
+        for i in idx:
+            s, st = ctx.series[i], states[i]
+            r = np.where(st.inlier, (s.y - st.mean) / st.scale, 0.0)
+            freq, p = masked_periodogram(ctx, i, r, oversample=2)
+            rho = ar1_rho(r[st.inlier], s.k[st.inlier])
+            if rho > 0:
+                shape = (1 - rho**2) / (1 - 2 * rho * np.cos(2 * np.pi * freq * ctx.dt_s) + rho**2)
+                p = p / shape
+            total = p if total is None else total + p
+        allowed = (freq > 2.0 / ctx.duration_s) & (np.abs(freq - ctx.f0_hz) > 1.0 / ctx.duration_s)
+        allowed &= freq < 0.5 / ctx.dt_s - 1.0 / ctx.duration_s
+        if not allowed.any():
+            continue
+        j = int(np.argmax(np.where(allowed, total, -np.inf)))
+        j = min(max(j, 1), freq.size - 2)
+        f = float(freq[j] + peak_offset(total[j - 1], total[j], total[j + 1]) * (freq[1] - freq[0]))
+        best = None
+        for lam_u in _DECAY_GRID:
+            lam = lam_u / ctx.duration_s
+            means, fits = {}, {}
+            gains = {}
+            for i in idx:
+                s, st = ctx.series[i], states[i]
+                tau = s.t - s.t[0]
+                env = np.exp(-lam * tau)
+                a = 2 * np.pi * f * s.t
+                cols = np.stack([env * np.cos(a), env * np.sin(a)], axis=1)
+                g = np.concatenate([cols, _nuisance(ctx, i, offset_only=True)], axis=1)
+                beta, fitted = _wls(g, s.y - st.mean, _weights(st))
+                means[i] = st.mean + fitted
+                fits[i] = beta[:2]
+                gains[i] = noise.loglik(i, means[i]) - noise.loglik(i, st.mean)
+            kept = [i for i in idx if 2 * gains[i] > 2 * math.log(n_total) + 6.0]
+            if not kept:
+                continue
+            k_par = 1 + (1 if lam_u > 0 else 0) + 2 * len(kept)
+            dbic = -2 * sum(gains[i] for i in kept) + k_par * math.log(n_total)
+            if best is None or dbic < best[0]:
+                best = (dbic, lam, kept, {i: means[i] for i in kept}, {i: fits[i] for i in kept}, k_par)
+        if best is None:
+            continue
+        dbic0, lam, kept, means, fits, k_par = best
+        aux = {"t_s": [float(ctx.series[i].t[0]) for i in kept]}
+        sf = 0.1 / ctx.duration_s
+        ref = _varpro(
+            ctx, states, kept, _line_columns, [f, lam], [sf, max(lam, 1.0 / ctx.duration_s)], aux, True
+        )
+        if ref is not None and abs(ref[1][0] - f) < 2.0 / ctx.duration_s and ref[1][1] >= 0:
+            m2 = ref[0]
+            g2 = sum(noise.loglik(i, m2[i]) - noise.loglik(i, states[i].mean) for i in kept)
+            k2 = 2 + 2 * len(kept)
+            if -2 * g2 + k2 * math.log(n_total) < dbic0:
+                f, lam = float(ref[1][0]), float(ref[1][1])
+                means, k_par = m2, k2
+                fits = {i: ref[2].beta[j][:2] for j, i in enumerate(kept)}
+        amps = {i: float(math.hypot(*fits[i])) for i in kept}
+        info = {"freq_hz": f, "decay_per_s": lam, "amplitudes_mm": amps, "axis": axis}
+        out.append(_Candidate("line", kept, means, k_par, info))
+    return out
+
+
+def _carriers(ctx: Context, states: list[State]) -> list[int]:
+    """Series whose loading motion stands well above their noise (≥ 3 σ)."""
+    return [
+        i
+        for i in range(len(ctx.series))
+        if ctx.nominal[i].amplitude >= 3.0 * max(ctx.noise_sigma(i), 1e-12)
+    ]
+
+
+def _shared_fit(ctx, states, idx, cols_of):
+    """Coefficients shared by the series ``idx`` (each with its free nuisance profiled out, FWL),
+    returning {i: new mean}."""
+    lhs = rhs = None
+    per = {}
+    for i in idx:
+        s, st = ctx.series[i], states[i]
+        w = _weights(st) / max(ctx.noise_sigma(i), 1e-12) ** 2
+        x = cols_of(i)
+        nu = _nuisance(ctx, i)
+        r = s.y - st.mean
+        nw = nu * w[:, None]
+        proj = np.linalg.pinv(nw.T @ nu) @ nw.T
+        xt = x - nu @ (proj @ x)
+        rt = r - nu @ (proj @ r)
+        a, b = (xt * w[:, None]).T @ xt, (xt * w[:, None]).T @ rt
+        lhs = a if lhs is None else lhs + a
+        rhs = b if rhs is None else rhs + b
+        per[i] = (x, nu, proj, r)
+    beta = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
+    means = {}
+    for i, (x, nu, proj, r) in per.items():
+        fx = x @ beta
+        means[i] = states[i].mean + fx + nu @ (proj @ (r - fx))
+    return beta, means
+
+
+def _envelope(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> list[_Candidate]:
+    """A shared smooth complex envelope of the loading line (B-spline, K by BIC) or a decay."""
+    idx = _carriers(ctx, states)
+    if not idx:
+        return []
+    cycles = ctx.f0_hz * ctx.duration_s
+    carrier = {}
+    for i in idx:
+        h, t = ctx.nominal[i], ctx.series[i].t
+        arg = h.argument(t)
+        carrier[i] = (h.amplitude * np.cos(arg), -h.amplitude * np.sin(arg))
+    base = sum(noise.loglik(i, states[i].mean) for i in idx)
+
+    def evaluate(cols_of, k_par):
+        beta, means = _shared_fit(ctx, states, idx, cols_of)
+        gain = sum(noise.loglik(i, means[i]) for i in idx) - base
+        return -2 * gain + k_par * math.log(n_total), beta, means
+
+    best = None
+    # K interior knots: the envelope varies slower than the carrier (≥ 2 cycles per knot span)
+    k_max = int(min(MAX_KNOTS, max(0, cycles / 2.0 - 1)))
+    for knots in range(0, k_max + 1):
+
+        def cols_of(i, knots=knots):
+            b = _bspline(ctx.series[i].t, 0.0, ctx.duration_s, knots)
+            c, s = carrier[i]
+            return np.concatenate([b * c[:, None], b * s[:, None]], axis=1)
+
+        nb = knots + 4
+        dbic, beta, means = evaluate(cols_of, 2 * nb - 2)  # the constant is the nominal's C, D
+        if best is None or dbic < best[0]:
+            best = (dbic, means, 2 * nb - 2, {"form": "spline", "knots": knots, "coef": beta})
+    for lam_u in _DECAY_GRID[1:]:
+        for sign in (1.0, -1.0):
+            lam = sign * lam_u / ctx.duration_s
+
+            def cols_of(i, lam=lam):
+                e = np.exp(-lam * (ctx.series[i].t - 0.5 * ctx.duration_s))
+                c, s = carrier[i]
+                return np.stack([e * c, e * s], axis=1)
+
+            dbic, beta, means = evaluate(cols_of, 3)
+            if dbic < best[0]:
+                best = (dbic, means, 3, {"form": "exponential", "decay_per_s": lam, "coef": beta})
+    if info_form(best) == "exponential":
+        lam = best[3]["decay_per_s"]
+        aux = {
+            "t_mid": [0.5 * ctx.duration_s] * len(idx),
+            "c": [carrier[i][0] for i in idx],
+            "s": [carrier[i][1] for i in idx],
+        }
+        ref = _varpro(ctx, states, idx, _decay_columns, [lam], [max(abs(lam), 1.0 / ctx.duration_s)], aux, False)
+        if ref is not None:
+            m2, th, fit = ref
+            k2 = 1 + 2 * len(idx)
+            d2 = -2 * (sum(noise.loglik(i, m2[i]) for i in idx) - base) + k2 * math.log(n_total)
+            if d2 < best[0]:
+                coef = np.median(fit.beta[: len(idx), :2], axis=0)
+                best = (d2, m2, k2, {"form": "exponential", "decay_per_s": float(th[0]), "coef": coef})
+    _, means, k_par, info = best
+    # the envelope's RMS swing relative to the motion: |u| over the record
+    t = np.linspace(0.0, ctx.duration_s, 400)
+    if info["form"] == "spline":
+        b = _bspline(t, 0.0, ctx.duration_s, info["knots"])
+        nb = b.shape[1]
+        u = b @ info["coef"][:nb] + 1j * (b @ info["coef"][nb:])
+    else:
+        co = info["coef"]
+        u = np.exp(-info["decay_per_s"] * (t - 0.5 * ctx.duration_s)) * (co[0] + 1j * co[1])
+    info["relative_envelope"] = np.abs(1.0 + u)
+    return [_Candidate("envelope", idx, means, k_par, info)]
+
+
+def info_form(best) -> str:
+    return best[3]["form"]
+
+
+def _trend(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> list[_Candidate]:
+    """A slow additive B-spline per series (K shared, by BIC); series that pay for it."""
+    k_max = int(min(MAX_KNOTS, max(0, ctx.f0_hz * ctx.duration_s / 4.0 - 1)))
+    best = None
+    for knots in range(0, k_max + 1):
+        means, gains = {}, {}
+        for i, s in enumerate(ctx.series):
+            st = states[i]
+            b = _bspline(s.t, 0.0, ctx.duration_s, knots)[:, 1:]  # the constant: the offset
+            g = np.concatenate([b, _nuisance(ctx, i)], axis=1)
+            _, fitted = _wls(g, s.y - st.mean, _weights(st))
+            means[i] = st.mean + fitted
+            gains[i] = noise.loglik(i, means[i]) - noise.loglik(i, st.mean)
+        k_own = knots + 3
+        kept = [i for i in gains if 2 * gains[i] > k_own * math.log(n_total) + 6.0]
+        if not kept:
+            continue
+        dbic = -2 * sum(gains[i] for i in kept) + k_own * len(kept) * math.log(n_total)
+        if best is None or dbic < best[0]:
+            best = (dbic, kept, {i: means[i] for i in kept}, k_own * len(kept), knots)
+    if best is None:
+        return []
+    _, kept, means, k_par, knots = best
+    swing = {
+        i: float(np.ptp(means[i] - states[i].mean)) for i in kept
+    }
+    return [_Candidate("trend", kept, means, k_par, {"knots": knots, "swing_mm": swing})]
+
+
+_BUILDERS = {"line": _line, "envelope": _envelope, "trend": _trend}
+
+
+# ---------------------------------------------------------------------------------------------
+# the search
+
+
+def _report(ctx: Context, c: _Candidate, states: list[State]) -> UnnamedTerm:
+    plates = sorted({ctx.series[i].plate for i in c.series})
+    axes = sorted({ctx.series[i].axis for i in c.series})
+    where = f"plate(s) {', '.join(map(str, plates))} ({', '.join(axes)})"
+    # located span: where the term moves the model most (its mean change above 10 % of its peak)
+    t_lo, t_hi = math.inf, -math.inf
+    for i in c.series:
+        d = np.abs(c.means[i] - states[i].mean)
+        on = d >= 0.1 * d.max() if d.size and d.max() > 0 else np.ones(d.size, bool)
+        t = ctx.series[i].t[on]
+        if t.size:
+            t_lo, t_hi = min(t_lo, float(t.min())), max(t_hi, float(t.max()))
+    if not math.isfinite(t_lo):
+        t_lo, t_hi = 0.0, ctx.duration_s
+    info = c.info
+    if c.kind == "line":
+        f, lam = info["freq_hz"], info["decay_per_s"]
+        amps = info["amplitudes_mm"]
+        a_med = float(np.median(list(amps.values())))
+        par = {"freq_hz": {"value": f, "sigma": None}, "amplitude_mm": {"value": a_med, "sigma": None}}
+        half = max(1.0 / ctx.duration_s, lam / (2 * math.pi))
+        text = (
+            f"A periodic motion at {f:.4g} Hz ({f / ctx.f0_hz:.3f} × the loading frequency) of about "
+            f"{a_med:.3g} mm on {where}"
+        )
+        if lam > 0:
+            zeta = lam / (2 * math.pi * f)
+            par["damping_ratio"] = {"value": zeta, "sigma": None}
+            par["decay_per_s"] = {"value": lam, "sigma": None}
+            text += (
+                f", dying away with a damping ratio of {100 * zeta:.2g} % (a free vibration of a "
+                "mode the loading does not drive)"
+            )
+        text += ": structure no named effect explains."
+        return UnnamedTerm(
+            "line", c.series, c.means, c.n_params, par, t_lo, t_hi, [f - half, f + half], text,
+            detail={"amplitudes_mm": {ctx.series[i].key: a for i, a in amps.items()}},
+        )
+    if c.kind == "envelope":
+        env = info["relative_envelope"]
+        lo, hi = float(env.min()), float(env.max())
+        par = {
+            "form": info["form"],
+            "envelope_min": {"value": lo, "sigma": None},
+            "envelope_max": {"value": hi, "sigma": None},
+        }
+        if info["form"] == "spline":
+            par["knots"] = int(info["knots"])
+            shape = f"a smooth envelope ({info['knots']} interior knots)"
+        else:
+            lam = info["decay_per_s"]
+            par["decay_per_s"] = {"value": lam, "sigma": None}
+            par["damping_ratio"] = {"value": lam / (2 * math.pi * ctx.f0_hz), "sigma": None}
+            shape = (
+                f"an exponential {'decay' if lam > 0 else 'growth'} (damping ratio "
+                f"{100 * lam / (2 * math.pi * ctx.f0_hz):.2g} %)"
+            )
+        text = (
+            f"The amplitude of the motion at {ctx.f0_hz:.4g} Hz changes during the record on {where}: "
+            f"{shape}, from {lo:.2f} to {hi:.2f} times the nominal amplitude: structure no named "
+            "effect explains (a load ramp, a free decay, a changing stiffness)."
+        )
+        df = 1.0 / ctx.duration_s
+        return UnnamedTerm(
+            "envelope", c.series, c.means, c.n_params, par, t_lo, t_hi,
+            [ctx.f0_hz - 2 * df * (1 + info.get("knots", 0)), ctx.f0_hz + 2 * df * (1 + info.get("knots", 0))],
+            text,
+        )
+    swing = info["swing_mm"]
+    s_med = float(np.median(list(swing.values())))
+    par = {"knots": int(info["knots"]), "swing_mm": {"value": s_med, "sigma": None}}
+    text = (
+        f"The measured position wanders slowly by about {s_med:.3g} mm (peak to peak) on {where}: "
+        "structure no named effect explains."
+    )
+    return UnnamedTerm(
+        "trend", c.series, c.means, c.n_params, par, t_lo, t_hi,
+        [0.0, (info["knots"] + 1) / ctx.duration_s], text,
+        detail={"swing_mm": {ctx.series[i].key: v for i, v in swing.items()}},
+    )
+
+
+def best_term(ctx: Context, states: list[State], corr: FrameCorrelation | None = None):
+    """The best generic term on the residual of ``states``: (ΔBIC, candidate) or None."""
+    n_total = sum(s.n for s in ctx.series)
+    noise = _Noise(ctx, states)
+    best = None
+    for kind in KINDS:
+        for c in _BUILDERS[kind](ctx, states, noise, n_total):
+            d = _score(ctx, noise, states, corr, c, n_total)
+            if best is None or d < best[0]:
+                best = (d, c)
+    return best
+
+
+def apply_term(ctx: Context, states: list[State], best) -> tuple[UnnamedTerm, list[State]]:
+    """The accepted term's report and the states with it."""
+    dbic, c = best
+    rms0 = float(np.sqrt(np.mean(np.concatenate([ctx.series[i].y - states[i].mean for i in c.series]) ** 2)))
+    rms1 = float(np.sqrt(np.mean(np.concatenate([ctx.series[i].y - c.means[i] for i in c.series]) ** 2)))
+    term = _report(ctx, c, states)
+    term.delta_bic, term.rms_before_mm, term.rms_after_mm = float(dbic), rms0, rms1
+    states = list(states)
+    for i in c.series:
+        st = states[i]
+        states[i] = st.with_(
+            mean=c.means[i],
+            n_params=st.n_params + max(1, round(c.n_params / len(c.series))),
+            effects=st.effects + ("unnamed",),
+        )
+    return term, states
+
+
+def search_unnamed(
+    ctx: Context,
+    states: list[State],
+    corr: FrameCorrelation | None = None,
+    max_terms: int = MAX_TERMS,
+    check=None,
+) -> tuple[list[UnnamedTerm], list[State]]:
+    """Greedy generic terms on the residual of ``states``: (accepted terms, the states after)."""
+    terms: list[UnnamedTerm] = []
+    for _ in range(max_terms):
+        best = best_term(ctx, states, corr)
+        if check is not None:
+            check()
+        if best is None or not best[0] < DELTA_BIC_MAX:
+            break
+        term, states = apply_term(ctx, states, best)
+        terms.append(term)
+    return terms, states
