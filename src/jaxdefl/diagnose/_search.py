@@ -31,7 +31,7 @@ from ._context import build_context
 from ._correlation import FrameCorrelation, frame_correlation
 from ._whiteness import combined_p, residual_tests
 from .effects import EFFECT_IDS, load_effects
-from .unnamed import MAX_TERMS, UnnamedTerm, apply_term, best_term, search_unnamed
+from .unnamed import MAX_TERMS, colored_gain, UnnamedTerm, apply_term, best_term, search_unnamed
 
 __all__ = ["Diagnosis", "run_diagnosis", "diagnose", "DELTA_BIC_MAX", "ALPHA", "MAX_EFFECTS"]
 
@@ -276,6 +276,12 @@ def _score(
     for i in p.series:
         y = ctx.series[i].y
         a, b = loglik(y, states[i]), loglik(y, p.states[i])
+        q = p.states[i]
+        if q.scale is states[i].scale and q.inlier is states[i].inlier:
+            # a mean term under coloured noise: its evidence against AR(1) noise (`unnamed`)
+            c = colored_gain(ctx.series[i], states[i], q.mean)
+            if c is not None:
+                b = a + c
         ll0 += a
         ll1 += b
         dll[i] = b - a

@@ -39,7 +39,7 @@ from ._base import LOG_2PI, Context, State, masked_periodogram, peak_offset
 from ._correlation import FrameCorrelation
 from ._varpro import fit_shared
 
-__all__ = ["UnnamedTerm", "search_unnamed", "best_term", "apply_term", "ar1_loglik", "ar1_rho", "MAX_TERMS", "KINDS"]
+__all__ = ["UnnamedTerm", "search_unnamed", "best_term", "apply_term", "colored_gain", "ar1_loglik", "ar1_rho", "MAX_TERMS", "KINDS"]
 
 KINDS = ("line", "envelope", "trend")
 MAX_TERMS = 4
@@ -117,6 +117,26 @@ def ar1_loglik(r: np.ndarray, k: np.ndarray, rho: float) -> float:
     return -0.5 * (n * (math.log(s2) + LOG_2PI + 1.0) + float(np.sum(np.log(v))))
 
 
+def _ar1_of(s, st: State, mean: np.ndarray) -> tuple[float, float]:
+    """(AR(1) log-likelihood, ρ̂) of a series' residual about ``mean`` under its state's scale."""
+    inl = st.inlier
+    z = ((s.y - mean) / st.scale)[inl]
+    k = s.k[inl]
+    z = z - z.mean()
+    rho = ar1_rho(z, k)
+    return ar1_loglik(z, k, rho) - (st.log_scale_sum if not st.unit_scale else 0.0), rho
+
+
+def colored_gain(s, st: State, mean: np.ndarray) -> float | None:
+    """Δlog L of a new ``mean`` (same noise model) under AR(1) noise, ρ profiled on each side;
+    None when the noise is white on both sides (then the white likelihood holds as it is)."""
+    a, ra = _ar1_of(s, st, st.mean)
+    b, rb = _ar1_of(s, st, mean)
+    if ra == 0.0 and rb == 0.0:
+        return None
+    return b - a
+
+
 class _Noise:
     """Per series: the inlier times, frames, the scale, and the AR(1) log-likelihood of a mean."""
 
@@ -125,12 +145,7 @@ class _Noise:
         self.states = states
 
     def loglik(self, i: int, mean: np.ndarray) -> float:
-        s, st = self.ctx.series[i], self.states[i]
-        inl = st.inlier
-        z = ((s.y - mean) / st.scale)[inl]
-        k = s.k[inl]
-        z = z - z.mean()
-        return ar1_loglik(z, k, ar1_rho(z, k)) - (st.log_scale_sum if not st.unit_scale else 0.0)
+        return _ar1_of(self.ctx.series[i], self.states[i], mean)[0]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -309,11 +324,12 @@ def _shared_fit(ctx, states, idx, cols_of):
         rhs = b if rhs is None else rhs + b
         per[i] = (x, nu, proj, r)
     beta = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
-    means = {}
+    means, gammas = {}, {}
     for i, (x, nu, proj, r) in per.items():
         fx = x @ beta
-        means[i] = states[i].mean + fx + nu @ (proj @ (r - fx))
-    return beta, means
+        gammas[i] = proj @ (r - fx)
+        means[i] = states[i].mean + fx + nu @ gammas[i]
+    return beta, means, gammas
 
 
 def _envelope(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> list[_Candidate]:
@@ -329,14 +345,20 @@ def _envelope(ctx: Context, states: list[State], noise: _Noise, n_total: int) ->
         carrier[i] = (h.amplitude * np.cos(arg), -h.amplitude * np.sin(arg))
     base = sum(noise.loglik(i, states[i].mean) for i in idx)
 
+    # the series the report's envelope is read on: the largest motion against its noise
+    ref = max(idx, key=lambda i: ctx.nominal[i].amplitude / max(ctx.noise_sigma(i), 1e-12))
+
     def evaluate(cols_of, k_par):
-        beta, means = _shared_fit(ctx, states, idx, cols_of)
+        beta, means, gammas = _shared_fit(ctx, states, idx, cols_of)
         gain = sum(noise.loglik(i, means[i]) for i in idx) - base
-        return -2 * gain + k_par * math.log(n_total), beta, means
+        # the re-estimated harmonic (C, D) of the reference series as a relative complex factor
+        h, g = ctx.nominal[ref], gammas[ref]
+        shift = 0j if ctx.series[ref].tied else (g[1] - 1j * g[2]) * np.exp(1j * h.phase) / max(h.amplitude, 1e-300)
+        return -2 * gain + k_par * math.log(n_total), (beta, shift), means
 
     best = None
-    # K interior knots: the envelope varies slower than the carrier (≥ 2 cycles per knot span)
-    k_max = int(min(MAX_KNOTS, max(0, cycles / 2.0 - 1)))
+    # K interior knots: the envelope varies slower than the carrier (≥ 1 cycle per knot span)
+    k_max = int(min(MAX_KNOTS, max(0, cycles - 1)))
     for knots in range(0, k_max + 1):
 
         def cols_of(i, knots=knots):
@@ -360,6 +382,7 @@ def _envelope(ctx: Context, states: list[State], noise: _Noise, n_total: int) ->
             dbic, beta, means = evaluate(cols_of, 3)
             if dbic < best[0]:
                 best = (dbic, means, 3, {"form": "exponential", "decay_per_s": lam, "coef": beta})
+    best[3]["coef"], best[3]["shift"] = best[3]["coef"]
     if info_form(best) == "exponential":
         lam = best[3]["decay_per_s"]
         aux = {
@@ -367,14 +390,21 @@ def _envelope(ctx: Context, states: list[State], noise: _Noise, n_total: int) ->
             "c": [carrier[i][0] for i in idx],
             "s": [carrier[i][1] for i in idx],
         }
-        ref = _varpro(ctx, states, idx, _decay_columns, [lam], [max(abs(lam), 1.0 / ctx.duration_s)], aux, False)
-        if ref is not None:
-            m2, th, fit = ref
+        refit = _varpro(ctx, states, idx, _decay_columns, [lam], [max(abs(lam), 1.0 / ctx.duration_s)], aux, False)
+        if refit is not None:
+            m2, th, fit = refit
             k2 = 1 + 2 * len(idx)
             d2 = -2 * (sum(noise.loglik(i, m2[i]) for i in idx) - base) + k2 * math.log(n_total)
             if d2 < best[0]:
-                coef = np.median(fit.beta[: len(idx), :2], axis=0)
-                best = (d2, m2, k2, {"form": "exponential", "decay_per_s": float(th[0]), "coef": coef})
+                j = idx.index(ref)
+                coef = fit.beta[j, :2]
+                h = ctx.nominal[ref]
+                g = (m2[ref] - states[ref].mean) - (_decay_columns(th, ctx.series[ref].t, {
+                    "t_mid": 0.5 * ctx.duration_s, "c": carrier[ref][0], "s": carrier[ref][1]}) @ coef)
+                nu = _nuisance(ctx, ref)
+                gam = np.linalg.lstsq(nu, np.asarray(g), rcond=None)[0]
+                shift = 0j if ctx.series[ref].tied else (gam[1] - 1j * gam[2]) * np.exp(1j * h.phase) / h.amplitude
+                best = (d2, m2, k2, {"form": "exponential", "decay_per_s": float(th[0]), "coef": coef, "shift": shift})
     _, means, k_par, info = best
     # the envelope's RMS swing relative to the motion: |u| over the record
     t = np.linspace(0.0, ctx.duration_s, 400)
@@ -385,7 +415,7 @@ def _envelope(ctx: Context, states: list[State], noise: _Noise, n_total: int) ->
     else:
         co = info["coef"]
         u = np.exp(-info["decay_per_s"] * (t - 0.5 * ctx.duration_s)) * (co[0] + 1j * co[1])
-    info["relative_envelope"] = np.abs(1.0 + u)
+    info["relative_envelope"] = np.abs(1.0 + info["shift"] + u)
     return [_Candidate("envelope", idx, means, k_par, info)]
 
 
