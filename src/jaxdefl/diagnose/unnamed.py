@@ -370,6 +370,7 @@ def _envelope(ctx: Context, states: list[State], noise: _Noise, n_total: int) ->
         dbic, beta, means = evaluate(cols_of, 2 * nb - 2)  # the constant is the nominal's C, D
         if best is None or dbic < best[0]:
             best = (dbic, means, 2 * nb - 2, {"form": "spline", "knots": knots, "coef": beta})
+    best_exp = None
     for lam_u in _DECAY_GRID[1:]:
         for sign in (1.0, -1.0):
             lam = sign * lam_u / ctx.duration_s
@@ -380,31 +381,34 @@ def _envelope(ctx: Context, states: list[State], noise: _Noise, n_total: int) ->
                 return np.stack([e * c, e * s], axis=1)
 
             dbic, beta, means = evaluate(cols_of, 3)
-            if dbic < best[0]:
-                best = (dbic, means, 3, {"form": "exponential", "decay_per_s": lam, "coef": beta})
+            if best_exp is None or dbic < best_exp[0]:
+                best_exp = (dbic, means, 3, {"form": "exponential", "decay_per_s": lam, "coef": beta})
     best[3]["coef"], best[3]["shift"] = best[3]["coef"]
-    if info_form(best) == "exponential":
-        lam = best[3]["decay_per_s"]
-        aux = {
-            "t_mid": [0.5 * ctx.duration_s] * len(idx),
-            "c": [carrier[i][0] for i in idx],
-            "s": [carrier[i][1] for i in idx],
-        }
-        refit = _varpro(ctx, states, idx, _decay_columns, [lam], [max(abs(lam), 1.0 / ctx.duration_s)], aux, False)
-        if refit is not None:
-            m2, th, fit = refit
-            k2 = 1 + 2 * len(idx)
-            d2 = -2 * (sum(noise.loglik(i, m2[i]) for i in idx) - base) + k2 * math.log(n_total)
-            if d2 < best[0]:
-                j = idx.index(ref)
-                coef = fit.beta[j, :2]
-                h = ctx.nominal[ref]
-                g = (m2[ref] - states[ref].mean) - (_decay_columns(th, ctx.series[ref].t, {
-                    "t_mid": 0.5 * ctx.duration_s, "c": carrier[ref][0], "s": carrier[ref][1]}) @ coef)
-                nu = _nuisance(ctx, ref)
-                gam = np.linalg.lstsq(nu, np.asarray(g), rcond=None)[0]
-                shift = 0j if ctx.series[ref].tied else (gam[1] - 1j * gam[2]) * np.exp(1j * h.phase) / h.amplitude
-                best = (d2, m2, k2, {"form": "exponential", "decay_per_s": float(th[0]), "coef": coef, "shift": shift})
+    best_exp[3]["coef"], best_exp[3]["shift"] = best_exp[3]["coef"]
+    if best_exp[0] < best[0]:
+        best = best_exp
+    # the decay refined (optimistix), then compared with the best spline
+    lam = best_exp[3]["decay_per_s"]
+    aux = {
+        "t_mid": [0.5 * ctx.duration_s] * len(idx),
+        "c": [carrier[i][0] for i in idx],
+        "s": [carrier[i][1] for i in idx],
+    }
+    refit = _varpro(ctx, states, idx, _decay_columns, [lam], [max(abs(lam), 1.0 / ctx.duration_s)], aux, False)
+    if refit is not None:
+        m2, th, fit = refit
+        k2 = 1 + 2 * len(idx)
+        d2 = -2 * (sum(noise.loglik(i, m2[i]) for i in idx) - base) + k2 * math.log(n_total)
+        if d2 < best[0]:
+            j = idx.index(ref)
+            coef = fit.beta[j, :2]
+            h = ctx.nominal[ref]
+            g = (m2[ref] - states[ref].mean) - (_decay_columns(th, ctx.series[ref].t, {
+                "t_mid": 0.5 * ctx.duration_s, "c": carrier[ref][0], "s": carrier[ref][1]}) @ coef)
+            nu = _nuisance(ctx, ref)
+            gam = np.linalg.lstsq(nu, np.asarray(g), rcond=None)[0]
+            shift = 0j if ctx.series[ref].tied else (gam[1] - 1j * gam[2]) * np.exp(1j * h.phase) / h.amplitude
+            best = (d2, m2, k2, {"form": "exponential", "decay_per_s": float(th[0]), "coef": coef, "shift": shift})
     _, means, k_par, info = best
     # the envelope's RMS swing relative to the motion: |u| over the record
     t = np.linspace(0.0, ctx.duration_s, 400)
