@@ -401,6 +401,7 @@ def run_diagnosis(
     accepted: list[Accepted] = []
     terms: list[UnnamedTerm] = []
     open_world = open_world and not noise_free
+    bases: dict = {}  # the open world's spline bases, for this search
     rounds: list[list[dict]] = []
     n_tests = max(len(usable), 1)
     # Proposals of every effect, with the states they were made on. After an effect is accepted
@@ -462,7 +463,7 @@ def run_diagnosis(
         # The open world competes: a generic term far better than the named candidate (a free
         # decay read as a noise level that changes, say) goes first, as unnamed.
         if open_world and chosen is not None and len(terms) < MAX_TERMS:
-            generic = best_term(ctx, states, corr)
+            generic = best_term(ctx, states, corr, bases)
             if generic is not None and generic[0] < chosen.delta_bic + DELTA_BIC_MAX:
                 term, states = apply_term(ctx, states, generic)
                 terms.append(term)
@@ -499,7 +500,7 @@ def run_diagnosis(
 
     open_states = states
     if open_world and not noise_free:
-        more, open_states = search_unnamed(ctx, states, corr, MAX_TERMS - len(terms), check_interrupt)
+        more, open_states = search_unnamed(ctx, states, corr, MAX_TERMS - len(terms), check_interrupt, bases)
         terms += more
     if noise_free:  # whiteness of rounding errors says nothing of the physics
         tests_nominal = tests_final = []

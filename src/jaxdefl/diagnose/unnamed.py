@@ -46,7 +46,7 @@ MAX_TERMS = 4
 DELTA_BIC_MAX = -10.0
 MAX_KNOTS = 12
 # λ grid of the decays, in units of 1/duration (e-folds over the record)
-_DECAY_GRID = np.concatenate([[0.0], np.geomspace(0.05, 40.0, 28)])
+_DECAY_GRID = np.concatenate([[0.0], np.geomspace(0.05, 40.0, 12)])  # refined by optimistix
 
 
 @dataclass
@@ -101,7 +101,7 @@ def ar1_rho(r: np.ndarray, k: np.ndarray) -> float:
 
 def ar1_loglik(r: np.ndarray, k: np.ndarray, rho: float) -> float:
     """Exact Gaussian log-likelihood of r under AR(1) noise on the frame clock k (gaps allowed),
-    the innovation σ profiled: e_j = r_j − ρ^g r_{j−1}, var ∝ 1 − ρ^{2g}, g the frame gap."""
+    the innovation σ profiled: e_j = r_j − ρ^g r_{j−1}, var ∝ (1 − ρ^{2g})/(1 − ρ²), g the gap."""
     n = r.size
     if n == 0:
         return -math.inf
@@ -110,8 +110,9 @@ def ar1_loglik(r: np.ndarray, k: np.ndarray, rho: float) -> float:
         return -0.5 * n * (math.log(s2) + LOG_2PI + 1.0)
     g = np.diff(k).astype(np.float64)
     rg = rho**g
-    # the first sample at the stationary variance 1/(1 − ρ²), the others at 1 − ρ^{2g} (× σ²)
-    v = np.concatenate([[1.0 / (1.0 - rho * rho)], 1.0 - rg * rg])
+    # in units of the innovation variance σ²: the first sample at the stationary 1/(1 − ρ²), the
+    # others given the previous one g frames before at (1 − ρ^{2g})/(1 − ρ²) (1 when g = 1)
+    v = np.concatenate([[1.0], 1.0 - rg * rg]) / (1.0 - rho * rho)
     e = np.concatenate([r[:1], r[1:] - rg * r[:-1]])
     s2 = max(float(np.mean(e * e / v)), 1e-300)
     return -0.5 * (n * (math.log(s2) + LOG_2PI + 1.0) + float(np.sum(np.log(v))))
@@ -140,9 +141,26 @@ def colored_gain(s, st: State, mean: np.ndarray) -> float | None:
 class _Noise:
     """Per series: the inlier times, frames, the scale, and the AR(1) log-likelihood of a mean."""
 
-    def __init__(self, ctx: Context, states: list[State]):
+    def __init__(self, ctx: Context, states: list[State], bases: dict | None = None):
         self.ctx = ctx
         self.states = states
+        self._base: dict[int, float] = {}
+        self.bases = {} if bases is None else bases
+
+    def basis(self, i: int, knots: int) -> np.ndarray:
+        """Series i's cubic B-spline basis over the record (cached by the search)."""
+        key = (i, knots)
+        if key not in self.bases:
+            b = _bspline(self.ctx.series[i].t, 0.0, self.ctx.duration_s, knots)
+            b.setflags(write=False)
+            self.bases[key] = b
+        return self.bases[key]
+
+    def base(self, i: int) -> float:
+        """The log-likelihood of the current mean of series i (cached)."""
+        if i not in self._base:
+            self._base[i] = self.loglik(i, self.states[i].mean)
+        return self._base[i]
 
     def loglik(self, i: int, mean: np.ndarray) -> float:
         return _ar1_of(self.ctx.series[i], self.states[i], mean)[0]
@@ -194,6 +212,8 @@ def _varpro(ctx, states, idx, columns, theta0, scale, aux, offset_only):
     rs = [ctx.series[i].y - states[i].mean for i in idx]
     ws = [_weights(states[i]) for i in idx]
     nus = [_nuisance(ctx, i, offset_only) for i in idx]
+    q = max(nu.shape[1] for nu in nus)  # a tied series has the offset only: zero columns pad it
+    nus = [np.pad(nu, ((0, 0), (0, q - nu.shape[1]))) for nu in nus]
     fit = fit_shared(columns, np.asarray(theta0, float), ts, rs, ws, nus, aux=aux, scale=np.asarray(scale))
     if not fit.converged or not np.all(np.isfinite(fit.theta)):
         return None
@@ -207,12 +227,13 @@ class _Candidate:
     means: dict[int, np.ndarray]
     n_params: int
     info: dict
+    refine: object = None  # () -> _Candidate or None: the full fit, run only on the chosen term
 
 
 def _score(ctx, noise, states, corr, cand, n_total) -> float:
     dll = {}
     for i in cand.series:
-        dll[i] = noise.loglik(i, cand.means[i]) - noise.loglik(i, states[i].mean)
+        dll[i] = noise.loglik(i, cand.means[i]) - noise.base(i)
     if corr is not None:
         d = corr.design_effect(cand.series)
         gain = sum(v / d[ctx.series[i].axis] for i, v in dll.items())
@@ -265,7 +286,7 @@ def _line(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> lis
                 beta, fitted = _wls(g, s.y - st.mean, _weights(st))
                 means[i] = st.mean + fitted
                 fits[i] = beta[:2]
-                gains[i] = noise.loglik(i, means[i]) - noise.loglik(i, st.mean)
+                gains[i] = noise.loglik(i, means[i]) - noise.base(i)
             kept = [i for i in idx if 2 * gains[i] > 2 * math.log(n_total) + 6.0]
             if not kept:
                 continue
@@ -275,50 +296,63 @@ def _line(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> lis
                 best = (dbic, lam, kept, {i: means[i] for i in kept}, {i: fits[i] for i in kept}, k_par)
         if best is None:
             continue
-        dbic0, lam, kept, means, fits, k_par = best
-        aux = {"t_s": [float(ctx.series[i].t[0]) for i in kept]}
-        sf = 0.1 / ctx.duration_s
-        ref = _varpro(
-            ctx, states, kept, _line_columns, [f, lam], [sf, max(lam, 1.0 / ctx.duration_s)], aux, True
-        )
-        if ref is not None and abs(ref[1][0] - f) < 2.0 / ctx.duration_s and ref[1][1] >= 0:
-            m2 = ref[0]
-            g2 = sum(noise.loglik(i, m2[i]) - noise.loglik(i, states[i].mean) for i in kept)
-            k2 = 2 + 2 * len(kept)
-            if -2 * g2 + k2 * math.log(n_total) < dbic0:
-                f, lam = float(ref[1][0]), float(ref[1][1])
-                means, k_par = m2, k2
-                fits = {i: ref[2].beta[j][:2] for j, i in enumerate(kept)}
+        _, lam, kept, means, fits, k_par = best
         amps = {i: float(math.hypot(*fits[i])) for i in kept}
         info = {"freq_hz": f, "decay_per_s": lam, "amplitudes_mm": amps, "axis": axis}
-        out.append(_Candidate("line", kept, means, k_par, info))
+        cand = _Candidate("line", kept, means, k_par, info)
+        cand.refine = lambda c=cand: _refine_line(ctx, states, c)
+        out.append(cand)
     return out
 
 
+def _refine_line(ctx: Context, states: list[State], c: _Candidate) -> _Candidate | None:
+    """The line's frequency and decay refined together (optimistix variable projection)."""
+    f, lam = c.info["freq_hz"], c.info["decay_per_s"]
+    aux = {"t_s": [float(ctx.series[i].t[0]) for i in c.series]}
+    scale = [0.1 / ctx.duration_s, max(lam, 1.0 / ctx.duration_s)]
+    ref = _varpro(ctx, states, c.series, _line_columns, [f, lam], scale, aux, True)
+    if ref is None or abs(ref[1][0] - f) > 2.0 / ctx.duration_s or ref[1][1] < 0:
+        return None
+    means, theta, fit = ref
+    amps = {i: float(math.hypot(*fit.beta[j][:2])) for j, i in enumerate(c.series)}
+    info = dict(c.info, freq_hz=float(theta[0]), decay_per_s=float(theta[1]), amplitudes_mm=amps)
+    return _Candidate("line", c.series, means, 2 + 2 * len(c.series), info)
+
+
 def _carriers(ctx: Context, states: list[State]) -> list[int]:
-    """Series whose loading motion stands well above their noise (≥ 3 σ)."""
+    """Series whose loading motion stands above their noise (≥ 1 σ: the envelope is shared, a
+    series of little motion adds little evidence and no parameter)."""
     return [
         i
         for i in range(len(ctx.series))
-        if ctx.nominal[i].amplitude >= 3.0 * max(ctx.noise_sigma(i), 1e-12)
+        if ctx.nominal[i].amplitude >= 1.0 * max(ctx.noise_sigma(i), 1e-12)
     ]
 
 
-def _shared_fit(ctx, states, idx, cols_of):
-    """Coefficients shared by the series ``idx`` (each with its free nuisance profiled out, FWL),
-    returning {i: new mean}."""
-    lhs = rhs = None
-    per = {}
+def _projections(ctx, states, idx) -> dict:
+    """Per series: (weights, nuisance, its weighted projector, residual, residual less nuisance)."""
+    out = {}
     for i in idx:
         s, st = ctx.series[i], states[i]
         w = _weights(st) / max(ctx.noise_sigma(i), 1e-12) ** 2
-        x = cols_of(i)
         nu = _nuisance(ctx, i)
         r = s.y - st.mean
         nw = nu * w[:, None]
         proj = np.linalg.pinv(nw.T @ nu) @ nw.T
+        out[i] = (w, nu, proj, r, r - nu @ (proj @ r))
+    return out
+
+
+def _shared_fit(ctx, states, idx, cols_of, projections=None):
+    """Coefficients shared by the series ``idx`` (each with its free nuisance profiled out, FWL),
+    returning (coefficients, {i: new mean}, {i: nuisance coefficients})."""
+    projections = _projections(ctx, states, idx) if projections is None else projections
+    lhs = rhs = None
+    per = {}
+    for i in idx:
+        w, nu, proj, r, rt = projections[i]
+        x = cols_of(i)
         xt = x - nu @ (proj @ x)
-        rt = r - nu @ (proj @ r)
         a, b = (xt * w[:, None]).T @ xt, (xt * w[:, None]).T @ rt
         lhs = a if lhs is None else lhs + a
         rhs = b if rhs is None else rhs + b
@@ -343,13 +377,15 @@ def _envelope(ctx: Context, states: list[State], noise: _Noise, n_total: int) ->
         h, t = ctx.nominal[i], ctx.series[i].t
         arg = h.argument(t)
         carrier[i] = (h.amplitude * np.cos(arg), -h.amplitude * np.sin(arg))
-    base = sum(noise.loglik(i, states[i].mean) for i in idx)
+    base = sum(noise.base(i) for i in idx)
 
     # the series the report's envelope is read on: the largest motion against its noise
     ref = max(idx, key=lambda i: ctx.nominal[i].amplitude / max(ctx.noise_sigma(i), 1e-12))
 
+    projections = _projections(ctx, states, idx)
+
     def evaluate(cols_of, k_par):
-        beta, means, gammas = _shared_fit(ctx, states, idx, cols_of)
+        beta, means, gammas = _shared_fit(ctx, states, idx, cols_of, projections)
         gain = sum(noise.loglik(i, means[i]) for i in idx) - base
         # the re-estimated harmonic (C, D) of the reference series as a relative complex factor
         h, g = ctx.nominal[ref], gammas[ref]
@@ -362,7 +398,7 @@ def _envelope(ctx: Context, states: list[State], noise: _Noise, n_total: int) ->
     for knots in range(0, k_max + 1):
 
         def cols_of(i, knots=knots):
-            b = _bspline(ctx.series[i].t, 0.0, ctx.duration_s, knots)
+            b = noise.basis(i, knots)
             c, s = carrier[i]
             return np.concatenate([b * c[:, None], b * s[:, None]], axis=1)
 
@@ -383,34 +419,42 @@ def _envelope(ctx: Context, states: list[State], noise: _Noise, n_total: int) ->
             dbic, beta, means = evaluate(cols_of, 3)
             if best_exp is None or dbic < best_exp[0]:
                 best_exp = (dbic, means, 3, {"form": "exponential", "decay_per_s": lam, "coef": beta})
-    best[3]["coef"], best[3]["shift"] = best[3]["coef"]
-    best_exp[3]["coef"], best_exp[3]["shift"] = best_exp[3]["coef"]
-    if best_exp[0] < best[0]:
-        best = best_exp
-    # the decay refined (optimistix), then compared with the best spline
-    lam = best_exp[3]["decay_per_s"]
-    aux = {
-        "t_mid": [0.5 * ctx.duration_s] * len(idx),
-        "c": [carrier[i][0] for i in idx],
-        "s": [carrier[i][1] for i in idx],
-    }
-    refit = _varpro(ctx, states, idx, _decay_columns, [lam], [max(abs(lam), 1.0 / ctx.duration_s)], aux, False)
-    if refit is not None:
-        m2, th, fit = refit
-        k2 = 1 + 2 * len(idx)
-        d2 = -2 * (sum(noise.loglik(i, m2[i]) for i in idx) - base) + k2 * math.log(n_total)
-        if d2 < best[0]:
-            j = idx.index(ref)
-            coef = fit.beta[j, :2]
-            h = ctx.nominal[ref]
-            g = (m2[ref] - states[ref].mean) - (_decay_columns(th, ctx.series[ref].t, {
-                "t_mid": 0.5 * ctx.duration_s, "c": carrier[ref][0], "s": carrier[ref][1]}) @ coef)
-            nu = _nuisance(ctx, ref)
-            gam = np.linalg.lstsq(nu, np.asarray(g), rcond=None)[0]
-            shift = 0j if ctx.series[ref].tied else (gam[1] - 1j * gam[2]) * np.exp(1j * h.phase) / h.amplitude
-            best = (d2, m2, k2, {"form": "exponential", "decay_per_s": float(th[0]), "coef": coef, "shift": shift})
-    _, means, k_par, info = best
-    # the envelope's RMS swing relative to the motion: |u| over the record
+    for b in (best, best_exp):
+        b[3]["coef"], b[3]["shift"] = b[3]["coef"]
+    chosen = best_exp if best_exp[0] < best[0] else best
+
+    def refine() -> _Candidate | None:
+        """The decay refined (optimistix): compared with the grid's best by the search."""
+        lam = best_exp[3]["decay_per_s"]
+        aux = {
+            "t_mid": [0.5 * ctx.duration_s] * len(idx),
+            "c": [carrier[i][0] for i in idx],
+            "s": [carrier[i][1] for i in idx],
+        }
+        scale = [max(abs(lam), 1.0 / ctx.duration_s)]
+        refit = _varpro(ctx, states, idx, _decay_columns, [lam], scale, aux, False)
+        if refit is None:
+            return None
+        means, theta, fit = refit
+        j = idx.index(ref)
+        coef = fit.beta[j, :2]
+        h = ctx.nominal[ref]
+        shift = 0j
+        if not ctx.series[ref].tied:  # the re-estimated harmonic: what the term leaves of the fit
+            term = _decay_columns(theta, ctx.series[ref].t, {k: v[j] for k, v in aux.items()}) @ coef
+            gam = np.linalg.lstsq(_nuisance(ctx, ref), means[ref] - states[ref].mean - np.asarray(term), rcond=None)[0]
+            shift = (gam[1] - 1j * gam[2]) * np.exp(1j * h.phase) / h.amplitude
+        info = {"form": "exponential", "decay_per_s": float(theta[0]), "coef": coef, "shift": shift}
+        info["relative_envelope"] = _relative_envelope(ctx, info)
+        return _Candidate("envelope", idx, means, 1 + 2 * len(idx), info)
+
+    _, means, k_par, info = chosen
+    info["relative_envelope"] = _relative_envelope(ctx, info)
+    return [_Candidate("envelope", idx, means, k_par, info, refine)]
+
+
+def _relative_envelope(ctx: Context, info: dict) -> np.ndarray:
+    """|1 + shift + u(t)| on 400 times over the record: the amplitude relative to the nominal."""
     t = np.linspace(0.0, ctx.duration_s, 400)
     if info["form"] == "spline":
         b = _bspline(t, 0.0, ctx.duration_s, info["knots"])
@@ -419,12 +463,7 @@ def _envelope(ctx: Context, states: list[State], noise: _Noise, n_total: int) ->
     else:
         co = info["coef"]
         u = np.exp(-info["decay_per_s"] * (t - 0.5 * ctx.duration_s)) * (co[0] + 1j * co[1])
-    info["relative_envelope"] = np.abs(1.0 + info["shift"] + u)
-    return [_Candidate("envelope", idx, means, k_par, info)]
-
-
-def info_form(best) -> str:
-    return best[3]["form"]
+    return np.abs(1.0 + info["shift"] + u)
 
 
 def _trend(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> list[_Candidate]:
@@ -435,11 +474,11 @@ def _trend(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> li
         means, gains = {}, {}
         for i, s in enumerate(ctx.series):
             st = states[i]
-            b = _bspline(s.t, 0.0, ctx.duration_s, knots)[:, 1:]  # the constant: the offset
+            b = noise.basis(i, knots)[:, 1:]  # the constant: the offset
             g = np.concatenate([b, _nuisance(ctx, i)], axis=1)
             _, fitted = _wls(g, s.y - st.mean, _weights(st))
             means[i] = st.mean + fitted
-            gains[i] = noise.loglik(i, means[i]) - noise.loglik(i, st.mean)
+            gains[i] = noise.loglik(i, means[i]) - noise.base(i)
         k_own = knots + 3
         kept = [i for i in gains if 2 * gains[i] > k_own * math.log(n_total) + 6.0]
         if not kept:
@@ -545,16 +584,26 @@ def _report(ctx: Context, c: _Candidate, states: list[State]) -> UnnamedTerm:
     )
 
 
-def best_term(ctx: Context, states: list[State], corr: FrameCorrelation | None = None):
-    """The best generic term on the residual of ``states``: (ΔBIC, candidate) or None."""
+def best_term(
+    ctx: Context, states: list[State], corr: FrameCorrelation | None = None, bases: dict | None = None
+):
+    """The best generic term on the residual of ``states``: (ΔBIC, candidate) or None. Every
+    kind screens (grids, linear fits); the best candidate alone is refined (its ``refine``) and
+    kept refined when that scores better. ``bases``: the search's cache of spline bases."""
     n_total = sum(s.n for s in ctx.series)
-    noise = _Noise(ctx, states)
+    noise = _Noise(ctx, states, bases)
     best = None
     for kind in KINDS:
         for c in _BUILDERS[kind](ctx, states, noise, n_total):
             d = _score(ctx, noise, states, corr, c, n_total)
             if best is None or d < best[0]:
                 best = (d, c)
+    if best is not None and best[1].refine is not None:
+        q = best[1].refine()
+        if q is not None:
+            d = _score(ctx, noise, states, corr, q, n_total)
+            if d < best[0]:
+                best = (d, q)
     return best
 
 
@@ -582,11 +631,13 @@ def search_unnamed(
     corr: FrameCorrelation | None = None,
     max_terms: int = MAX_TERMS,
     check=None,
+    bases: dict | None = None,
 ) -> tuple[list[UnnamedTerm], list[State]]:
     """Greedy generic terms on the residual of ``states``: (accepted terms, the states after)."""
     terms: list[UnnamedTerm] = []
+    bases = {} if bases is None else bases
     for _ in range(max_terms):
-        best = best_term(ctx, states, corr)
+        best = best_term(ctx, states, corr, bases)
         if check is not None:
             check()
         if best is None or not best[0] < DELTA_BIC_MAX:
