@@ -84,7 +84,13 @@ def test_the_hammer_records_modes_and_damping_are_found():
 
 
 @pytest.mark.parametrize(
-    "rho, seconds, fs, seed", [(0.3, 7.0, 50.0, 11), (0.8, 7.0, 50.0, 12), (0.6, 120.0, 20.0, 13), (0.8, 300.0, 20.0, 14)]
+    "rho, seconds, fs, seed",
+    [
+        (0.3, 7.0, 50.0, 11),
+        (0.8, 7.0, 50.0, 12),
+        pytest.param(0.6, 120.0, 20.0, 13, marks=pytest.mark.slow),
+        pytest.param(0.8, 300.0, 20.0, 14, marks=pytest.mark.slow),
+    ],
 )
 def test_coloured_noise_controls_stay_quiet(rho, seconds, fs, seed):
     rng = np.random.default_rng(seed)

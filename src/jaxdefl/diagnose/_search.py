@@ -500,8 +500,7 @@ def run_diagnosis(
 
     open_states = states
     if open_world and not noise_free:
-        more, open_states = search_unnamed(ctx, states, corr, MAX_TERMS - len(terms), check_interrupt, bases)
-        terms += more
+        terms, open_states = search_unnamed(ctx, states, corr, MAX_TERMS, check_interrupt, bases, prior=terms)
     if noise_free:  # whiteness of rounding errors says nothing of the physics
         tests_nominal = tests_final = []
     else:

@@ -75,6 +75,9 @@ class UnnamedTerm:
     rms_before_mm: float = math.nan
     rms_after_mm: float = math.nan
     detail: dict = field(default_factory=dict)
+    # the fitted term itself (its mean change per series), for the search's backfitting
+    change: dict = field(default_factory=dict, repr=False)
+    candidate: object = field(default=None, repr=False)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -607,22 +610,53 @@ def best_term(
     return best
 
 
-def apply_term(ctx: Context, states: list[State], best) -> tuple[UnnamedTerm, list[State]]:
-    """The accepted term's report and the states with it."""
+def _term_states(ctx: Context, base: list[State], deltas: list[dict[int, np.ndarray]], cands) -> list[State]:
+    """``base`` with every accepted term's mean change added."""
+    states = list(base)
+    for d, c in zip(deltas, cands, strict=True):
+        for i, v in d.items():
+            st = states[i]
+            states[i] = st.with_(
+                mean=st.mean + v,
+                n_params=st.n_params + max(1, round(c.n_params / len(c.series))),
+                effects=st.effects + ("unnamed",),
+            )
+    return states
+
+
+def _as_term(ctx: Context, states: list[State], best) -> UnnamedTerm:
     dbic, c = best
     rms0 = float(np.sqrt(np.mean(np.concatenate([ctx.series[i].y - states[i].mean for i in c.series]) ** 2)))
     rms1 = float(np.sqrt(np.mean(np.concatenate([ctx.series[i].y - c.means[i] for i in c.series]) ** 2)))
     term = _report(ctx, c, states)
     term.delta_bic, term.rms_before_mm, term.rms_after_mm = float(dbic), rms0, rms1
-    states = list(states)
-    for i in c.series:
-        st = states[i]
-        states[i] = st.with_(
-            mean=c.means[i],
-            n_params=st.n_params + max(1, round(c.n_params / len(c.series))),
-            effects=st.effects + ("unnamed",),
-        )
-    return term, states
+    term.change = {i: c.means[i] - states[i].mean for i in c.series}
+    term.candidate = c
+    return term
+
+
+def apply_term(ctx: Context, states: list[State], best) -> tuple[UnnamedTerm, list[State]]:
+    """The accepted term's report and the states with it."""
+    c = best[1]
+    delta = {i: c.means[i] - states[i].mean for i in c.series}
+    return _as_term(ctx, states, best), _term_states(ctx, states, [delta], [c])
+
+
+def _best_of_kind(ctx, states, corr, bases, kind):
+    n_total = sum(s.n for s in ctx.series)
+    noise = _Noise(ctx, states, bases)
+    best = None
+    for c in _BUILDERS[kind](ctx, states, noise, n_total):
+        d = _score(ctx, noise, states, corr, c, n_total)
+        if best is None or d < best[0]:
+            best = (d, c)
+    if best is not None and best[1].refine is not None:
+        q = best[1].refine()
+        if q is not None:
+            d = _score(ctx, noise, states, corr, q, n_total)
+            if d < best[0]:
+                best = (d, q)
+    return best
 
 
 def search_unnamed(
@@ -632,16 +666,57 @@ def search_unnamed(
     max_terms: int = MAX_TERMS,
     check=None,
     bases: dict | None = None,
+    backfit: int = 2,
+    prior: list[UnnamedTerm] = (),
 ) -> tuple[list[UnnamedTerm], list[State]]:
-    """Greedy generic terms on the residual of ``states``: (accepted terms, the states after)."""
-    terms: list[UnnamedTerm] = []
+    """Greedy generic terms on the residual of ``states``: (accepted terms, the states after).
+    ``prior``: terms already in ``states`` (accepted while competing with the named effects):
+    they are backfitted with the new ones and returned first.
+
+    Then ``backfit`` passes: each term, in turn, is fitted again (its kind's best) on the residual
+    of all the others, and dropped when, given them, it no longer reaches ΔBIC < −10 (a line
+    fitted while a larger decay was still in the residual leaves a spurious neighbour)."""
     bases = {} if bases is None else bases
-    for _ in range(max_terms):
-        best = best_term(ctx, states, corr, bases)
+    deltas: list[dict[int, np.ndarray]] = [dict(u.change) for u in prior]
+    cands: list = [u.candidate for u in prior]
+    base = list(states)
+    for d in deltas:
+        for i, v in d.items():
+            base[i] = base[i].with_(mean=base[i].mean - v)
+    for _ in range(max_terms - len(prior)):
+        cur = _term_states(ctx, base, deltas, cands)
+        best = best_term(ctx, cur, corr, bases)
         if check is not None:
             check()
         if best is None or not best[0] < DELTA_BIC_MAX:
             break
-        term, states = apply_term(ctx, states, best)
-        terms.append(term)
-    return terms, states
+        c = best[1]
+        deltas.append({i: c.means[i] - cur[i].mean for i in c.series})
+        cands.append(c)
+    scores = [None] * len(cands)
+    for _ in range(backfit if len(cands) > 1 else 0):
+        j = 0
+        while j < len(cands):
+            others = _term_states(ctx, base, deltas[:j] + deltas[j + 1 :], cands[:j] + cands[j + 1 :])
+            best = _best_of_kind(ctx, others, corr, bases, cands[j].kind)
+            if check is not None:
+                check()
+            if best is None or not best[0] < DELTA_BIC_MAX:
+                del deltas[j], cands[j], scores[j]
+                continue
+            c = best[1]
+            deltas[j] = {i: c.means[i] - others[i].mean for i in c.series}
+            cands[j] = c
+            scores[j] = (best[0], others)
+            j += 1
+    terms = []
+    for j, c in enumerate(cands):
+        others = _term_states(ctx, base, deltas[:j] + deltas[j + 1 :], cands[:j] + cands[j + 1 :])
+        if scores[j] is None:  # no backfit: the greedy's own evidence, on the terms before it
+            before = _term_states(ctx, base, deltas[:j], cands[:j])
+            n_total = sum(s.n for s in ctx.series)
+            d = _score(ctx, _Noise(ctx, before, bases), before, corr, c, n_total)
+            terms.append(_as_term(ctx, before, (d, c)))
+        else:
+            terms.append(_as_term(ctx, others, (scores[j][0], c)))
+    return terms, _term_states(ctx, base, deltas, cands)
