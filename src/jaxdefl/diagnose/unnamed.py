@@ -45,6 +45,11 @@ KINDS = ("line", "envelope", "trend")
 MAX_TERMS = 4
 DELTA_BIC_MAX = -10.0
 MAX_KNOTS = 12
+# interior knots tried (BIC picks among them, up to what the record can carry)
+KNOTS = (0, 1, 2, 3, 5, 8, 12)
+# the chosen term is refined only when its screening already shows evidence (a refit moves ΔBIC
+# by a few units, not from nothing to −10); a refit costs a compilation per shape
+REFINE_BELOW = 0.0
 # λ grid of the decays, in units of 1/duration (e-folds over the record)
 _DECAY_GRID = np.concatenate([[0.0], np.geomspace(0.05, 40.0, 12)])  # refined by optimistix
 
@@ -398,7 +403,7 @@ def _envelope(ctx: Context, states: list[State], noise: _Noise, n_total: int) ->
     best = None
     # K interior knots: the envelope varies slower than the carrier (≥ 1 cycle per knot span)
     k_max = int(min(MAX_KNOTS, max(0, cycles - 1)))
-    for knots in range(0, k_max + 1):
+    for knots in (k for k in KNOTS if k <= k_max):
 
         def cols_of(i, knots=knots):
             b = noise.basis(i, knots)
@@ -410,7 +415,7 @@ def _envelope(ctx: Context, states: list[State], noise: _Noise, n_total: int) ->
         if best is None or dbic < best[0]:
             best = (dbic, means, 2 * nb - 2, {"form": "spline", "knots": knots, "coef": beta})
     best_exp = None
-    for lam_u in _DECAY_GRID[1:]:
+    for lam_u in _DECAY_GRID[1::2]:  # a coarse start: the chosen decay is refined
         for sign in (1.0, -1.0):
             lam = sign * lam_u / ctx.duration_s
 
@@ -469,33 +474,81 @@ def _relative_envelope(ctx: Context, info: dict) -> np.ndarray:
     return np.abs(1.0 + info["shift"] + u)
 
 
+def _change_point(ctx: Context, states: list[State]) -> float | None:
+    """The most likely time of a step common to the series: the argmax over time of the summed
+    squared standardised CUSUMs of their residuals (on the frame clock), or None."""
+    n_frames = ctx.n_frames
+    total = np.zeros(n_frames)
+    for i, s in enumerate(ctx.series):
+        st = states[i]
+        z = np.where(st.inlier, (s.y - st.mean) / st.scale, 0.0)
+        z = z - z.mean()
+        sd = float(np.std(z)) or 1.0
+        c = np.cumsum(z) / sd
+        n = z.size
+        j = np.arange(1, n)
+        stat = np.zeros(n_frames)
+        stat[s.k[:-1]] = c[:-1] ** 2 * n / (j * (n - j))
+        total += stat
+    margin = max(2, n_frames // 50)
+    if n_frames <= 2 * margin:
+        return None
+    k = margin + int(np.argmax(total[margin:-margin]))
+    return (k + 0.5) * ctx.dt_s
+
+
 def _trend(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> list[_Candidate]:
-    """A slow additive B-spline per series (K shared, by BIC); series that pay for it."""
+    """A slow additive B-spline (K knots by BIC), optionally with a step at the common change
+    point: per series (series that pay for it), or one shape shared by the series with a scale
+    each (rank one: a camera that warms up, a support that settles)."""
     k_max = int(min(MAX_KNOTS, max(0, ctx.f0_hz * ctx.duration_s / 4.0 - 1)))
+    t_c = _change_point(ctx, states)
+    logn = math.log(n_total)
     best = None
-    for knots in range(0, k_max + 1):
-        means, gains = {}, {}
-        for i, s in enumerate(ctx.series):
-            st = states[i]
-            b = noise.basis(i, knots)[:, 1:]  # the constant: the offset
-            g = np.concatenate([b, _nuisance(ctx, i)], axis=1)
-            _, fitted = _wls(g, s.y - st.mean, _weights(st))
-            means[i] = st.mean + fitted
-            gains[i] = noise.loglik(i, means[i]) - noise.base(i)
-        k_own = knots + 3
-        kept = [i for i in gains if 2 * gains[i] > k_own * math.log(n_total) + 6.0]
-        if not kept:
-            continue
-        dbic = -2 * sum(gains[i] for i in kept) + k_own * len(kept) * math.log(n_total)
-        if best is None or dbic < best[0]:
-            best = (dbic, kept, {i: means[i] for i in kept}, k_own * len(kept), knots)
+    for knots in (k for k in KNOTS if k <= k_max):
+        for step in (False, True) if t_c is not None else (False,):
+            cols, betas, means, gains = {}, {}, {}, {}
+            for i, s in enumerate(ctx.series):
+                st = states[i]
+                b = noise.basis(i, knots)[:, 1:]  # the constant: the offset
+                if step:
+                    b = np.concatenate([b, (s.t > t_c).astype(float)[:, None]], axis=1)
+                cols[i] = b
+                g = np.concatenate([b, _nuisance(ctx, i)], axis=1)
+                beta, fitted = _wls(g, s.y - st.mean, _weights(st))
+                betas[i] = beta[: b.shape[1]] / max(ctx.noise_sigma(i), 1e-12)
+                means[i] = st.mean + fitted
+                gains[i] = noise.loglik(i, means[i]) - noise.base(i)
+            k_own = cols[0].shape[1]
+            extra = 1 if step else 0  # the step time, shared
+            kept = [i for i in gains if 2 * gains[i] > k_own * logn + 6.0]
+            if kept:
+                dbic = -2 * sum(gains[i] for i in kept) + (k_own * len(kept) + extra) * logn
+                if best is None or dbic < best[0]:
+                    info = {"knots": knots, "shared": False, "step_s": t_c if step else None}
+                    best = (dbic, kept, {i: means[i] for i in kept}, k_own * len(kept) + extra, info)
+            # the shared shape: the first right singular vector of the noise-scaled coefficients
+            m = np.stack([betas[i] for i in range(len(ctx.series))])
+            v = np.linalg.svd(m, full_matrices=False)[2][0]
+            sh_means, sh_gains = {}, {}
+            for i, s in enumerate(ctx.series):
+                st = states[i]
+                g = np.concatenate([(cols[i] @ v)[:, None], _nuisance(ctx, i)], axis=1)
+                _, fitted = _wls(g, s.y - st.mean, _weights(st))
+                sh_means[i] = st.mean + fitted
+                sh_gains[i] = noise.loglik(i, sh_means[i]) - noise.base(i)
+            kept = [i for i in sh_gains if 2 * sh_gains[i] > logn + 6.0]
+            if kept:
+                k_par = k_own - 1 + len(kept) + extra
+                dbic = -2 * sum(sh_gains[i] for i in kept) + k_par * logn
+                if best is None or dbic < best[0]:
+                    info = {"knots": knots, "shared": True, "step_s": t_c if step else None}
+                    best = (dbic, kept, {i: sh_means[i] for i in kept}, k_par, info)
     if best is None:
         return []
-    _, kept, means, k_par, knots = best
-    swing = {
-        i: float(np.ptp(means[i] - states[i].mean)) for i in kept
-    }
-    return [_Candidate("trend", kept, means, k_par, {"knots": knots, "swing_mm": swing})]
+    _, kept, means, k_par, info = best
+    info["swing_mm"] = {i: float(np.ptp(means[i] - states[i].mean)) for i in kept}
+    return [_Candidate("trend", kept, means, k_par, info)]
 
 
 _BUILDERS = {"line": _line, "envelope": _envelope, "trend": _trend}
@@ -575,10 +628,18 @@ def _report(ctx: Context, c: _Candidate, states: list[State]) -> UnnamedTerm:
         )
     swing = info["swing_mm"]
     s_med = float(np.median(list(swing.values())))
-    par = {"knots": int(info["knots"]), "swing_mm": {"value": s_med, "sigma": None}}
+    par = {
+        "knots": int(info["knots"]),
+        "shared": bool(info["shared"]),
+        "swing_mm": {"value": s_med, "sigma": None},
+    }
+    shape = "one shape shared by the plates" if info["shared"] else "each plate its own way"
+    if info["step_s"] is not None:
+        par["step_at_s"] = {"value": float(info["step_s"]), "sigma": None}
+        shape += f", with a step at {info['step_s']:.1f} s"
     text = (
-        f"The measured position wanders slowly by about {s_med:.3g} mm (peak to peak) on {where}: "
-        "structure no named effect explains."
+        f"The measured position wanders slowly by about {s_med:.3g} mm (peak to peak) on {where} "
+        f"({shape}): structure no named effect explains."
     )
     return UnnamedTerm(
         "trend", c.series, c.means, c.n_params, par, t_lo, t_hi,
@@ -591,17 +652,21 @@ def best_term(
     ctx: Context, states: list[State], corr: FrameCorrelation | None = None, bases: dict | None = None
 ):
     """The best generic term on the residual of ``states``: (ΔBIC, candidate) or None. Every
-    kind screens (grids, linear fits); the best candidate alone is refined (its ``refine``) and
-    kept refined when that scores better. ``bases``: the search's cache of spline bases."""
+    kind screens (grids, linear fits); the best candidate alone is refined (its ``refine``) when
+    its ΔBIC is below `REFINE_BELOW`, and kept refined when that scores better. ``bases``: the search's cache of spline bases."""
     n_total = sum(s.n for s in ctx.series)
     noise = _Noise(ctx, states, bases)
     best = None
     for kind in KINDS:
-        for c in _BUILDERS[kind](ctx, states, noise, n_total):
+        try:
+            cands = _BUILDERS[kind](ctx, states, noise, n_total)
+        except np.linalg.LinAlgError:  # one generic term that cannot be fitted never stops the rest
+            cands = []
+        for c in cands:
             d = _score(ctx, noise, states, corr, c, n_total)
             if best is None or d < best[0]:
                 best = (d, c)
-    if best is not None and best[1].refine is not None:
+    if best is not None and best[1].refine is not None and best[0] < REFINE_BELOW:
         q = best[1].refine()
         if q is not None:
             d = _score(ctx, noise, states, corr, q, n_total)
@@ -650,7 +715,7 @@ def _best_of_kind(ctx, states, corr, bases, kind):
         d = _score(ctx, noise, states, corr, c, n_total)
         if best is None or d < best[0]:
             best = (d, c)
-    if best is not None and best[1].refine is not None:
+    if best is not None and best[1].refine is not None and best[0] < REFINE_BELOW:
         q = best[1].refine()
         if q is not None:
             d = _score(ctx, noise, states, corr, q, n_total)
