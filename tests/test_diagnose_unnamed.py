@@ -149,3 +149,49 @@ def test_gates_follow_snr_and_samples_not_cycles():
     assert why[0.02]["harmonic_distortion"] is None
     assert "not enough evidence" in why[0.5]["drift"]  # 1 mm in 10 min: 0.02 mm in 12 s
     assert why[0.02]["drift"] is None  # ... which 0.02-mm noise can tell
+
+
+def _bench():
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "experiments" / "concealed_effects.py"
+    spec = importlib.util.spec_from_file_location("concealed_effects", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_held_out_mode_plans_and_scores_unnamed_modelling():
+    bench = _bench()
+    plan = bench.plan_cases(3, 4, seed=2, held_out="drift", ar1_controls=0.5)
+    assert [p["effects"] for p in plan[:3]] == [["drift"]] * 3
+    assert all(p["held_out"] == "drift" for p in plan)
+    rhos = [p.get("ar1_rho") for p in plan[3:]]
+    assert sum(r is not None for r in rhos) == 2 and all(0.3 <= r <= 0.8 for r in rhos if r)
+    calls = []
+
+    def stand_in(traj, reference=None, **kw):
+        calls.append(kw)
+        return {"effects": [], "unnamed": []}
+
+    truth_rec = {"frame_rate_hz": 20.0}
+    bench._blind_call(stand_in, None, None, {"sensor": "tof", **truth_rec}, "drift")
+    assert "drift" not in calls[0]["effects"] and len(calls[0]["effects"]) == len(bench.EFFECT_IDS) - 1
+    injected = {"id": "drift", "plates": [1, 2, 3, 4]}
+    strong = {"delta_bic": -40.0, "plates": [2, 3, 4]}
+    assert bench.unnamed_located(injected, [strong])
+    assert not bench.unnamed_located(injected, [dict(strong, delta_bic=-5.0)])  # too weak
+    assert not bench.unnamed_located(injected, [dict(strong, plates=[4, 9])])  # elsewhere
+
+
+def test_ar1_controls_are_coloured():
+    bench = _bench()
+    rng = np.random.default_rng(0)
+    t = 1.7e9 + np.arange(6000) / 20.0
+    traj = pd.DataFrame({"t": t, "plate": 1, "x": 0.0, "y": 0.0, "z": 0.0})
+    truth = {"recording": {"frame_rate_hz": 20.0, "t_first": t[0], "noise_mm": {a: [0.5] for a in "xyz"}}}
+    out = bench.add_ar1_noise(traj, truth, 0.6, seed=int(rng.integers(1000)))
+    z = out["z"].to_numpy()
+    assert np.std(z) == pytest.approx(1.0, rel=0.1)  # twice the white σ
+    assert np.corrcoef(z[1:], z[:-1])[0, 1] == pytest.approx(0.6, abs=0.05)
