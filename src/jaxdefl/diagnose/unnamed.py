@@ -4,8 +4,10 @@ generic terms, reported under ``"unnamed"`` and never given a vocabulary name.
 After the named search (`_search`) the residuals are searched again, greedily, with three
 generic terms, each chosen by BIC:
 
-- ``line``: a sinusoid at the peak of the residual periodograms summed over an axis' series
-  (per-series amplitudes, shared frequency), optionally decaying, e^{−λ(t − t_s)} from the
+- ``line``: a sinusoid at the peak of the residual periodograms summed over an axis' series,
+  each normalised by its running median (the local noise level, whatever its colour), when that
+  peak is significant after the frequencies scanned (α = 0.01); per-series amplitudes, shared
+  frequency, optionally decaying, e^{−λ(t − t_s)} from the
   series' start (a free vibration: its damping ratio ζ = λ / 2πf is reported). Sparse: one line
   per round, the next one from the new residual.
 - ``envelope``: a smooth complex envelope u(t) of the loading line, shared by the series that
@@ -33,7 +35,9 @@ from dataclasses import dataclass, field
 
 import jax.numpy as jnp
 import numpy as np
+from scipy import stats
 from scipy.interpolate import BSpline
+from scipy.ndimage import median_filter
 
 from ._base import LOG_2PI, Context, State, masked_periodogram, peak_offset
 from ._correlation import FrameCorrelation
@@ -45,6 +49,10 @@ KINDS = ("line", "envelope", "trend")
 MAX_TERMS = 4
 DELTA_BIC_MAX = -10.0
 MAX_KNOTS = 12
+# a line's signature: its locally normalised power against a running median of ±LOCAL_BINS
+# bins, significant at LINE_ALPHA after the frequencies and axes scanned
+LOCAL_BINS = 25
+LINE_ALPHA = 0.01
 # interior knots tried (BIC picks among them, up to what the record can carry)
 KNOTS = (0, 1, 2, 3, 5, 8, 12)
 # the chosen term is refined only when its screening already shows evidence (a refit moves ΔBIC
@@ -275,7 +283,8 @@ def _score(ctx, noise, states, corr, cand, n_total) -> float:
 
 
 def _line(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> list[_Candidate]:
-    """One sparse sinusoid per axis at the peak of the summed AR(1)-normalised periodograms."""
+    """One sparse sinusoid per axis at the significant peak of the summed locally normalised
+    periodograms."""
     out = []
     by_axis: dict[str, list[int]] = {}
     for i, s in enumerate(ctx.series):
@@ -287,16 +296,22 @@ def _line(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> lis
             s, st = ctx.series[i], states[i]
             r = np.where(st.inlier, (s.y - st.mean) / st.scale, 0.0)
             freq, p = masked_periodogram(ctx, i, r, oversample=2)
-            rho = ar1_rho(r[st.inlier], s.k[st.inlier])
-            if rho > 0:
-                shape = (1 - rho**2) / (1 - 2 * rho * np.cos(2 * np.pi * freq * ctx.dt_s) + rho**2)
-                p = p / shape
+            # against the local noise level (running median of the periodogram: Exp(1) powers
+            # under any smooth noise spectrum, coloured or not)
+            local = median_filter(p, size=2 * LOCAL_BINS + 1, mode="nearest") / math.log(2.0)
+            p = p / np.maximum(local, 1e-300)
             total = p if total is None else total + p
         allowed = (freq > 2.0 / ctx.duration_s) & (np.abs(freq - ctx.f0_hz) > 1.0 / ctx.duration_s)
         allowed &= freq < 0.5 / ctx.dt_s - 1.0 / ctx.duration_s
         if not allowed.any():
             continue
         j = int(np.argmax(np.where(allowed, total, -np.inf)))
+        # the signature: the peak of the m summed local powers (Gamma(m, 1)) against the
+        # independent frequencies scanned (two bins each) on the three axes
+        n_freq = max(1.0, allowed.sum() / 2.0)
+        logp = float(stats.gamma.logsf(total[j], len(idx)))
+        if logp + math.log(3.0 * n_freq) > math.log(LINE_ALPHA):
+            continue
         j = min(max(j, 1), freq.size - 2)
         f = float(freq[j] + peak_offset(total[j - 1], total[j], total[j + 1]) * (freq[1] - freq[0]))
         best = None
