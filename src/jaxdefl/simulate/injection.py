@@ -381,6 +381,20 @@ def _fault_check(e, bad):
 
 
 _PHASE = Param("phase_rad", "rad", 0.0)
+
+
+def _modulation(rate: str, rate_unit: str, depth: str, depth_unit: str) -> tuple[Param, ...]:
+    """A modulation's parameters: linear about t_ref_s, or sinusoidal (all default 0)."""
+    names = (
+        (rate, rate_unit),
+        ("t_ref_s", "s"),
+        (depth, depth_unit),
+        ("freq_hz", "Hz"),
+        ("phase_rad", "rad"),
+    )
+    return tuple(Param(n, u, 0.0) for n, u in names)
+
+
 _ENTRIES = (
     Injection(
         "drift",
@@ -416,13 +430,7 @@ _ENTRIES = (
     Injection(
         "amplitude_modulation",
         "motion",
-        (
-            Param("relative_rate_per_s", "1/s", 0.0),
-            Param("t_ref_s", "s", 0.0),
-            Param("depth", "relative", 0.0),
-            Param("freq_hz", "Hz", 0.0),
-            _PHASE,
-        ),
+        _modulation("relative_rate_per_s", "1/s", "depth", "relative"),
         "the load's amplitude A·(1 + r (t_rel − t_ref) + m cos(2π f_m t_rel + ψ))",
         _amplitude_modulation,
         _depth_check,
@@ -430,13 +438,7 @@ _ENTRIES = (
     Injection(
         "frequency_modulation",
         "motion",
-        (
-            Param("drift_hz_per_s", "Hz/s", 0.0),
-            Param("t_ref_s", "s", 0.0),
-            Param("depth_rad", "rad", 0.0),
-            Param("freq_hz", "Hz", 0.0),
-            _PHASE,
-        ),
+        _modulation("drift_hz_per_s", "Hz/s", "depth_rad", "rad"),
         "the load's phase + π d (t_rel − t_ref)² + β sin(2π f_m t_rel + ψ)",
         _frequency_modulation,
     ),
@@ -501,20 +503,32 @@ INJECTABLE = tuple(REGISTRY)
 # parsing and validation
 
 
-def parse_effects(src: str, tables: Any, n_plates: int) -> tuple[EffectSpec, ...]:
-    """Validate the ``[[effect]]`` array of a config; one-line `ConfigError` naming the key."""
+def parse_effects(
+    src: str,
+    tables: Any,
+    n_plates: int,
+    name: str = "effect",
+    id_key: str = "id",
+    ids: dict[str, str] | None = None,
+    first: int = 1,
+) -> tuple[EffectSpec, ...]:
+    """Validate an array of ``[[name]]`` tables (``[[effect]]`` by default) into specs; one-line
+    `ConfigError` naming the key (``name[i]``, counted from ``first``). ``ids`` maps the values
+    of ``id_key`` to registry ids (a spelling: `jaxdefl.simulate.schedule`'s ``[[change]]``)."""
     if not isinstance(tables, list) or not all(isinstance(e, dict) for e in tables):
-        raise ConfigError(f"{src}: key 'effect': expected an array of tables [[effect]], got {tables!r}")
+        raise ConfigError(f"{src}: key '{name}': expected an array of tables [[{name}]], got {tables!r}")
+    ids = ids if ids is not None else {i: i for i in INJECTABLE}
     out = []
     for i, raw in enumerate(tables):
-        key = f"effect[{i + 1}]"
-        eid = raw.get("id")
-        if eid not in REGISTRY:
+        key = f"{name}[{i + first}]"
+        value = raw.get(id_key)
+        if value not in ids:
+            what = " (effects the simulator can inject)" if name == "effect" else ""
             raise ConfigError(
-                f"{src}: key '{key}.id': expected one of {', '.join(INJECTABLE)} (effects the simulator "
-                f"can inject), got {eid!r}"
+                f"{src}: key '{key}.{id_key}': expected one of {', '.join(ids)}{what}, got {value!r}"
             )
-        out.append(parse_table(src, key, eid, {k: v for k, v in raw.items() if k != "id"}, n_plates))
+        params = {k: v for k, v in raw.items() if k != id_key}
+        out.append(parse_table(src, key, ids[value], params, n_plates))
     return tuple(out)
 
 

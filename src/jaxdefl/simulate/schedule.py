@@ -30,8 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from .._errors import ConfigError
-from .injection import REGISTRY, EffectSpec, motion_terms, parse_table
+from .injection import REGISTRY, EffectSpec, motion_terms, parse_effects
 
 __all__ = [
     "CHANGE_KINDS",
@@ -53,19 +52,7 @@ def parse_changes(src: str, raw: Any, n_plates: int) -> tuple[EffectSpec, ...]:
     Raises:
         ConfigError: not an array of tables, an unknown kind or key, a bad value (named).
     """
-    if not isinstance(raw, list) or not all(isinstance(c, dict) for c in raw):
-        raise ConfigError(f"{src}: key 'change': expected an array of tables [[change]], got {raw!r}")
-    out = []
-    for i, c in enumerate(raw):
-        where = f"change[{i}]"
-        kind = c.get("kind")
-        if kind not in CHANGE_IDS:
-            raise ConfigError(
-                f"{src}: key '{where}.kind': expected one of {', '.join(CHANGE_KINDS)}, got {kind!r}"
-            )
-        params = {k: v for k, v in c.items() if k != "kind"}
-        out.append(parse_table(src, where, CHANGE_IDS[kind], params, n_plates))
-    return tuple(out)
+    return parse_effects(src, raw, n_plates, name="change", id_key="kind", ids=CHANGE_IDS, first=0)
 
 
 def frequency_phase(changes: tuple[EffectSpec, ...], f0_hz: float, tau_s: np.ndarray) -> np.ndarray:
