@@ -5,7 +5,7 @@ differ in the demodulation that sees it (in phase for the amplitude, quadrature 
 in the model term and in what is reported. `ModulationEffect` holds what is common: the linear
 kind's χ²₁ test and the sinusoidal kind's scan of the combined demodulated spectrum between
 2/duration and 0.2 Hz (each doubled for the two kinds tried), the rejection of a line on one side
-of f0 (`extra_periodic`), the Levenberg-Marquardt fit over all carriers (`Carriers.fit`) and the
+of f0 (`extra_periodic`), the optimistix fit over all carriers (`Carriers.fit`) and the
 selection of the series that keep the term. Subclasses give the terms and the reports.
 """
 
@@ -46,17 +46,23 @@ class ModulationEffect(Effect):
     def twin(self) -> str:
         return "quadrature" if self.demodulation == "in_phase" else "in_phase"
 
+    @staticmethod
     @abc.abstractmethod
-    def linear_shape(self, ctx: Context, t: np.ndarray) -> np.ndarray:
-        """u(t) of the linear kind per unit parameter, as the demodulation sees it."""
+    def shape(t, half):
+        """u(t) of the linear kind per unit parameter, ``half`` = duration / 2 (numpy or jax)."""
 
+    @staticmethod
     @abc.abstractmethod
-    def linear_term(self, ctx: Context, it, theta: np.ndarray, jac: bool):
-        """The linear kind's term on carrier ``it`` (and its Jacobian when ``jac``)."""
+    def linear_term(theta, t, aux):
+        """The linear kind's term on one carrier (jax.numpy; `Carriers.fit`'s aux)."""
 
+    @staticmethod
     @abc.abstractmethod
-    def sinusoidal_term(self, ctx: Context, it, theta: np.ndarray, jac: bool):
+    def sinusoidal_term(theta, t, aux):
         """The sinusoidal kind's term, θ = (cosine, sine coefficient, f_m)."""
+
+    def linear_shape(self, ctx: Context, t: np.ndarray) -> np.ndarray:
+        return self.shape(t, 0.5 * ctx.duration_s)
 
     @abc.abstractmethod
     def linear_report(self, ctx: Context, value: float, sigma: float, plates: list[int]):
@@ -73,12 +79,12 @@ class ModulationEffect(Effect):
         if not car.items:
             return []
         out = []
-        stat, x0, _ = car.linear_stat(
+        stat, x0, sx = car.linear_stat(
             self.demodulation, lambda t: self.linear_shape(ctx, t), trend=self.trend
         )
         p_lin = min(1.0, KINDS * chi2_p_value(stat, 1))
         if p_lin < P_MAX:
-            prop = self._linear(ctx, states, car, x0, p_lin)
+            prop = self._linear(ctx, states, car, x0, sx, p_lin)
             if prop is not None:
                 out.append(prop)
         f_lo, f_hi = modulation_band(ctx)
@@ -114,14 +120,11 @@ class ModulationEffect(Effect):
             detail=detail,
         )
 
-    def _linear(self, ctx, states, car, x0, p_value) -> Proposal | None:
-        def term(it, th, jac):
-            return self.linear_term(ctx, it, th, jac)
-
-        res = car.fit(term, np.array([x0]))
+    def _linear(self, ctx, states, car, x0, sx, p_value) -> Proposal | None:
+        res = car.fit(self.linear_term, np.array([x0]), np.array([sx]))
         if not res.converged:
             return None
-        kept, new, gains = car.proposal_states(states, term, res.theta, self.id, 1)
+        kept, new, gains = car.proposal_states(states, res, self.id, 1)
         if not kept:
             return None
         plates = sorted({ctx.series[i].plate for i in kept})
@@ -130,14 +133,13 @@ class ModulationEffect(Effect):
         return self._proposal(ctx, kept, new, gains, 1, p_value, report)
 
     def _sinusoidal(self, ctx, states, car, f_pk, n_pk, q, p_value) -> Proposal | None:
-        def term(it, th, jac):
-            return self.sinusoidal_term(ctx, it, th, jac)
-
-        res = car.fit(term, np.array([2 * n_pk.real / q, -2 * n_pk.imag / q, f_pk]))
+        theta0 = np.array([2 * n_pk.real / q, -2 * n_pk.imag / q, f_pk])
+        m0 = max(math.hypot(theta0[0], theta0[1]), 1e-12)  # steps: the depth, a tenth of 1/duration
+        res = car.fit(self.sinusoidal_term, theta0, np.array([m0, m0, 0.1 / ctx.duration_s]))
         f_lo, f_hi = modulation_band(ctx)
         if not (res.converged and 0.5 * f_lo <= res.theta[2] <= 1.5 * f_hi):
             return None
-        kept, new, gains = car.proposal_states(states, term, res.theta, self.id, 3)
+        kept, new, gains = car.proposal_states(states, res, self.id, 3)
         if not kept:
             return None
         plates = sorted({ctx.series[i].plate for i in kept})

@@ -19,7 +19,7 @@ motion when a phase modulation is already in the model: `current_motion`), u(t) 
 or m cos(2π f_m t + ψ) shared by all series (parameters counted once: 1 or 3); fitted by
 Levenberg-Marquardt on all carrying series with each series' free nuisance profiled out. On a
 tied series the term's part along the carrier is left out: the LDS's harmonic holds it
-(`Carriers.visible`). The series reported are those where the term is individually significant.
+(`shared_fits.visible`). The series reported are those where the term is individually significant.
 Scan and fit are shared with `frequency_modulation` (`_modulation.ModulationEffect`).
 """
 
@@ -27,9 +27,8 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
+import jax.numpy as jnp
 
-from .._base import Context
 from ._modulation import ModulationEffect, depth_and_phase
 from .shared_fits import param
 
@@ -44,24 +43,18 @@ class AmplitudeModulation(ModulationEffect):
     demodulation = "in_phase"
     trend = False
 
-    def linear_shape(self, ctx: Context, t: np.ndarray) -> np.ndarray:
-        return t - 0.5 * ctx.duration_s
+    @staticmethod
+    def shape(t, half):
+        return t - half
 
-    def linear_term(self, ctx, it, theta, jac):
-        x = it.a * it.cos * self.linear_shape(ctx, ctx.series[it.i].t)
-        m = theta[0] * x
-        return (m, x[:, None]) if jac else m
+    @staticmethod
+    def linear_term(theta, t, aux):
+        return theta[0] * aux["a"] * aux["cos"] * (t - aux["half"])
 
-    def sinusoidal_term(self, ctx, it, theta, jac):
-        t = ctx.series[it.i].t
-        al, be, f = theta
-        ph = 2 * math.pi * f * t
-        c, s = np.cos(ph), np.sin(ph)
-        x = it.a * it.cos
-        m = x * (al * c + be * s)
-        if not jac:
-            return m
-        return m, np.stack([x * c, x * s, x * 2 * math.pi * t * (-al * s + be * c)], axis=1)
+    @staticmethod
+    def sinusoidal_term(theta, t, aux):
+        ph = 2 * jnp.pi * theta[2] * t
+        return aux["a"] * aux["cos"] * (theta[0] * jnp.cos(ph) + theta[1] * jnp.sin(ph))
 
     def linear_report(self, ctx, r, sr, plates):
         change = r * ctx.duration_s

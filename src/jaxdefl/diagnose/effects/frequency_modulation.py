@@ -21,7 +21,7 @@ series (1 or 3 parameters counted once), arg_s and a_s from the series' nominal 
 its current motion when an amplitude modulation is already in the model (`current_motion`);
 Levenberg-Marquardt on the exact term with each series' free nuisance profiled out, started from
 the demodulation's estimate. On a tied series the term's part along the carrier is left out:
-the LDS's harmonic holds it (`Carriers.visible`). The series reported are those where the term
+the LDS's harmonic holds it (`shared_fits.visible`). The series reported are those where the term
 is individually significant. Scan and fit are shared with `amplitude_modulation`
 (`_modulation.ModulationEffect`).
 """
@@ -30,9 +30,8 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
+import jax.numpy as jnp
 
-from .._base import Context
 from ._modulation import ModulationEffect, depth_and_phase
 from .shared_fits import param
 
@@ -45,28 +44,21 @@ class FrequencyModulation(ModulationEffect):
     demodulation = "quadrature"
     trend = True
 
-    def linear_shape(self, ctx: Context, t: np.ndarray) -> np.ndarray:
+    @staticmethod
+    def shape(t, half):
         """π ((t − t_mid)² − D²/12): the phase of a unit linear frequency drift, its mean removed."""
-        d = ctx.duration_s
-        return math.pi * ((t - 0.5 * d) ** 2 - d * d / 12.0)
+        return math.pi * ((t - half) ** 2 - half * half / 3.0)
 
-    def linear_term(self, ctx, it, theta, jac):
-        u = self.linear_shape(ctx, ctx.series[it.i].t)
-        arg = it.arg + theta[0] * u
-        m = it.a * (np.cos(arg) - it.cos)
-        return (m, (-it.a * np.sin(arg) * u)[:, None]) if jac else m
+    @staticmethod
+    def linear_term(theta, t, aux):
+        u = FrequencyModulation.shape(t, aux["half"])
+        return aux["a"] * (jnp.cos(aux["arg"] + theta[0] * u) - aux["cos"])
 
-    def sinusoidal_term(self, ctx, it, theta, jac):
-        t = ctx.series[it.i].t
-        bc, bs, f = theta
-        ph = 2 * math.pi * f * t
-        c, s = np.cos(ph), np.sin(ph)
-        arg = it.arg + bc * c + bs * s
-        m = it.a * (np.cos(arg) - it.cos)
-        if not jac:
-            return m
-        q = -it.a * np.sin(arg)
-        return m, np.stack([q * c, q * s, q * 2 * math.pi * t * (-bc * s + bs * c)], axis=1)
+    @staticmethod
+    def sinusoidal_term(theta, t, aux):
+        ph = 2 * jnp.pi * theta[2] * t
+        arg = aux["arg"] + theta[0] * jnp.cos(ph) + theta[1] * jnp.sin(ph)
+        return aux["a"] * (jnp.cos(arg) - aux["cos"])
 
     def linear_report(self, ctx, d, sd, plates):
         return (
