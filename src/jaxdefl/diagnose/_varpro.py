@@ -22,13 +22,14 @@ from dataclasses import dataclass
 
 import jax
 import jax.numpy as jnp
+import lineax as lx
 import numpy as np
 import optimistix as optx
 
 from .. import _jax  # noqa: F401
 from .._shapes import bucket, pow2_at_least
 
-__all__ = ["SharedFit", "fit_shared", "pad_series", "project"]
+__all__ = ["SharedFit", "fit_shared", "pad_series"]
 
 _RIDGE = 1e-10
 
@@ -74,7 +75,7 @@ def pad_series(arrays: list[np.ndarray], width: int | None = None, fill: float =
     return out
 
 
-def project(g, r, w):
+def _project(g, r, w):
     """Weighted LS of r on the columns g (sample, k): (beta, weighted residual)."""
     sw = jnp.sqrt(w)
     gw = g * sw[:, None]
@@ -102,21 +103,31 @@ def _solver(columns_fn: Callable | None, term_fn: Callable | None, max_steps: in
         return jnp.where(lo == hi, lo, jnp.clip(theta0 + u * scale, lo, hi))
 
     def residual(u, args):
-        theta0, scale, lo, hi, t, r, w, nu, aux = args
+        theta0, scale, lo, hi, t, r, w, nu, aux, qn = args
         theta = at(u, theta0, scale, lo, hi)
 
-        def one(t, r, w, nu, aux):
+        def one(t, r, w, nu, aux, qn):
             g, m = model(theta, t, aux)
-            return project(jnp.concatenate([g, nu], axis=1), r - m, w)[1]
+            if columns_fn is None:  # the nuisance alone: its projector, computed once
+                x = jnp.sqrt(w) * (r - m)
+                return x - qn @ (qn.T @ x)
+            return _project(jnp.concatenate([g, nu], axis=1), r - m, w)[1]
 
-        return jax.vmap(one)(t, r, w, nu, aux)
+        return jax.vmap(one)(t, r, w, nu, aux, qn)
+
+    def basis(w, nu):
+        """Orthonormal columns spanning √w·nu (zero columns, e.g. padding, left out)."""
+        q, rr = jnp.linalg.qr(nu * jnp.sqrt(w)[:, None])
+        d = jnp.abs(jnp.diagonal(rr))
+        return q * (d > 1e-12 * (jnp.max(d) + 1e-300))[None, :]
 
     @jax.jit
     def solve(theta0, scale, lo, hi, t, r, w, nu, aux):
-        args = (theta0, scale, lo, hi, t, r, w, nu, aux)
+        qn = jax.vmap(basis)(w, nu) if columns_fn is None else nu
+        args = (theta0, scale, lo, hi, t, r, w, nu, aux, qn)
         # θ in units of ``scale`` (about one σ or one resolution step): tolerances mean the same
         # for every parameter, and a start from the signature's grid converges in a few steps.
-        solver = optx.LevenbergMarquardt(rtol=1e-6, atol=1e-3)
+        solver = optx.LevenbergMarquardt(rtol=1e-6, atol=1e-3, linear_solver=lx.Normal(lx.Cholesky()))
         sol = optx.least_squares(
             residual, solver, jnp.zeros_like(theta0), args=args, max_steps=max_steps, throw=False
         )
@@ -127,7 +138,7 @@ def _solver(columns_fn: Callable | None, term_fn: Callable | None, max_steps: in
         def one(t, r, w, nu, aux):
             g, m = model(theta, t, aux)
             g = jnp.concatenate([g, nu], axis=1)
-            beta, res = project(g, r - m, w)
+            beta, res = _project(g, r - m, w)
             gw = g * jnp.sqrt(w)[:, None]
             return beta, jnp.sum(res**2), jnp.linalg.pinv(gw.T @ gw), g @ beta, m
 
@@ -175,7 +186,7 @@ def fit_shared(
     scale = np.where(theta0 != 0, np.abs(theta0), 1.0) if scale is None else np.asarray(scale, np.float64)
     width = bucket(max(a.size for a in t))
     # Pad the series axis to a power of two with weightless series: few shapes to compile.
-    extra = pow2_at_least(n_series) - n_series
+    extra = (pow2_at_least(n_series) if n_series <= 16 else bucket(n_series)) - n_series
     pad = [np.zeros(1)] * extra
     tp, rp, wp = (pad_series(list(x) + pad, width) for x in (t, r, w))
     q = max(a.shape[1] for a in nuisance)  # fewer columns on some series: zero columns (no fit)

@@ -225,21 +225,16 @@ def _write_recording(cfg: SimConfig, outs: Outputs, out: Path, duration: float, 
     store = outs.path(out / "recording.zarr")
     root = zarr.open_group(str(store), mode="w")
     root.attrs.update(rend.facts())
-    frames = root.create_array(
-        rend.kind,
-        shape=(0, h, w),
-        chunks=(chunk, h, w),
-        dtype="float32",
-        dimension_names=("frame", "h", "w"),
-        fill_value=np.nan,
-    )
-    amp = root.create_array(
-        "amplitude",
-        shape=(0, h, w),
-        chunks=(chunk, h, w),
-        dtype="float32",
-        dimension_names=("frame", "h", "w"),
-        fill_value=np.nan,
+    frames, amp = (
+        root.create_array(
+            name,
+            shape=(0, h, w),
+            chunks=(chunk, h, w),
+            dtype="float32",
+            dimension_names=("frame", "h", "w"),
+            fill_value=np.nan,
+        )
+        for name in (rend.kind, "amplitude")
     )
     stamps = root.create_array(
         "timestamps", shape=(0,), chunks=(max(chunk, 4096),), dtype="float64", dimension_names=("frame",)

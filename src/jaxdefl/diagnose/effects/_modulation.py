@@ -17,9 +17,9 @@ import math
 import numpy as np
 
 from .._base import Context, Effect, Proposal, State
-from .shared_fits import Carriers, chi2_p_value, one_sided, scan_p_value
+from .shared_fits import Carriers, chi2_p_value, one_sided, param, scan_p_value
 
-__all__ = ["ModulationEffect", "modulation_band", "depth_and_phase", "P_MAX", "KINDS"]
+__all__ = ["ModulationEffect", "modulation_band", "P_MAX", "KINDS"]
 
 P_MAX = 1e-3  # weaker signatures cannot pass the search's Bonferroni (α = 0.01 over ~10 effects)
 F_MAX_HZ = 0.2
@@ -68,9 +68,21 @@ class ModulationEffect(Effect):
     def linear_report(self, ctx: Context, value: float, sigma: float, plates: list[int]):
         """(parameters, band_hz, explanation, detail) of a fitted linear kind."""
 
+    depth_name: str = ""  # the sinusoidal kind's depth parameter
+
     @abc.abstractmethod
+    def sinusoidal_text(self, theta: np.ndarray, depth: float, f: float, plates: list[int]):
+        """(explanation, detail) of a fitted sinusoidal kind of ``depth`` at ``f`` Hz."""
+
     def sinusoidal_report(self, ctx: Context, theta: np.ndarray, cov: np.ndarray, plates: list[int]):
-        """(parameters, band_hz, explanation, detail) of a fitted sinusoidal kind."""
+        """(parameters, band_hz, explanation, detail) of a fitted sinusoidal kind: the depth
+        √(a² + b²) of a cos + b sin and f_m with their σ's, the side lines at f0 ± f_m."""
+        m = math.hypot(theta[0], theta[1])
+        g = np.array([theta[0], theta[1]]) / max(m, 1e-300)
+        sm = math.sqrt(max(float(g @ cov[:2, :2] @ g), 0.0))
+        f, sf = float(theta[2]), math.sqrt(max(cov[2, 2], 0.0))
+        parameters = {self.depth_name: param(m, sm), "freq_hz": param(f, sf)}
+        return (parameters, [ctx.f0_hz - f, ctx.f0_hz + f], *self.sinusoidal_text(theta, m, f, plates))
 
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
         if self.cannot_tell(ctx) is not None:
@@ -145,10 +157,3 @@ class ModulationEffect(Effect):
         plates = sorted({ctx.series[i].plate for i in kept})
         report = self.sinusoidal_report(ctx, res.theta, res.cov, plates)
         return self._proposal(ctx, kept, new, gains, 3, p_value, report)
-
-
-def depth_and_phase(theta: np.ndarray, cov: np.ndarray) -> tuple[float, float]:
-    """(depth, σ) of a sinusoid a cos + b sin from its coefficients and their covariance."""
-    m = math.hypot(theta[0], theta[1])
-    g = np.array([theta[0], theta[1]]) / max(m, 1e-300)
-    return m, math.sqrt(max(float(g @ cov[:2, :2] @ g), 0.0))

@@ -29,7 +29,7 @@ import math
 
 import jax.numpy as jnp
 
-from ._modulation import ModulationEffect, depth_and_phase
+from ._modulation import ModulationEffect
 from .shared_fits import param
 
 __all__ = ["AmplitudeModulation", "EFFECT"]
@@ -42,6 +42,7 @@ class AmplitudeModulation(ModulationEffect):
     )
     demodulation = "in_phase"
     trend = False
+    depth_name = "depth"
 
     @staticmethod
     def shape(t, half):
@@ -68,17 +69,12 @@ class AmplitudeModulation(ModulationEffect):
             {"kind": "linear"},
         )
 
-    def sinusoidal_report(self, ctx, theta, cov, plates):
-        al, be, f = theta
-        m, sm = depth_and_phase(theta, cov)
-        sf = math.sqrt(max(cov[2, 2], 0.0))
+    def sinusoidal_text(self, theta, m, f, plates):
         return (
-            {"depth": param(m, sm), "freq_hz": param(f, sf)},
-            [ctx.f0_hz - f, ctx.f0_hz + f],
             f"The deflection amplitude swings by ±{100 * m:.1f} % every {1 / f:.0f} s "
             f"({f:.4f} Hz), alike on plate(s) {', '.join(map(str, plates))}: the load controller "
             "or the hydraulic supply modulates the load.",
-            {"kind": "sinusoidal", "phase_rad": math.atan2(-be, al)},
+            {"kind": "sinusoidal", "phase_rad": math.atan2(-theta[1], theta[0])},
         )
 
 

@@ -32,7 +32,7 @@ import math
 
 import jax.numpy as jnp
 
-from ._modulation import ModulationEffect, depth_and_phase
+from ._modulation import ModulationEffect
 from .shared_fits import param
 
 __all__ = ["FrequencyModulation", "EFFECT"]
@@ -43,6 +43,7 @@ class FrequencyModulation(ModulationEffect):
     meaning = "the loading frequency wanders or drifts during the record alike on every plate"
     demodulation = "quadrature"
     trend = True
+    depth_name = "depth_rad"
 
     @staticmethod
     def shape(t, half):
@@ -71,17 +72,16 @@ class FrequencyModulation(ModulationEffect):
             {"kind": "linear"},
         )
 
-    def sinusoidal_report(self, ctx, theta, cov, plates):
-        bc, bs, f = theta
-        beta, sb = depth_and_phase(theta, cov)
-        sf = math.sqrt(max(cov[2, 2], 0.0))
+    def sinusoidal_text(self, theta, beta, f, plates):
         return (
-            {"depth_rad": param(beta, sb), "freq_hz": param(f, sf)},
-            [ctx.f0_hz - f, ctx.f0_hz + f],
             f"The motion's phase swings by ±{math.degrees(beta):.1f}° every {1 / f:.0f} s ({f:.4f} Hz; "
             f"the loading frequency wanders by ±{1e3 * beta * f:.2f} mHz), alike on plate(s) "
             f"{', '.join(map(str, plates))}: the actuator's controller hunts around its set frequency.",
-            {"kind": "sinusoidal", "phase_rad": math.atan2(bc, bs), "frequency_excursion_hz": beta * f},
+            {
+                "kind": "sinusoidal",
+                "phase_rad": math.atan2(theta[0], theta[1]),
+                "frequency_excursion_hz": beta * f,
+            },
         )
 
 

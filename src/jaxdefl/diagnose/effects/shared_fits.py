@@ -28,8 +28,8 @@ import jax.numpy as jnp
 import numpy as np
 from scipy import stats
 
-from .._base import Context, State, keep_series, loglik
-from .._varpro import SharedFit, fit_shared, project
+from .._base import Context, Effect, State, keep_series, loglik
+from .._varpro import SharedFit, fit_shared
 from .screening import param, updated, weights
 
 __all__ = [
@@ -42,6 +42,7 @@ __all__ = [
     "chi2_p_value",
     "tap_response",
     "TiedModel",
+    "TiedEffect",
     "tied_series",
     "AMBIGUOUS_CHI2",
     "motion_parameters",
@@ -185,6 +186,22 @@ PPM = 1e-6
 AMBIGUOUS_CHI2 = 10.0
 TIED_EFFECTS = ("motion_artefact", "timing_error")
 NAMES = ("tap_spread_s", "offset_s", "rate_ppm")
+
+
+class TiedEffect(Effect):
+    """An effect of the camera against the reference (motion_artefact, timing_error): seen on the
+    reference-tied z series only, through their `TiedModel`."""
+
+    needs_reference = True
+    min_cycles = 20.0
+
+    def tied_model(self, ctx: Context, states: list[State]) -> tuple[TiedModel, float] | None:
+        """(the tied series' model, the frame period s), or None when it cannot propose."""
+        idx = tied_series(self, ctx, states)
+        if idx is None:
+            return None
+        period = 1.0 / ctx.frame_rate_hz if ctx.frame_rate_hz else ctx.dt_s
+        return TiedModel(ctx, states, idx), period
 
 
 def tied_series(effect, ctx: Context, states: list[State]) -> list[int] | None:
@@ -513,14 +530,18 @@ class Carriers:
         profiled out, the term as `visible` gives it."""
         items = self.items
         half = 0.5 * self.ctx.duration_s
-        aux: dict = {"a": [], "cos": [], "sin": [], "arg": [], "w": [], "absorbed": [], "half": []}
+        aux: dict = {"a": [], "cos": [], "sin": [], "arg": [], "absorbed": [], "absorber": [], "half": []}
         for it in items:
             aux["a"].append(np.broadcast_to(np.asarray(it.a, np.float64), it.cos.shape))
             aux["cos"].append(it.cos)
             aux["sin"].append(it.sin)
             aux["arg"].append(it.arg)
-            aux["w"].append(it.w)
-            aux["absorbed"].append(np.asarray(it.absorbed.nu) if it.absorbed else np.zeros((it.w.size, 2)))
+            if it.absorbed:  # the weighted LS fit on the carrier's cos, sin: nu @ (P x)
+                aux["absorbed"].append(np.asarray(it.absorbed.nu))
+                aux["absorber"].append((it.absorbed.ginv @ it.absorbed.nwT).T)
+            else:
+                aux["absorbed"].append(np.zeros((it.w.size, 2)))
+                aux["absorber"].append(np.zeros((it.w.size, 2)))
             aux["half"].append(half)
         t = [self.ctx.series[it.i].t for it in items]
         blocks = [it.block for it in items]
@@ -551,7 +572,8 @@ _VISIBLE: dict = {}
 
 def visible(term: Callable) -> Callable:
     """``term`` as the model of each series carries it: on a tied series without its part along
-    the carrier's cos and sin (``aux["absorbed"]``; zero columns elsewhere). The LDS sees the
+    the carrier's cos and sin (``aux["absorbed"]``, its weighted LS fit ``aux["absorber"]``; zero
+    columns elsewhere). The LDS sees the
     same load, so the reference's harmonic, fitted over the record, already holds the
     modulation's projection on the carrier (e.g. the mean phase of a few modulation cycles);
     counted again, it is a phase or gain offset against the LDS that `timing_error` or
@@ -561,8 +583,7 @@ def visible(term: Callable) -> Callable:
 
         def seen(theta, t, aux):
             m = term(theta, t, aux)
-            g = aux["absorbed"]
-            return m - g @ project(g, m, aux["w"])[0]
+            return m - aux["absorbed"] @ (aux["absorber"].T @ m)
 
         _VISIBLE[term] = seen
     return _VISIBLE[term]
