@@ -215,14 +215,19 @@ def tied_series(effect, ctx: Context, states: list[State]) -> list[int] | None:
     return idx
 
 
-def tied_term(theta, t, aux):
+def tied_motion(theta, t, aux, xp=np):
     """Re[H(ω; T) Z e^{iω(t/(1+ε) − δ − t_ref)}] of one tied series at θ = (T, δ, ε ppm)
-    (jax.numpy; ``aux``: omega, zr, zi, t_ref and the tap offsets o0..o3)."""
+    (``aux``: omega, zr, zi, t_ref and the tap offsets o0..o3; ``xp``: numpy or jax.numpy)."""
     om = aux["omega"]
-    h = tap_response(om, theta[0], (aux["o0"], aux["o1"], aux["o2"], aux["o3"]), xp=jnp)
+    h = tap_response(om, theta[0], (aux["o0"], aux["o1"], aux["o2"], aux["o3"]), xp=xp)
     tt = t / (1.0 + theta[2] * PPM)
-    z = (aux["zr"] + 1j * aux["zi"]) * jnp.exp(1j * om * (tt - theta[1] - aux["t_ref"]))
-    return jnp.real(h * z)
+    z = (aux["zr"] + 1j * aux["zi"]) * xp.exp(1j * om * (tt - theta[1] - aux["t_ref"]))
+    return xp.real(h * z)
+
+
+def tied_term(theta, t, aux):
+    """`tied_motion` in jax.numpy: the term `shared_fit` fits."""
+    return tied_motion(theta, t, aux, jnp)
 
 
 # steps of θ = (T, δ, ε) the solver's tolerances are measured in: 1 ms, 0.1 ms, 1 ppm
@@ -273,7 +278,7 @@ class TiedModel:
 
     def term(self, k: int, theta: np.ndarray) -> np.ndarray:
         """The motion of tied series k at θ."""
-        return np.asarray(tied_term(jnp.asarray(theta, jnp.float64), self.t[k], self.aux[k]))
+        return tied_motion(np.asarray(theta, np.float64), self.t[k], self.aux[k])
 
     def fit(
         self,
