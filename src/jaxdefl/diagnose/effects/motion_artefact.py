@@ -48,11 +48,7 @@ class MotionArtefact(TiedEffect):
     id = "motion_artefact"
     meaning = "gain loss and lag of the camera against the LDS from its sequential four-phase sampling"
 
-    def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
-        tied = self.tied_model(ctx, states)
-        if tied is None:
-            return []
-        model, period = tied
+    def propose_tied(self, ctx: Context, states: list[State], model, period: float) -> list[Proposal]:
         idx = model.idx
         free = [0] + ([1] if "timing_error" in model.accepted else [])
         t_max = 3.0 * period

@@ -20,6 +20,7 @@
 
 from __future__ import annotations
 
+import abc
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -28,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy import stats
 
-from .._base import Context, Effect, State, keep_series, loglik
+from .._base import Context, Effect, Proposal, State, keep_series, loglik
 from .._varpro import SharedFit, fit_shared
 from .screening import param, updated, weights
 
@@ -195,13 +196,16 @@ class TiedEffect(Effect):
     needs_reference = True
     min_cycles = 20.0
 
-    def tied_model(self, ctx: Context, states: list[State]) -> tuple[TiedModel, float] | None:
-        """(the tied series' model, the frame period s), or None when it cannot propose."""
+    def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
         idx = tied_series(self, ctx, states)
         if idx is None:
-            return None
+            return []
         period = 1.0 / ctx.frame_rate_hz if ctx.frame_rate_hz else ctx.dt_s
-        return TiedModel(ctx, states, idx), period
+        return self.propose_tied(ctx, states, TiedModel(ctx, states, idx), period)
+
+    @abc.abstractmethod
+    def propose_tied(self, ctx: Context, states: list[State], model: TiedModel, period: float):
+        """The proposals on the tied series of ``model`` (``period``: the frame period, s)."""
 
 
 def tied_series(effect, ctx: Context, states: list[State]) -> list[int] | None:

@@ -53,11 +53,7 @@ class TimingError(TiedEffect):
     id = "timing_error"
     meaning = "the camera's clock runs late or at another rate than the reference's"
 
-    def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
-        tied = self.tied_model(ctx, states)
-        if tied is None:
-            return []
-        model, period = tied
+    def propose_tied(self, ctx: Context, states: list[State], model, period: float) -> list[Proposal]:
         idx = model.idx
         extra = [0] if "motion_artefact" in model.accepted else []
         half = 0.5 / ctx.f0_hz
