@@ -31,7 +31,6 @@ from typing import Literal
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 import pandas as pd
 
 from .. import _jax  # noqa: F401
@@ -323,6 +322,8 @@ def fit_model_window(spec: SignalModel, t, y, w, omega0, rtol=RTOL, atol=ATOL, m
 
     def residual(u, _):
         return sw * (yc - _model(spec, p0 + u * scale, t)) / noise
+
+    import optimistix as optx  # imported when the kernel is traced
 
     sol = gauss_newton(residual, n_par, rtol, atol, max_steps)
     p = p0 + sol.value * scale

@@ -17,16 +17,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from functools import partial
 from typing import Literal
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.fft
 
-from .. import _jax  # noqa: F401
 from .._errors import ConfigError
+from .._jax import persistent_jit
 from .._shapes import bucket, pow2_at_least, pow2_at_most
 from .._sincos import sincos
 from ..series import Windows
@@ -102,7 +100,7 @@ def _tau_terms(c2, s2, n):
     return cwt, swt, 1.0 / (0.5 * (n + r2)), jnp.where(ok, 1.0 / jnp.where(ok, ss, 1.0), 0.0)
 
 
-@partial(jax.jit, static_argnames=("n_fft", "j_lo", "j_hi"))
+@persistent_jit(static_argnames=("n_fft", "j_lo", "j_hi"))
 def _mask_terms(masks, *, n_fft, j_lo, j_hi):
     """τ terms of each distinct mask (mask, freq): from bins 2j of the mask's FFT."""
     fm = jnp.fft.rfft(masks, n=n_fft, axis=-1)
@@ -115,7 +113,7 @@ def _mask_terms(masks, *, n_fft, j_lo, j_hi):
     return jnp.stack(_tau_terms(z.real, -z.imag, n))
 
 
-@partial(jax.jit, static_argnames=("n_fft", "j_lo", "j_hi", "keep", "search_dtype"))
+@persistent_jit(static_argnames=("n_fft", "j_lo", "j_hi", "keep", "search_dtype"))
 def _grid_batch(h_dense, m_dense, terms, which, var, df_dt, *, n_fft, j_lo, j_hi, keep, search_dtype):
     """Peak search on dense, centred, zero-filled frame grids (window, frame) of one chunk.
 
