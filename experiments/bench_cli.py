@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -39,13 +40,20 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_fit import make_workload, run_jaxdefl, run_loop  # noqa: E402
 
 
-def _wall(cmd: list[str], env: dict[str, str], cwd: Path) -> float:
+def _run(cmd: list[str], env: dict[str, str], cwd: Path) -> tuple[float, float]:
+    """(wall s, CPU s of the child: user + system, all its threads)."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     r = subprocess.run(cmd, env=env, cwd=cwd, capture_output=True, text=True)
     dt = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if r.returncode != 0:
         raise SystemExit(f"{' '.join(cmd)} failed ({r.returncode}): {r.stderr.strip()[-500:]}")
-    return dt
+    return dt, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+def _wall(cmd: list[str], env: dict[str, str], cwd: Path) -> float:
+    return _run(cmd, env, cwd)[0]
 
 
 def main():
@@ -64,13 +72,16 @@ def main():
         t_help = min(_wall([*jaxdefl, "--help"], env, tmp) for _ in range(3))
         fit = [*jaxdefl, "fit", "W.parquet", "--window", "60", "--out", "est.parquet"]
         t_cold = _wall(fit, env, tmp)
-        t_warm = min(_wall(fit, env, tmp) for _ in range(2))
+        t_warm, c_warm = min(_run(fit, env, tmp) for _ in range(2))
 
         os.environ["JAXDEFL_CACHE_DIR"] = str(tmp / "jit-cache")
         w, _, t_win, _, t_kernel = run_jaxdefl(df)
         rng = np.random.default_rng(1)
         sample = rng.choice(len(w), size=min(args.loop_sample, len(w)), replace=False)
+        c0 = time.process_time()
         t_loop = run_loop(w, sample)[0] * len(w) / sample.size
+        c_loop = (time.process_time() - c0) * len(w) / sample.size
+        load = os.getloadavg()[0]
 
     print(f"jaxdefl --help (best of 3):                    {t_help:7.3f} s")
     print(f"jaxdefl fit, first call (empty JIT cache):      {t_cold:7.3f} s")
@@ -81,6 +92,10 @@ def main():
         f"CLI overhead over the kernel: {t_warm - t_win - t_kernel:.2f} s; "
         f"speed-up of the CLI (second call) over the loop: {t_loop / t_warm:.1f}x; "
         f"kernel over the loop: {t_loop / t_kernel:.1f}x"
+    )
+    print(
+        f"CPU time (user + system): CLI second call {c_warm:.2f} s, loop {c_loop:.2f} s: "
+        f"{c_loop / c_warm:.1f}x; load average at the end {load:.1f}"
     )
 
 

@@ -262,10 +262,10 @@ def batch_windows(
         sel = rows[c0 : c0 + chunk]
         pad = np.concatenate([sel, np.repeat(sel[:1], chunk - sel.size)])
         out = fit_batch(
-            jnp.asarray(_width(w.t[pad], s_pad)),
-            jnp.asarray(_width(w.y[pad], s_pad)),
-            jnp.asarray(_width(_weights(w, weights, pad), s_pad)),
-            *(jnp.asarray(np.asarray(a)[pad]) for a in per_window),
+            _width(w.t[pad], s_pad),  # numpy arrays straight into the kernel (no eager op)
+            _width(w.y[pad], s_pad),
+            _width(_weights(w, weights, pad), s_pad),
+            *(np.asarray(a)[pad] for a in per_window),
             group=group,
         )
         for k, v in out.items():

@@ -254,13 +254,13 @@ def _peaks_grid(w: Windows, rows, out, fmin, fmax, oversampling, keep, search_dt
         u_pad = pow2_at_least(uniq.shape[0])
         masks = np.unpackbits(uniq, axis=1, count=length).astype(np.float64)
         masks = np.concatenate([masks, np.zeros((u_pad - masks.shape[0], length))])
-        terms = _mask_terms(jnp.asarray(masks), n_fft=n_fft, j_lo=j_lo, j_hi=j_hi)
+        terms = _mask_terms(masks, n_fft=n_fft, j_lo=j_lo, j_hi=j_hi)
         i, p0, pm, pp, power = _grid_batch(
-            jnp.asarray(h),
-            jnp.asarray(m, dtype=jnp.float64),
+            h,  # numpy arrays straight into the kernel (no eager JAX op per array)
+            m.astype(np.float64),
             terms,
-            jnp.asarray(inverse.ravel()),
-            jnp.asarray(var),
+            inverse.ravel(),
+            var,
             df * dt,
             n_fft=n_fft,
             j_lo=j_lo,
