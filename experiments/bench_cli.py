@@ -56,6 +56,42 @@ def _wall(cmd: list[str], env: dict[str, str], cwd: Path) -> float:
     return _run(cmd, env, cwd)[0]
 
 
+# The stages of `jaxdefl fit` in one fresh process (warm caches), timed one after the other:
+# CPU s (all threads) and wall s of each.
+PHASES = """
+import time, sys
+from pathlib import Path
+T, W = time.process_time, time.perf_counter
+out = []
+c, w = T(), W()
+def lap(name):
+    global c, w
+    out.append(f"{name} {T() - c:.3f} {W() - w:.3f}")
+    c, w = T(), W()
+from jaxdefl.cli import main
+from jaxdefl import pipeline
+lap("imports")
+from jaxdefl.io import read_trajectory
+df = read_trajectory(Path("W.parquet"))
+lap("read_and_validate")
+from jaxdefl.fit import estimate_windows, windows_for
+w_ = windows_for(df, window_s=60.0)
+lap("windows")
+est = estimate_windows(w_)
+lap("estimate")
+pipeline.write_estimates(est.table, Path("phases.parquet"))
+lap("write")
+print(*out, sep=chr(10))
+"""
+
+
+def _phases(env: dict[str, str], cwd: Path) -> list[tuple[str, float, float]]:
+    r = subprocess.run([sys.executable, "-c", PHASES], env=env, cwd=cwd, capture_output=True, text=True)
+    if r.returncode != 0:
+        raise SystemExit(f"phases failed: {r.stderr.strip()[-500:]}")
+    return [(n, float(c), float(w)) for n, c, w in (ln.split() for ln in r.stdout.split("\n") if ln)]
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--windows-per-series", type=int, default=60)
@@ -73,6 +109,7 @@ def main():
         fit = [*jaxdefl, "fit", "W.parquet", "--window", "60", "--out", "est.parquet"]
         t_cold = _wall(fit, env, tmp)
         t_warm, c_warm = min(_run(fit, env, tmp) for _ in range(2))
+        phases = _phases(env, tmp)
 
         os.environ["JAXDEFL_CACHE_DIR"] = str(tmp / "jit-cache")
         w, _, t_win, _, t_kernel = run_jaxdefl(df)
@@ -92,6 +129,10 @@ def main():
         f"CLI overhead over the kernel: {t_warm - t_win - t_kernel:.2f} s; "
         f"speed-up of the CLI (second call) over the loop: {t_loop / t_warm:.1f}x; "
         f"kernel over the loop: {t_loop / t_kernel:.1f}x"
+    )
+    print(
+        "stages of a warm `fit` in a fresh process, CPU s / wall s: "
+        + ", ".join(f"{n} {c:.2f}/{w:.2f}" for n, c, w in phases)
     )
     print(
         f"CPU time (user + system): CLI second call {c_warm:.2f} s, loop {c_loop:.2f} s: "
