@@ -8,7 +8,9 @@ Workload W of `bench_fit.py` (2,340 windows, 936 k rows) written as Parquet; the
 - the astropy + scipy per-window loop a user would write (`bench_fit.run_loop`), timed on a sample
   of windows and scaled to all of W.
 The speed-up is the loop's time over the second CLI call's wall time (reading, validating,
-windowing, fitting, uncertainty table and writing included).
+windowing, fitting, uncertainty table and writing included). Also printed: the stages of a warm
+`fit` in one fresh process (CPU and wall s each), and the CPU time (user + system, all threads)
+of the second CLI call against the loop's, which a shared machine's load distorts less.
 
 Usage: python experiments/bench_cli.py [--windows-per-series 60] [--loop-sample 300]
 
@@ -21,6 +23,31 @@ Measured (2 cores, 2026-11-25, load 1-2 unless said):
   4.8 s, kernel 0.46 + 0.82 s, loop 13.0 s: CLI 2.7x, kernel 15.9x. What remains: JAX's tracing of
   the batched kernels in every fresh process (~1.5 s: the persistent cache skips the XLA compile,
   not the trace), imports (~1.2 s), the residual-noise statistics (~0.8 s single-threaded).
+- 11:46-12:09, branch `latency` (traced kernels kept on disk by `jaxdefl._jax.persistent_jit`,
+  optimistix imported only to trace, residual statistics on the blocks' threads, numpy arrays
+  straight into the kernels, FitSettings). The machine was shared by other sessions' test
+  suites at load 8-11 throughout, which inflates wall times 3-10x and not alike (the loop, 13.0 s
+  at load 1-2, took 133-160 s): the wall ratios below are the load's, not the code's.
+  * 12:06, load 10.5-11.3: --help 0.54 s, cold 26.9 s, warm 18.3 s, kernel 1.85 + 3.18 s, loop
+    159.9 s: 8.8x wall; CPU warm CLI 6.12 s against the loop's 58.2 s: 9.5x. Stages (CPU/wall):
+    imports 1.34/3.76, read and validate 0.41/1.15, windows 0.52/1.31, estimate 3.21/9.04,
+    write 0.02/0.05.
+  * 11:58 (branch) and 12:00 (main, same script, `PYTHONPATH=/work/main/src`), load 8.6-9.6:
+    branch warm 20.0 s wall, 6.56 s CPU, loop 137 s; main warm 16.0 s wall, 5.76 s CPU, loop
+    147 s — within the noise of each other at that load.
+  * Like for like, fresh processes alternating main/branch, warm caches, W from Parquet,
+    `/usr/bin/time` (12:03, load 9.8): CPU main 6.15, 6.65, 5.76 s; branch 4.54, 4.71, 4.81 s
+    (-25 %); output tables equal (`DataFrame.equals`) to main's. `import jaxdefl.pipeline`:
+    main 1.57 s CPU, branch 1.17 s; numpy + pandas + jax + scipy.ndimage alone 1.07 s.
+  * In one warm process (load ~8, CPU s): `estimate_windows` 1.5-1.9 steady, of which the
+    periodogram 0.33, the fit 0.45, the residual 0.25 and its statistics 0.6-0.7 (now on the
+    two blocks' threads); a fresh process's first call adds 0.5 (was 1.5 when every process
+    traced): loading the three traced kernels (lowering 0.28, compilation-cache reads 0.12) and
+    JAX's LAPACK set-up (imports scipy.linalg).
+  Where 15x stands: the loop's 13.0 s at load 1-2 leaves 0.87 s for the whole CLI, and the
+  imports alone (Python, numpy, pandas, JAX, scipy: 1.07-1.2 s CPU, single-threaded) exceed it
+  before any work; the rest, in CPU s measured at load 8-11: reading and validating 0.22-0.41,
+  windowing 0.44-0.59 (the clock recovery per plate), estimating 2.0-3.2 over two threads.
 """
 
 from __future__ import annotations
