@@ -1,5 +1,6 @@
-"""Kernels traced once per machine: a later process loads the traced kernel instead of tracing it
-again, and computes exactly what the plain jitted kernel computes."""
+"""What a fresh `jaxdefl fit` process pays before its work: kernels traced once per machine (a
+later process loads the traced kernel instead of tracing it again, and computes exactly what the
+plain jitted kernel computes), and only the libraries the command needs."""
 
 from __future__ import annotations
 
@@ -57,3 +58,30 @@ def test_the_key_holds_the_static_arguments_and_no_cache_means_plain_jit(tmp_pat
     assert _run(cache, 256) == (True, 1)  # another static argument: its own trace
     assert len(list((cache / "traced").iterdir())) == 2
     assert _run(None, 200) == (True, 0)  # JAXDEFL_CACHE_DIR="": the plain jit, nothing kept
+
+
+FIT = """
+import sys
+from jaxdefl.cli import main
+code = main(["fit", sys.argv[1], "--out", sys.argv[2], "--window", "20"])
+heavy = ("torch", "kornia", "matplotlib", "scipy.stats", "emcee", "dask", "zarr")
+print(code, *[m for m in heavy if m in sys.modules])
+"""
+
+
+def test_fit_imports_only_what_it_needs(tmp_path):
+    """`jaxdefl fit` (no --posterior) loads no frame, figure, posterior or campaign library."""
+    from jaxdefl.synthetic import harmonic_experiment
+
+    traj, _ = harmonic_experiment(duration_s=40, seed=3)
+    traj.to_parquet(tmp_path / "traj.parquet")
+    env = {**os.environ, "PYTHONPATH": str(SRC)}
+    out = subprocess.run(
+        [sys.executable, "-c", FIT, str(tmp_path / "traj.parquet"), str(tmp_path / "est.parquet")],
+        env=env,
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout.split()
+    assert out == ["0"], out
+    assert (tmp_path / "est.parquet").is_file()
