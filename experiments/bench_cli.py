@@ -39,6 +39,9 @@ Measured (2 cores, 2026-11-25, load 1-2 unless said):
     `/usr/bin/time` (12:03, load 9.8): CPU main 6.15, 6.65, 5.76 s; branch 4.54, 4.71, 4.81 s
     (-25 %); output tables equal (`DataFrame.equals`) to main's. `import jaxdefl.pipeline`:
     main 1.57 s CPU, branch 1.17 s; numpy + pandas + jax + scipy.ndimage alone 1.07 s.
+    Again at 12:19-12:20 (load 10.5-11.3, after the last source change, so the branch's first
+    run traced again): main 6.72, 6.31, 6.32 s CPU (wall 18.6, 15.9, 16.2 s); branch 6.58
+    (tracing), 4.64, 4.58 s CPU (wall 17.0, 9.8, 10.2 s); tables equal.
   * In one warm process (load ~8, CPU s): `estimate_windows` 1.5-1.9 steady, of which the
     periodogram 0.33, the fit 0.45, the residual 0.25 and its statistics 0.6-0.7 (now on the
     two blocks' threads); a fresh process's first call adds 0.5 (was 1.5 when every process
