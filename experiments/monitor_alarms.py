@@ -79,7 +79,8 @@ def main() -> None:
             for size in sizes:
                 delays, right = [], 0
                 for i in range(a.seeds):
-                    tc = float(rng.uniform(400, 500) if kind == "f0" else a.amplitude_at + rng.uniform(0, 100))
+                    u = float(rng.uniform(0, 100))
+                    tc = 400 + u if kind == "f0" else a.amplitude_at + u
                     wait = 420.0 if kind == "f0" else 900.0
                     seed = 1000 + 17 * i + int(1e4 * size) + (0 if kind == "f0" else 500)
                     if kind == "f0":

@@ -10,8 +10,16 @@ means of the first ``learn_blocks`` blocks, then follow slowly (time constant ``
 while a chart is in control, so fatigue's slow growth of the amplitude is not an alarm.
 
 Threshold: the charts' sides together may give ``alarms_per_day`` false alarms per day of data,
-so each side needs an in-control average run length ARL₀ = sides × blocks per day / rate; h
-solves Siegmund's approximation ARL₀ = (e^{2kb} − 2kb − 1)/(2k²), b = h + 1.166 (Siegmund 1985).
+so each side needs an in-control average run length ARL₀ = sides × blocks per day / rate
+(Bonferroni over the plates × axes × quantities); h solves Siegmund's approximation
+ARL₀ = (e^{2kb} − 2kb − 1)/(2k²), b = h + 1.166 (Siegmund 1985), averaged over the reference's own
+error, which a chart sees as a steady shift of 1/√n block σ's when the reference holds n blocks.
+So h is per series and follows its reference's n (`ThresholdTable`): high just after the learning
+or after an alarm re-learnt the level (a reference of 60 blocks is off by 0.13 σ, half the
+amplitude charts' k), down to its value for a full reference. Each block statistic is first made
+N(0, 1) as the threshold assumes: standardised by its block's own σ it is Student's t (made normal
+through its quantile), and it is divided by the spread its reference has seen beyond the model σ
+(coloured or frame-common noise; never below 1, `_Reference.spread`).
 
 An alarm names the quantity, the plate(s) and axes, the time of change (the start of the block
 after the chart last left zero) and the size: the mean deviation since then with its σ. Its class
@@ -36,7 +44,15 @@ import numpy as np
 from .blocks import BlockResult
 from .layout import Layout
 
-__all__ = ["DetectorSettings", "ChangeDetector", "cusum_threshold", "cusum_arl", "gls_mean"]
+__all__ = [
+    "DetectorSettings",
+    "ChangeDetector",
+    "ThresholdTable",
+    "cusum_threshold",
+    "cusum_arl",
+    "gls_mean",
+    "t_to_normal",
+]
 
 SECONDS_PER_DAY = 86400.0
 
