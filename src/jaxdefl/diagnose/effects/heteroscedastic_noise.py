@@ -31,7 +31,7 @@ import math
 import numpy as np
 
 from .._base import Context, Effect, Proposal, State, keep_series, lstsq
-from .screening import combined_p, gain, median_signed, param, residual, touched, updated
+from .screening import combined_p, gain, median_signed, open_series, param, residual, updated
 
 __all__ = ["HeteroscedasticNoise", "EFFECT"]
 
@@ -123,7 +123,7 @@ class HeteroscedasticNoise(Effect):
     plausible, plausible_unit, gate_params = 0.15, "noise", 2  # the variance ±30 % with the phase
 
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
-        idx = [i for i in range(len(ctx.series)) if not touched(states[i], self.id) and ctx.series[i].n >= 64]
+        idx = open_series(ctx, states, self.id)
         if not idx:
             return []
         fits = {kind: {} for kind in KINDS}
