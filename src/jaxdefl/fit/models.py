@@ -31,11 +31,10 @@ from typing import Literal
 import jax
 import jax.numpy as jnp
 import numpy as np
-import optimistix as optx
 import pandas as pd
 
-from .. import _jax  # noqa: F401
 from .._errors import ConfigError
+from .._jax import persistent_jit
 from .._sincos import sincos
 from ..series import Windows
 from ..spectral import Periodogram, lomb_peaks
@@ -324,6 +323,8 @@ def fit_model_window(spec: SignalModel, t, y, w, omega0, rtol=RTOL, atol=ATOL, m
     def residual(u, _):
         return sw * (yc - _model(spec, p0 + u * scale, t)) / noise
 
+    import optimistix as optx  # imported when the kernel is traced
+
     sol = gauss_newton(residual, n_par, rtol, atol, max_steps)
     p = p0 + sol.value * scale
 
@@ -352,7 +353,7 @@ def fit_model_window(spec: SignalModel, t, y, w, omega0, rtol=RTOL, atol=ATOL, m
     )
 
 
-@partial(jax.jit, static_argnames=("spec", "rtol", "atol", "max_steps", "group"))
+@persistent_jit(static_argnames=("spec", "rtol", "atol", "max_steps", "group"))
 def _fit_batch(t, y, w, omega0, *, spec, rtol, atol, max_steps, group):
     """`fit_model_window` over the leading axis, vmapped in groups of ``group`` windows."""
 

@@ -9,8 +9,8 @@ y − h = −q·saw((h − o)/q), saw(x) = x − round(x).
 
 Signature test: the residual binned by the current model value h (z series, whatever the
 ``--sensor`` hint says: the data decide — a ToF camera's range comes in steps too, and a wrong
-hint must not hide a staircase), then for every step q of a grid uniform in 1/q (the "frequency" along h, spaced a
-quarter of a cycle over the motion's span) the first harmonic of the sawtooth, cos and sin of
+hint must not hide a staircase), then for every step q of a grid uniform in 1/q (the
+"frequency" along h, spaced a quarter of a cycle over the motion's span) the first harmonic of the sawtooth, cos and sin of
 2π h/q, is regressed on the binned residual with the offset and h itself free (the harmonic's
 cosine is a function of h): a χ²_2 statistic per series, summed over the series for a common
 step. The p-value is the largest single-series statistic Bonferroni-corrected over series × the
@@ -241,7 +241,7 @@ def _joint(ctx: Context, states: list[State], use: list[int], h: dict, q: float,
 class Quantization(Effect):
     id = "quantization"
     meaning = "depth measured in steps (structured-light disparity quantisation)"
-    min_cycles = 20.0
+    plausible, plausible_unit, gate_params = 0.3, "noise", 2  # a step of about σ (RMS q/√12)
 
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
         idx = []
