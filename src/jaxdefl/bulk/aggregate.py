@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from ..columns import ESTIMATE_CORE
 from ..fit import ESTIMATE_COLUMNS
 from ..status import Status
 from ..synthetic import beam_shape
@@ -63,10 +64,7 @@ def per_day_table(
         "camera",
         "cycles",
         "n",
-        "f0_hz",
-        "sigma_f0_hz",
-        "amplitude_mm",
-        "sigma_amplitude_mm",
+        *ESTIMATE_CORE,
         "sigma_residual_mm",
         "status",
     ]

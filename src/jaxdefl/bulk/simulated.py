@@ -18,16 +18,14 @@ the merged trajectories (``trajectories.csv`` in the simulation unit, written at
 
 from __future__ import annotations
 
-import time
-import traceback
 from dataclasses import replace
 from pathlib import Path
 
 import pandas as pd
 
-from .._errors import ConfigError, JaxdeflError
+from .._errors import ConfigError
 from .campaign import Recording
-from .store import atomic_write_text, digest_path, digest_text, is_finished, write_manifest
+from .store import atomic_write_text, digest_path, digest_text, run_unit
 
 __all__ = ["ensure_simulated", "extract_unit", "simulate_unit", "simulated_recordings"]
 
@@ -95,12 +93,6 @@ def simulated_recordings(sim: dict, path: Path) -> list[Recording]:
     return recs
 
 
-def _fail_reason(rec_id: str, err: Exception) -> str:
-    if isinstance(err, JaxdeflError):
-        return str(err)
-    return f"{rec_id}: " + traceback.format_exception_only(type(err), err)[-1].strip()
-
-
 def simulate_unit(rec: Recording, out_dir: Path) -> dict:
     """Frames, truth and LDS of one session into ``units/sim-<day>-<camera>/``."""
     from ..simulate import simulate_to_dir
@@ -111,12 +103,8 @@ def simulate_unit(rec: Recording, out_dir: Path) -> dict:
         "config": digest_path(Path(spec["config"])),
         "spec": digest_text(repr(sorted((k, spec[k]) for k in ("session", "duration_s", "seed")))),
     }
-    done = is_finished(unit_dir, inputs, "simulate")
-    if done is not None:
-        return {**done, "skipped": True}
-    unit_dir.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
-    try:
+
+    def work(unit_dir: Path) -> list[str]:
         simulate_to_dir(
             spec["config"],
             unit_dir,
@@ -125,20 +113,9 @@ def simulate_unit(rec: Recording, out_dir: Path) -> dict:
             progress=False,
             session=spec["session"],
         )
-        status, reason, names = "ok", "", ["recording.zarr", "truth.csv", "lds.csv"]
-    except Exception as err:  # a failed session never stops the campaign
-        status, reason, names = "failed", _fail_reason(rec.unit_id, err), []
-    return write_manifest(
-        unit_dir,
-        f"sim-{rec.unit_id}",
-        inputs,
-        "simulate",
-        names,
-        status,
-        reason,
-        time.perf_counter() - t0,
-        extra={"computed_at": time.time()},
-    )
+        return ["recording.zarr", "truth.csv", "lds.csv"]
+
+    return run_unit(unit_dir, f"sim-{rec.unit_id}", inputs, "simulate", work)
 
 
 def extract_unit(rec: Recording, out_dir: Path, part: int, start: int, stop: int, sim_manifest: dict) -> dict:
@@ -156,12 +133,8 @@ def extract_unit(rec: Recording, out_dir: Path, part: int, start: int, stop: int
         "frames": f"{start}:{stop}",
         "realtime": str(spec["realtime"]),
     }
-    done = is_finished(unit_dir, inputs, "extract")
-    if done is not None:
-        return {**done, "skipped": True}
-    unit_dir.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
-    try:
+
+    def work(unit_dir: Path) -> list[str]:
         rec_z = open_recording(Path(out_dir) / "units" / f"sim-{rec.unit_id}" / "recording.zarr")
         from ..frames.pipeline import PlateGeometry
 
@@ -174,20 +147,9 @@ def extract_unit(rec: Recording, out_dir: Path, part: int, start: int, stop: int
             parts.append(centroid_table(t, cents, plates, rec_z.segment))
         df = pd.concat(parts, ignore_index=True)
         atomic_write_text(unit_dir / "part.csv", df.to_csv(index=False, float_format="%.6f"))
-        status, reason, names = "ok", "", ["part.csv"]
-    except Exception as err:
-        status, reason, names = "failed", _fail_reason(uid, err), []
-    return write_manifest(
-        unit_dir,
-        uid,
-        inputs,
-        "extract",
-        names,
-        status,
-        reason,
-        time.perf_counter() - t0,
-        extra={"computed_at": time.time()},
-    )
+        return ["part.csv"]
+
+    return run_unit(unit_dir, uid, inputs, "extract", work)
 
 
 def _run_all(calls: list[tuple], scheduler: str, bar, task) -> list[dict]:

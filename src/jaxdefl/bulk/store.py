@@ -14,9 +14,13 @@ from __future__ import annotations
 
 import hashlib
 import json
+import time
+import traceback
+from collections.abc import Callable
 from pathlib import Path
 
 from .. import __version__
+from .._errors import JaxdeflError
 from ..io.output import atomic_write_bytes
 
 __all__ = [
@@ -26,6 +30,7 @@ __all__ = [
     "digest_text",
     "is_finished",
     "read_manifest",
+    "run_unit",
     "write_manifest",
 ]
 
@@ -114,3 +119,36 @@ def is_finished(unit_dir: Path, inputs: dict, config_hash: str) -> dict | None:
         elif p.stat().st_size != meta["bytes"] or digest_path(p) != meta["sha256"]:
             return None
     return man
+
+
+def run_unit(
+    unit_dir: Path,
+    unit_id: str,
+    inputs: dict,
+    config_hash: str,
+    work: Callable[[Path], list[str]],
+    extra: dict | None = None,
+) -> dict:
+    """Run one resumable unit: skip it when finished and fresh, else ``work(unit_dir)``.
+
+    ``work`` writes its outputs atomically into ``unit_dir`` and returns their names. A failure
+    is recorded in the manifest with its reason (the message of a ``JaxdeflError``, else the
+    unit id and the exception's last line) and never raised: one bad unit never stops a
+    campaign. Returns the manifest (with ``"skipped": True`` when nothing was recomputed).
+    """
+    unit_dir = Path(unit_dir)
+    done = is_finished(unit_dir, inputs, config_hash)
+    if done is not None:
+        return {**done, "skipped": True}
+    unit_dir.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    try:
+        status, reason, names = "ok", "", list(work(unit_dir))
+    except JaxdeflError as err:
+        status, reason, names = "failed", str(err), []
+    except Exception as err:
+        last = traceback.format_exception_only(type(err), err)[-1].strip()
+        status, reason, names = "failed", f"{unit_id}: {last}", []
+    seconds = time.perf_counter() - t0
+    extra = {**(extra or {}), "computed_at": time.time()}
+    return write_manifest(unit_dir, unit_id, inputs, config_hash, names, status, reason, seconds, extra)

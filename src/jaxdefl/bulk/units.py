@@ -5,8 +5,6 @@ They run in-process or as dask tasks unchanged (top-level functions, picklable a
 
 from __future__ import annotations
 
-import time
-import traceback
 from pathlib import Path
 
 import pandas as pd
@@ -14,7 +12,7 @@ import pandas as pd
 from .._errors import JaxdeflError
 from ..status import Status
 from .campaign import Processing, Recording
-from .store import atomic_write_text, digest_path, is_finished, write_manifest
+from .store import atomic_write_text, digest_path, run_unit
 
 __all__ = ["estimate_unit", "unit_inputs"]
 
@@ -61,15 +59,10 @@ def estimate_unit(
     from ..fit import compare_with_reference, estimate_table, fit_reference, signal_model
     from ..io import read_reference, read_trajectory
 
-    unit_dir = Path(out_dir) / "units" / rec.unit_id
     inputs = unit_inputs(rec) if inputs is None else inputs
-    done = is_finished(unit_dir, inputs, config_hash)
-    if done is not None:
-        return {**done, "skipped": True}
-    unit_dir.mkdir(parents=True, exist_ok=True)
-    t0 = time.perf_counter()
     tag = dict(day=rec.day, camera=rec.camera, cycles=rec.cycles)
-    try:
+
+    def work(unit_dir: Path) -> list[str]:
         if rec.failed:
             raise JaxdeflError(rec.failed)
         if inputs.get("trajectories") == "missing":
@@ -108,23 +101,10 @@ def estimate_unit(
             outputs["comparison.csv"] = compare_with_reference(whole.table, ref.table).assign(**tag)
         for name, df in outputs.items():
             atomic_write_text(unit_dir / name, _csv(df))
-        status, reason, names = "ok", "", list(outputs)
-    except JaxdeflError as err:
-        status, reason, names = "failed", str(err), []
-    except Exception as err:  # one bad unit never stops the campaign
-        last = traceback.format_exception_only(type(err), err)[-1].strip()
-        status, reason, names = "failed", f"{rec.unit_id}: {last}", []
-    return write_manifest(
-        unit_dir,
-        rec.unit_id,
-        inputs,
-        config_hash,
-        names,
-        status,
-        reason,
-        time.perf_counter() - t0,
-        extra={**tag, "computed_at": time.time()},
-    )
+        return list(outputs)
+
+    unit_dir = Path(out_dir) / "units" / rec.unit_id
+    return run_unit(unit_dir, rec.unit_id, inputs, config_hash, work, extra=tag)
 
 
 def read_unit_tables(out_dir: Path, manifests: list[dict], name: str) -> pd.DataFrame:

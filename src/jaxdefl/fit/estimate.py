@@ -11,6 +11,7 @@ import numpy as np
 import pandas as pd
 
 from .._signals import check_interrupt
+from ..columns import ESTIMATE_CORE
 from ..series import Windows
 from ..spectral import Periodogram, lomb_peaks
 from ..status import STATUSES, Status
@@ -28,10 +29,7 @@ ESTIMATE_COLUMNS = [
     "plate",
     "axis",
     "n",
-    "f0_hz",
-    "sigma_f0_hz",
-    "amplitude_mm",
-    "sigma_amplitude_mm",
+    *ESTIMATE_CORE,
     "phase_rad",
     "offset_mm",
     "sigma_residual_mm",

@@ -22,33 +22,15 @@ def plot_fatigue(day_tab: pd.DataFrame, path: Path, plate: int) -> None:
     """A against the number of load cycles, camera and LDS (thesis Fig. 6.55)."""
     fig, ax = plt.subplots(figsize=(6.5, 3.6), constrained_layout=True)
     for cam, g in day_tab.groupby("camera"):
-        ax.errorbar(
-            g["cycles"],
-            g["amplitude_mm"],
-            yerr=g["sigma_amplitude_mm"],
-            fmt="o-",
-            ms=4,
-            label=f"{cam}",
-        )
+        c = g["cycles"]
+        ax.errorbar(c, g["amplitude_mm"], yerr=g["sigma_amplitude_mm"], fmt="o-", ms=4, label=f"{cam}")
         if "amplitude_corrected_mm" in g:
-            ax.plot(
-                g["cycles"],
-                g["amplitude_corrected_mm"],
-                "^-",
-                ms=4,
-                label=f"{cam}, motion artefact corrected",
-            )
+            ax.plot(c, g["amplitude_corrected_mm"], "^-", ms=4, label=f"{cam}, motion artefact corrected")
         if "amplitude_truth_mm" in g:
-            ax.plot(g["cycles"], g["amplitude_truth_mm"], "k:", lw=1, label="simulated truth")
+            ax.plot(c, g["amplitude_truth_mm"], "k:", lw=1, label="simulated truth")
         if "amplitude_mm_lds" in g and g["amplitude_mm_lds"].notna().any():
-            ax.errorbar(
-                g["cycles"],
-                g["amplitude_mm_lds"],
-                yerr=g["sigma_amplitude_mm_lds"],
-                fmt="s--",
-                ms=4,
-                label=f"LDS (with {cam})",
-            )
+            lds, sigma = g["amplitude_mm_lds"], g["sigma_amplitude_mm_lds"]
+            ax.errorbar(c, lds, yerr=sigma, fmt="s--", ms=4, label=f"LDS (with {cam})")
     ax.set_xlabel("number of load cycles")
     ax.set_ylabel(f"amplitude, plate {plate} (mm)")
     ax.set_title("fatigue curve", fontsize=9)

@@ -117,7 +117,9 @@ def diagnosis_markdown(d: dict, figures: list[str]) -> str:
         f"| final | {fin['rms_mm']:.4f} | {fin['bic']:.1f} | {fin['whiteness_p']:.3g} |",
         "",
     ]
-    if not d["effects"]:
+    if not d["effects"] and d["unexplained"]:
+        lines += ["**No effect located**, but the residuals are not white: see *Unexplained structure*.", ""]
+    elif not d["effects"]:
         lines += ["**No effect located**: the residuals are consistent with the nominal model.", ""]
     for k, e in enumerate(d["effects"]):
         lines += [

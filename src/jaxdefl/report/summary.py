@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from ..columns import ESTIMATE_CORE
 from ..status import Status
 from .figures import plot_fit, plot_frame, plot_periodogram
 
@@ -130,10 +131,7 @@ def write_demo_report(
         "plate",
         "axis",
         "n",
-        "f0_hz",
-        "sigma_f0_hz",
-        "amplitude_mm",
-        "sigma_amplitude_mm",
+        *ESTIMATE_CORE,
         "sigma_residual_mm",
         "peak_fap",
         "r2",
