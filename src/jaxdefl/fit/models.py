@@ -10,12 +10,14 @@ Model of one window, ``t`` centred on the window's samples as for the default fi
 - ``kind="damped"`` (with ``lines=N``, default 1): each line also decays at its own rate
   λ_j = ζ_j ω_n,j, with ω_n,j² = ω_j² + λ_j² (ω_j is the damped frequency seen in the record).
 
-Parameters p = [C_1, D_1, ..., C_m, D_m, E, ω_1..ω_L, (λ_1..λ_L)]. Per window: the C, D, E by
-linear least squares at the start (periodogram frequencies; for a damped model, decay rates
-from the envelope of a few segments), one Gauss-Newton step from there, then the scaled
-optimistix Gauss-Newton every fit uses (`jaxdefl.fit.harmonic.gauss_newton`), the covariance
-σ0² (JᵀWJ)⁻¹ (thesis 5.42-5.43) and derived quantities (amplitudes, phases, damping ratios) by
-the delta method (5.44-5.45). Lines after the first are found one at a time: the highest
+Parameters p = [C_1, D_1, ..., C_m, D_m, E, ω_1..ω_L, (λ_1..λ_L)]. Per window, by variable
+projection: the linear C, D, E are solved exactly (weighted least squares) wherever the
+nonlinear θ = [ω's, λ's] are, and only θ is iterated: from the start (periodogram frequencies;
+for a damped model, decay rates from the envelope of a few segments) one Gauss-Newton step,
+then the scaled optimistix Gauss-Newton every fit uses (`jaxdefl.fit.harmonic.gauss_newton`)
+on θ with Kaufman's Jacobian; the covariance σ0² (JᵀWJ)⁻¹ of all parameters (thesis
+5.42-5.43) from the sums of its last evaluation, and derived quantities (amplitudes, phases,
+damping ratios) by the delta method (5.44-5.45). Lines after the first are found one at a time: the highest
 periodogram peak of the residual of the lines found so far (fitted jointly), then all N lines
 are fitted jointly; they keep the order they were found in (line 1 is the periodogram's highest
 peak, the line the thesis model fits).
@@ -68,7 +70,8 @@ _ENVELOPE_SEGMENTS = 8
 # Samples solved together by one vmapped Gauss-Newton loop (a few windows). Unlike the default
 # model, whose windows all take 2 evaluations, these take 2 to 6, and a vmapped loop runs as
 # many steps as its slowest window: small groups waste fewer steps (K = 3 on workload W: 1.5-1.8x
-# less time than the default's 64-window groups, `experiments/bench_models.py`).
+# less time than the default's 64-window groups, `experiments/bench_models.py`; with windows in
+# periodogram-power order, 8k samples stay faster than 16k or 32k for K = 3 and damped).
 GROUP_CELLS = 1 << 13
 
 
