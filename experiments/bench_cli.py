@@ -8,7 +8,9 @@ Workload W of `bench_fit.py` (2,340 windows, 936 k rows) written as Parquet; the
 - the astropy + scipy per-window loop a user would write (`bench_fit.run_loop`), timed on a sample
   of windows and scaled to all of W.
 The speed-up is the loop's time over the second CLI call's wall time (reading, validating,
-windowing, fitting, uncertainty table and writing included).
+windowing, fitting, uncertainty table and writing included). Also printed: the stages of a warm
+`fit` in one fresh process (CPU and wall s each), and the CPU time (user + system, all threads)
+of the second CLI call against the loop's, which a shared machine's load distorts less.
 
 Usage: python experiments/bench_cli.py [--windows-per-series 60] [--loop-sample 300]
 
@@ -21,12 +23,41 @@ Measured (2 cores, 2026-11-25, load 1-2 unless said):
   4.8 s, kernel 0.46 + 0.82 s, loop 13.0 s: CLI 2.7x, kernel 15.9x. What remains: JAX's tracing of
   the batched kernels in every fresh process (~1.5 s: the persistent cache skips the XLA compile,
   not the trace), imports (~1.2 s), the residual-noise statistics (~0.8 s single-threaded).
+- 11:46-12:09, branch `latency` (traced kernels kept on disk by `jaxdefl._jax.persistent_jit`,
+  optimistix imported only to trace, residual statistics on the blocks' threads, numpy arrays
+  straight into the kernels, FitSettings). The machine was shared by other sessions' test
+  suites at load 8-11 throughout, which inflates wall times 3-10x and not alike (the loop, 13.0 s
+  at load 1-2, took 133-160 s): the wall ratios below are the load's, not the code's.
+  * 12:06, load 10.5-11.3: --help 0.54 s, cold 26.9 s, warm 18.3 s, kernel 1.85 + 3.18 s, loop
+    159.9 s: 8.8x wall; CPU warm CLI 6.12 s against the loop's 58.2 s: 9.5x. Stages (CPU/wall):
+    imports 1.34/3.76, read and validate 0.41/1.15, windows 0.52/1.31, estimate 3.21/9.04,
+    write 0.02/0.05.
+  * 11:58 (branch) and 12:00 (main, same script, `PYTHONPATH=/work/main/src`), load 8.6-9.6:
+    branch warm 20.0 s wall, 6.56 s CPU, loop 137 s; main warm 16.0 s wall, 5.76 s CPU, loop
+    147 s — within the noise of each other at that load.
+  * Like for like, fresh processes alternating main/branch, warm caches, W from Parquet,
+    `/usr/bin/time` (12:03, load 9.8): CPU main 6.15, 6.65, 5.76 s; branch 4.54, 4.71, 4.81 s
+    (-25 %); output tables equal (`DataFrame.equals`) to main's. `import jaxdefl.pipeline`:
+    main 1.57 s CPU, branch 1.17 s; numpy + pandas + jax + scipy.ndimage alone 1.07 s.
+    Again at 12:19-12:20 (load 10.5-11.3, after the last source change, so the branch's first
+    run traced again): main 6.72, 6.31, 6.32 s CPU (wall 18.6, 15.9, 16.2 s); branch 6.58
+    (tracing), 4.64, 4.58 s CPU (wall 17.0, 9.8, 10.2 s); tables equal.
+  * In one warm process (load ~8, CPU s): `estimate_windows` 1.5-1.9 steady, of which the
+    periodogram 0.33, the fit 0.45, the residual 0.25 and its statistics 0.6-0.7 (now on the
+    two blocks' threads); a fresh process's first call adds 0.5 (was 1.5 when every process
+    traced): loading the three traced kernels (lowering 0.28, compilation-cache reads 0.12) and
+    JAX's LAPACK set-up (imports scipy.linalg).
+  Where 15x stands: the loop's 13.0 s at load 1-2 leaves 0.87 s for the whole CLI, and the
+  imports alone (Python, numpy, pandas, JAX, scipy: 1.07-1.2 s CPU, single-threaded) exceed it
+  before any work; the rest, in CPU s measured at load 8-11: reading and validating 0.22-0.41,
+  windowing 0.44-0.59 (the clock recovery per plate), estimating 2.0-3.2 over two threads.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -39,13 +70,56 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_fit import make_workload, run_jaxdefl, run_loop  # noqa: E402
 
 
-def _wall(cmd: list[str], env: dict[str, str], cwd: Path) -> float:
+def _run(cmd: list[str], env: dict[str, str], cwd: Path) -> tuple[float, float]:
+    """(wall s, CPU s of the child: user + system, all its threads)."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     r = subprocess.run(cmd, env=env, cwd=cwd, capture_output=True, text=True)
     dt = time.perf_counter() - t0
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if r.returncode != 0:
         raise SystemExit(f"{' '.join(cmd)} failed ({r.returncode}): {r.stderr.strip()[-500:]}")
-    return dt
+    return dt, (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+
+
+def _wall(cmd: list[str], env: dict[str, str], cwd: Path) -> float:
+    return _run(cmd, env, cwd)[0]
+
+
+# The stages of `jaxdefl fit` in one fresh process (warm caches), timed one after the other:
+# CPU s (all threads) and wall s of each.
+PHASES = """
+import time, sys
+from pathlib import Path
+T, W = time.process_time, time.perf_counter
+out = []
+c, w = T(), W()
+def lap(name):
+    global c, w
+    out.append(f"{name} {T() - c:.3f} {W() - w:.3f}")
+    c, w = T(), W()
+from jaxdefl.cli import main
+from jaxdefl import pipeline
+lap("imports")
+from jaxdefl.io import read_trajectory
+df = read_trajectory(Path("W.parquet"))
+lap("read_and_validate")
+from jaxdefl.fit import estimate_windows, windows_for
+w_ = windows_for(df, window_s=60.0)
+lap("windows")
+est = estimate_windows(w_)
+lap("estimate")
+pipeline.write_estimates(est.table, Path("phases.parquet"))
+lap("write")
+print(*out, sep=chr(10))
+"""
+
+
+def _phases(env: dict[str, str], cwd: Path) -> list[tuple[str, float, float]]:
+    r = subprocess.run([sys.executable, "-c", PHASES], env=env, cwd=cwd, capture_output=True, text=True)
+    if r.returncode != 0:
+        raise SystemExit(f"phases failed: {r.stderr.strip()[-500:]}")
+    return [(n, float(c), float(w)) for n, c, w in (ln.split() for ln in r.stdout.split("\n") if ln)]
 
 
 def main():
@@ -64,13 +138,17 @@ def main():
         t_help = min(_wall([*jaxdefl, "--help"], env, tmp) for _ in range(3))
         fit = [*jaxdefl, "fit", "W.parquet", "--window", "60", "--out", "est.parquet"]
         t_cold = _wall(fit, env, tmp)
-        t_warm = min(_wall(fit, env, tmp) for _ in range(2))
+        t_warm, c_warm = min(_run(fit, env, tmp) for _ in range(2))
+        phases = _phases(env, tmp)
 
         os.environ["JAXDEFL_CACHE_DIR"] = str(tmp / "jit-cache")
         w, _, t_win, _, t_kernel = run_jaxdefl(df)
         rng = np.random.default_rng(1)
         sample = rng.choice(len(w), size=min(args.loop_sample, len(w)), replace=False)
+        c0 = time.process_time()
         t_loop = run_loop(w, sample)[0] * len(w) / sample.size
+        c_loop = (time.process_time() - c0) * len(w) / sample.size
+        load = os.getloadavg()[0]
 
     print(f"jaxdefl --help (best of 3):                    {t_help:7.3f} s")
     print(f"jaxdefl fit, first call (empty JIT cache):      {t_cold:7.3f} s")
@@ -81,6 +159,14 @@ def main():
         f"CLI overhead over the kernel: {t_warm - t_win - t_kernel:.2f} s; "
         f"speed-up of the CLI (second call) over the loop: {t_loop / t_warm:.1f}x; "
         f"kernel over the loop: {t_loop / t_kernel:.1f}x"
+    )
+    print(
+        "stages of a warm `fit` in a fresh process, CPU s / wall s: "
+        + ", ".join(f"{n} {c:.2f}/{w:.2f}" for n, c, w in phases)
+    )
+    print(
+        f"CPU time (user + system): CLI second call {c_warm:.2f} s, loop {c_loop:.2f} s: "
+        f"{c_loop / c_warm:.1f}x; load average at the end {load:.1f}"
     )
 
 

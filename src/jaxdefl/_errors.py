@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["JaxdeflError", "ConfigError", "InputError", "Interrupted"]
+__all__ = ["JaxdeflError", "ConfigError", "InputError", "Interrupted", "ParameterError"]
 
 
 class JaxdeflError(Exception):
@@ -15,6 +15,34 @@ class ConfigError(JaxdeflError):
     """A bad configuration file, key or command-line argument. Exit code 2."""
 
     exit_code = 2
+
+
+class ParameterError(ConfigError):
+    """A setting out of its domain, named by its parameter: ``window_s: expected ...``.
+
+    ``problem`` may name other parameters as ``{name}``. A command line shows its flags instead
+    (`renamed`: ``--window: expected ...``), a library caller sees the parameter names.
+    """
+
+    def __init__(self, params: str | tuple[str, ...], problem: str):
+        self.params = (params,) if isinstance(params, str) else tuple(params)
+        self.problem = problem
+        super().__init__(self._text({}))
+
+    def _text(self, names: dict[str, str]) -> str:
+        params = "/".join(names.get(p, p) for p in self.params)
+        return f"{params}: {self.problem.format_map(_Names(names))}"
+
+    def renamed(self, names: dict[str, str]) -> ConfigError:
+        """The same error with the parameters called by ``names`` (e.g. their flags)."""
+        return ConfigError(self._text(names))
+
+
+class _Names(dict):
+    """``{name}`` placeholders: a parameter without another name keeps its own."""
+
+    def __missing__(self, key: str) -> str:
+        return key
 
 
 class InputError(JaxdeflError):

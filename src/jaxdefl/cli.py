@@ -5,12 +5,13 @@ from __future__ import annotations
 import signal
 import sys
 import warnings
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
-from ._errors import ConfigError, Interrupted, JaxdeflError
+from ._errors import ConfigError, Interrupted, JaxdeflError, ParameterError
 from ._signals import check_interrupt, committed_under_signal, handle_signals
 
 app = typer.Typer(
@@ -34,14 +35,6 @@ _TIMESTAMPS_HELP = (
     "strict (default: a repeated time with other values is an error), reclock (recover the "
     "sample clock of rounded or jittered stamps) or merge (average true duplicates)."
 )
-
-
-def _parse_axes(axes: str) -> tuple[str, ...]:
-    out = tuple(a.strip() for a in axes.split(",") if a.strip())
-    bad = [a for a in out if a not in ("z", "x", "y")]
-    if not out or bad:
-        raise ConfigError(f"--axes: expected a comma list of z, x, y; got {axes!r}")
-    return out
 
 
 @app.command()
@@ -77,26 +70,14 @@ def fit(
     lines: Annotated[int, typer.Option(help="Fit N independent spectral lines (modes).")] = 1,
 ) -> None:
     """Estimate loading frequency and deflection amplitude per segment, window, plate and axis."""
-    from . import pipeline
+    from .settings import FIT_FLAGS, FitSettings
 
-    pipeline.fit_file(
-        traj,
-        out,
-        window_s=window,
-        step_s=step,
-        axes=None if axes is None else _parse_axes(axes),
-        fmin_hz=fmin,
-        fmax_hz=fmax,
-        oversampling=oversampling,
-        fap_max=fap_max,
-        reference=reference,
-        posterior=posterior,
-        timestamps=timestamps,
-        posterior_noise=posterior_noise,
-        model=model,
-        harmonics=harmonics,
-        lines=lines,
-    )
+    flags = _flag_values(locals(), FIT_FLAGS)
+    with _flag_names(FIT_FLAGS):
+        settings = FitSettings(**flags)  # every setting is checked before any input is read
+        from . import pipeline
+
+        pipeline.fit_file(traj, out, settings, reference=reference)
 
 
 @app.command()
@@ -336,6 +317,20 @@ def demo(
     from . import pipeline
 
     pipeline.demo(out, duration_s=duration, seed=seed)
+
+
+def _flag_values(given: dict, flags: dict[str, str]) -> dict:
+    """A command's settings by parameter name from its arguments (named after the flags)."""
+    return {param: given[flag.lstrip("-").replace("-", "_")] for param, flag in flags.items()}
+
+
+@contextmanager
+def _flag_names(flags: dict[str, str]):
+    """A `ParameterError` of a command's settings or stages names the command's flags."""
+    try:
+        yield
+    except ParameterError as err:
+        raise err.renamed(flags) from None
 
 
 def _interrupted_message(err: Interrupted, argv: list[str]) -> str:

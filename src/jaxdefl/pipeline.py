@@ -10,13 +10,11 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
-from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
 from . import __version__
 from ._configs import config_dir
 from ._errors import ConfigError, JaxdeflError
-from .fit import Estimates, compare_with_reference, estimate_windows, fit_reference, signal_model
+from .fit import Estimates, compare_with_reference, estimate_windows, fit_reference
 from .io import (
     check_timestamp_policy,
     load_table,
@@ -26,11 +24,11 @@ from .io import (
     write_trajectory,
 )
 from .io.output import TABLE_SUFFIXES, Outputs
+from .progress import console, progress_bar
 from .series import check_window_plan
+from .settings import FitSettings
 
 __all__ = ["demo", "diagnose_file", "fit_file", "run_file"]
-
-console = Console(stderr=True)
 
 
 @contextmanager
@@ -39,14 +37,7 @@ def _progress(total: int, label: str, enabled: bool):
     if not enabled or total <= 4096:
         yield lambda k: None
         return
-    cols = (
-        TextColumn("{task.description}"),
-        BarColumn(),
-        TextColumn("{task.completed}/{task.total}"),
-        TimeElapsedColumn(),
-        TimeRemainingColumn(),
-    )
-    with Progress(*cols, console=console, transient=True) as bar:
+    with progress_bar() as bar:
         task = bar.add_task(label, total=total)
         yield lambda k: bar.advance(task, k)
 
@@ -58,43 +49,6 @@ def _estimate(df: pd.DataFrame, progress: bool = True, **kw) -> Estimates:
     w = windows_for(df, **{k: kw.pop(k) for k in ("axes", "window_s", "step_s") if k in kw})
     with _progress(len(w), "fitting windows", progress) as advance:
         return estimate_windows(w, on_block=advance, **kw)
-
-
-def _check_fit_settings(window_s, step_s, fmin_hz, fmax_hz, oversampling, fap_max, posterior) -> None:
-    """Every `fit` argument checked before any input is read (one line naming the flag)."""
-
-    def bad(flag: str, expected: str, got) -> ConfigError:
-        return ConfigError(f"{flag}: expected {expected}, got {got:g}")
-
-    finite = lambda v: v is None or np.isfinite(v)  # noqa: E731
-    for flag, v in (
-        ("--window", window_s),
-        ("--step", step_s),
-        ("--fmin", fmin_hz),
-        ("--fmax", fmax_hz),
-        ("--oversampling", oversampling),
-        ("--fap-max", fap_max),
-    ):
-        if not finite(v):
-            raise bad(flag, "a finite number", v)
-    if window_s is not None and not window_s > 0:
-        raise bad("--window", "a positive length in s", window_s)
-    if step_s is not None and window_s is None:
-        raise ConfigError("--step: needs --window")
-    if step_s is not None and not step_s > 0:
-        raise bad("--step", "a positive length in s", step_s)
-    if fmin_hz is not None and fmin_hz < 0:
-        raise bad("--fmin", "a frequency >= 0 Hz", fmin_hz)
-    if fmax_hz is not None and not fmax_hz > 0:
-        raise bad("--fmax", "a positive frequency in Hz", fmax_hz)
-    if fmin_hz is not None and fmax_hz is not None and not fmin_hz < fmax_hz:
-        raise ConfigError(f"--fmin/--fmax: expected fmin < fmax, got {fmin_hz:g} and {fmax_hz:g}")
-    if not oversampling >= 1:
-        raise bad("--oversampling", "a factor >= 1", oversampling)
-    if not 0 < fap_max <= 1:
-        raise bad("--fap-max", "a probability in (0, 1]", fap_max)
-    if posterior is not None and posterior < 0:
-        raise bad("--posterior", "a number of windows >= 0", posterior)
 
 
 def uncertainty_tables(
@@ -165,45 +119,21 @@ def companions(out: Path) -> dict[str, Path]:
 
 
 def fit_file(
-    traj: Path,
-    out: Path,
-    window_s: float | None = None,
-    step_s: float | None = None,
-    axes: tuple[str, ...] | None = None,
-    fmin_hz: float | None = None,
-    fmax_hz: float | None = None,
-    oversampling: float = 5.0,
-    fap_max: float = 0.01,
-    reference: Path | None = None,
-    posterior: int | None = None,
-    timestamps: str = "strict",
-    posterior_noise: str = "ar1",
-    model: str = "harmonic",
-    harmonics: int = 1,
-    lines: int = 1,
+    traj: Path, out: Path, settings: FitSettings, reference: Path | None = None
 ) -> tuple[pd.DataFrame, pd.DataFrame | None]:
     """`jaxdefl fit`: read, estimate, write OUT (and OUT stem + _reference/_comparison/... beside).
 
-    ``model``, ``harmonics`` and ``lines`` choose the signal model (`jaxdefl.fit.signal_model`;
-    default: the thesis' harmonic + offset).
+    ``settings`` were validated whole when they were made (`jaxdefl.settings.FitSettings`);
+    ``reference`` is the LDS table to fit and compare with.
 
-    Order: every argument is checked, the outputs are planned (none may be an input or another
-    output), the inputs are read and checked against each other, everything is computed, and only
-    then are all outputs committed together (`jaxdefl.io.output.Outputs`).
+    Order: the outputs are planned (none may be an input or another output), the inputs are
+    read and checked against each other, everything is computed, and only then are all outputs
+    committed together (`jaxdefl.io.output.Outputs`).
     """
     t0 = time.perf_counter()
     traj, out = Path(traj), Path(out)
-    _check_fit_settings(window_s, step_s, fmin_hz, fmax_hz, oversampling, fap_max, posterior)
-    check_timestamp_policy(timestamps)
-    if posterior_noise not in ("ar1", "white"):
-        raise ConfigError(f"--posterior-noise: expected ar1 or white, got {posterior_noise!r}")
-    # signal models other than the thesis' (the posterior check knows only the default model)
-    spec = signal_model(model, harmonics, lines)
-    if posterior is not None and not spec.is_default:
-        raise ConfigError(
-            "--posterior: checks the σ's of the default model only; drop it, or drop "
-            "--model/--harmonics/--lines"
-        )
+    s = settings
+    posterior, timestamps, spec = s.posterior, s.timestamps, s.spec
     outs = Outputs(inputs=[traj, reference])
     outs.reserve(out, "--out", suffixes=TABLE_SUFFIXES)
     paths = companions(out)
@@ -219,6 +149,7 @@ def fit_file(
 
     df = read_trajectory(traj, timestamps=timestamps)
     clocks = {"trajectory": df.attrs.get("timestamps")}
+    axes = s.axes
     if axes is None:
         axes = tuple(a for a in ("z", "x", "y") if a in df.columns)
     ref = None
@@ -233,17 +164,17 @@ def fit_file(
             )
         if "z" not in axes:
             raise ConfigError("--reference: compares the z axis; --axes must include z")
-    check_window_plan(df, axes, window_s, step_s, source=str(traj))
+    check_window_plan(df, axes, s.window_s, s.step_s, source=str(traj))
 
-    kw = dict(fmin_hz=fmin_hz, fmax_hz=fmax_hz, oversampling=oversampling, fap_max=fap_max)
-    est = _estimate(df, axes=axes, window_s=window_s, step_s=step_s, model=spec, **kw)
+    kw = dict(fmin_hz=s.fmin_hz, fmax_hz=s.fmax_hz, oversampling=s.oversampling, fap_max=s.fap_max)
+    est = _estimate(df, axes=axes, window_s=s.window_s, step_s=s.step_s, model=spec, **kw)
     tab = est.table
     comparison = ref_tab = unc = post = None
     if ref is not None:
         ref_tab = fit_reference(ref, est, model=spec, **kw).table
         comparison = compare_with_reference(tab, ref_tab)
     if posterior is not None:
-        unc, post = uncertainty_tables(est, posterior, noise=posterior_noise)
+        unc, post = uncertainty_tables(est, posterior, noise=s.posterior_noise)
 
     with outs:
         outs.table(out, tab)
@@ -252,16 +183,16 @@ def fit_file(
             settings_record(
                 command="fit",
                 posterior=posterior,
-                posterior_noise=posterior_noise,
+                posterior_noise=s.posterior_noise,
                 trajectory=str(traj),
-                window_s=window_s,
-                step_s=step_s,
+                window_s=s.window_s,
+                step_s=s.step_s,
                 axes=list(axes),
                 reference=str(reference) if reference else None,
                 timestamps=timestamps,
                 clock={k: v for k, v in clocks.items() if v},
                 **kw,
-                **({} if spec.is_default else dict(model=model, harmonics=harmonics, lines=lines)),
+                **({} if spec.is_default else dict(model=s.model, harmonics=s.harmonics, lines=s.lines)),
             ),
         )
         if ref_tab is not None:

@@ -6,21 +6,10 @@ from __future__ import annotations
 import ctypes
 import gc
 
-from rich.console import Console
-from rich.progress import (
-    BarColumn,
-    MofNCompleteColumn,
-    Progress,
-    TextColumn,
-    TimeElapsedColumn,
-    TimeRemainingColumn,
-)
-
 from .._errors import ConfigError
+from ..progress import progress_bar
 
 __all__ = ["NoBar", "connect", "progress_bar", "release_memory"]
-
-console = Console(stderr=True)
 
 
 def release_memory() -> None:
@@ -31,18 +20,6 @@ def release_memory() -> None:
         ctypes.CDLL("libc.so.6").malloc_trim(0)
     except (OSError, AttributeError):  # not glibc
         pass
-
-
-def progress_bar():
-    return Progress(
-        TextColumn("{task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-        TimeRemainingColumn(),
-        console=console,
-        transient=True,
-    )
 
 
 def connect(scheduler: str):

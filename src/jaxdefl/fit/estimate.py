@@ -128,20 +128,31 @@ def estimate_windows(
             search = dict(fmin_hz=fmin_hz, fmax_hz=fmax_hz, oversampling=oversampling)
             f = fit_model(w, p, rows[go], model, weights=weights, **search)
         converged = f.converged[rows]
-        return rows, p, np.where(go & ~converged, Status.DID_NOT_CONVERGE, st), f
+        noise = None
+        if model is None:
+            # Model adequacy and σ's honest under coloured noise (`residual_noise`), on this
+            # thread: numpy releases the GIL, so the blocks' statistics run side by side.
+            ok = rows[converged]
+            resid[ok] = harmonic_residual(w, f.params, rows=ok)
+            noise = residual_noise(w, resid, f.f0_hz, rows=ok)
+        return rows, p, np.where(go & ~converged, Status.DID_NOT_CONVERGE, st), f, noise
 
     # Blocks run on a thread per core: XLA and the FFTs release the GIL.
     workers = max(1, os.cpu_count() or 1) if workers is None else max(1, workers)
     size = min(block, max(256, -(-todo.size // workers)))
     blocks = [todo[i : i + size] for i in range(0, todo.size, size)]
+    resid = np.empty_like(w.y) if model is None else None  # rows filled by their block
+    noise_parts = []
     with ThreadPoolExecutor(max_workers=workers) as pool:
-        for rows, p, st, f in (fut.result() for fut in [pool.submit(run, r) for r in blocks]):
+        for rows, p, st, f, noise in (fut.result() for fut in [pool.submit(run, r) for r in blocks]):
             for k in per:
                 per[k][rows] = getattr(p, k)[rows]
             method[rows] = p.method[rows]
             spectra.update(p.spectra)
             status[rows] = st
             fit_parts.append((rows, f))
+            if noise is not None:
+                noise_parts.append((rows, noise))
             if on_block is not None:
                 on_block(rows.size)
             check_interrupt()
@@ -175,9 +186,7 @@ def estimate_windows(
         return Estimates(tab[ESTIMATE_COLUMNS + added], w, periodogram, fit, noise)
     # Model adequacy and σ's honest under coloured noise (`residual_noise`): the white-noise σ's
     # (thesis 5.43-5.45) are kept beside; the default ones use the residual's density near f0.
-    noise = residual_noise(
-        w, harmonic_residual(w, fit.params), fit.f0_hz, rows=np.flatnonzero(fit.converged)
-    )
+    noise = _merge_fits(b, noise_parts, ResidualNoise)
     tab["r2"] = noise.r2
     tab["whiteness_p"] = noise.whiteness_p
     tab["sigma_amplitude_white_mm"] = fit.sigma_amplitude_mm
@@ -195,8 +204,9 @@ def _span(w: Windows) -> np.ndarray:
     return span * n / np.maximum(n - 1, 1)
 
 
-def _merge_fits(b: int, parts: list[tuple[np.ndarray, HarmonicFit]]) -> HarmonicFit:
-    cls = type(parts[0][1]) if parts else HarmonicFit
+def _merge_fits(b: int, parts: list[tuple[np.ndarray, object]], default=HarmonicFit):
+    """One dataclass of (window, ...) arrays from the blocks' (rows, part) pairs."""
+    cls = type(parts[0][1]) if parts else default
     fields = cls.__dataclass_fields__
     out = {}
     for name in fields:

@@ -14,11 +14,9 @@ from functools import partial
 
 import jax
 import jax.numpy as jnp
-import lineax as lx
 import numpy as np
-import optimistix as optx
 
-from .. import _jax  # noqa: F401
+from .._jax import persistent_jit
 from .._shapes import bucket, pow2_at_least, pow2_at_most
 from .._sincos import sincos
 from ..series import Windows
@@ -92,6 +90,9 @@ def gauss_newton(residual, n_params: int, rtol: float, atol: float, max_steps: i
     solve reports per window. With ``has_aux``, ``residual`` returns (residual, aux) and
     ``sol.state.aux`` is the aux at the solution.
     """
+    import lineax as lx  # imported when a kernel is traced (a traced kernel is kept on disk)
+    import optimistix as optx
+
     solver = optx.GaussNewton(rtol=rtol, atol=atol, linear_solver=lx.Normal(lx.Cholesky()))
     return optx.least_squares(
         residual, solver, jnp.zeros(n_params), has_aux=has_aux, max_steps=max_steps, throw=False
@@ -147,6 +148,8 @@ def fit_harmonic(t, y, w, omega0, rtol=RTOL, atol=ATOL, max_steps=MAX_STEPS):
     def residual(u, _):
         return sw * (yc - _model(p0 + u * scale, t)) / noise
 
+    import optimistix as optx  # imported when the kernel is traced
+
     sol = gauss_newton(residual, N_PARAMS, rtol, atol, max_steps)
     p = p0 + sol.value * scale
 
@@ -181,7 +184,7 @@ def fit_harmonic(t, y, w, omega0, rtol=RTOL, atol=ATOL, max_steps=MAX_STEPS):
     return out
 
 
-@partial(jax.jit, static_argnames=("rtol", "atol", "max_steps", "group"))
+@persistent_jit(static_argnames=("rtol", "atol", "max_steps", "group"))
 def _fit_batch(t, y, w, omega0, *, rtol, atol, max_steps, group):
     """`fit_harmonic` over the leading axis, vmapped in groups of ``group`` windows."""
 
@@ -262,10 +265,10 @@ def batch_windows(
         sel = rows[c0 : c0 + chunk]
         pad = np.concatenate([sel, np.repeat(sel[:1], chunk - sel.size)])
         out = fit_batch(
-            jnp.asarray(_width(w.t[pad], s_pad)),
-            jnp.asarray(_width(w.y[pad], s_pad)),
-            jnp.asarray(_width(_weights(w, weights, pad), s_pad)),
-            *(jnp.asarray(np.asarray(a)[pad]) for a in per_window),
+            _width(w.t[pad], s_pad),  # numpy arrays straight into the kernel (no eager op)
+            _width(w.y[pad], s_pad),
+            _width(_weights(w, weights, pad), s_pad),
+            *(np.asarray(a)[pad] for a in per_window),
             group=group,
         )
         for k, v in out.items():

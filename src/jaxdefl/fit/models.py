@@ -32,13 +32,11 @@ from typing import Literal
 
 import jax
 import jax.numpy as jnp
-import jax.scipy.linalg
 import numpy as np
-import optimistix as optx
 import pandas as pd
 
-from .. import _jax  # noqa: F401
 from .._errors import ConfigError
+from .._jax import persistent_jit
 from .._sincos import sincos
 from ..series import Windows
 from ..spectral import Periodogram, lomb_peaks
@@ -201,16 +199,18 @@ def _project(spec: SignalModel, theta, t, yc, w):
     their part in the span of the linear ones G removed), and the sums the normal matrix of all
     parameters is made of (GᵀWG, GᵀWV, VᵀWV) and VᵀWr."""
     g = _design(spec, theta, t)
+    import jax.scipy.linalg as jsl  # imported when the kernel is traced
+
     gtg, gty = normal_equations(g, w, yc)
-    chol = jax.scipy.linalg.cho_factor(gtg)  # one factorisation for both solves
-    lin = jax.scipy.linalg.cho_solve(chol, gty)
+    chol = jsl.cho_factor(gtg)  # one factorisation for both solves
+    lin = jsl.cho_solve(chol, gty)
     r = jnp.where(w > 0, yc - sum(lin[i] * g[i] for i in range(len(g))), 0.0)
     v = _theta_columns(spec, lin, g, t)
     wv = [w * c for c in v]
     gtv = jnp.stack([jnp.stack([jnp.sum(a * b) for a in wv]) for b in g])  # (lin, theta)
     vtv = jnp.stack([jnp.stack([jnp.sum(a * b) for b in v]) for a in wv])
     vtr = jnp.stack([jnp.sum(a * r) for a in wv])
-    coef = jax.scipy.linalg.cho_solve(chol, gtv)
+    coef = jsl.cho_solve(chol, gtv)
     jac = [-(v[q] - sum(coef[i, q] * g[i] for i in range(len(g)))) for q in range(len(v))]
     sums = dict(lin=lin, gtg=gtg, gtv=gtv, vtv=vtv, rss=jnp.sum(w * r**2), rr=jnp.sum(r**2))
     return r, jac, vtv - gtv.T @ coef, vtr, sums
@@ -348,6 +348,8 @@ def fit_model_window(spec: SignalModel, t, y, w, omega0, rtol=RTOL, atol=ATOL, m
             f = f + (sw * col * (scale[q] / noise)) * (u[q] - u_c[q])
         return f, sums
 
+    import optimistix as optx  # imported when the kernel is traced
+
     sol = gauss_newton(residual, theta1.size, rtol, atol, max_steps, has_aux=True)
     theta = theta1 + sol.value * scale
     # the sums at the solution (the last evaluation is at it): the normal matrix of all
@@ -377,7 +379,7 @@ def fit_model_window(spec: SignalModel, t, y, w, omega0, rtol=RTOL, atol=ATOL, m
     )
 
 
-@partial(jax.jit, static_argnames=("spec", "rtol", "atol", "max_steps", "group"))
+@persistent_jit(static_argnames=("spec", "rtol", "atol", "max_steps", "group"))
 def _fit_batch(t, y, w, omega0, *, spec, rtol, atol, max_steps, group):
     """`fit_model_window` over the leading axis, vmapped in groups of ``group`` windows."""
 

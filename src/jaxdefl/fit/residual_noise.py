@@ -85,12 +85,13 @@ def frame_positions(w: Windows, rows: np.ndarray) -> tuple[np.ndarray, np.ndarra
     return g, dt
 
 
-def harmonic_residual(w: Windows, params: np.ndarray) -> np.ndarray:
-    """y - (C cos ωt + D sin ωt + E) of every window, (window, sample); ``params`` (window, param)
-    as `HarmonicFit.params` (NaN rows give NaN)."""
-    c, d, e, om = (params[:, i, None] for i in range(4))
-    ph = om * w.t
-    return w.y - (c * np.cos(ph) + d * np.sin(ph) + e)
+def harmonic_residual(w: Windows, params: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
+    """y - (C cos ωt + D sin ωt + E) of every window (or of those at ``rows``), (window, sample);
+    ``params`` (window, param) as `HarmonicFit.params` (NaN rows give NaN)."""
+    t, y = (w.t, w.y) if rows is None else (w.t[rows], w.y[rows])
+    c, d, e, om = (params[:, i, None] if rows is None else params[rows, i, None] for i in range(4))
+    ph = om * t
+    return y - (c * np.cos(ph) + d * np.sin(ph) + e)
 
 
 def residual_noise(

@@ -10,8 +10,16 @@ means of the first ``learn_blocks`` blocks, then follow slowly (time constant ``
 while a chart is in control, so fatigue's slow growth of the amplitude is not an alarm.
 
 Threshold: the charts' sides together may give ``alarms_per_day`` false alarms per day of data,
-so each side needs an in-control average run length ARL₀ = sides × blocks per day / rate; h
-solves Siegmund's approximation ARL₀ = (e^{2kb} − 2kb − 1)/(2k²), b = h + 1.166 (Siegmund 1985).
+so each side needs an in-control average run length ARL₀ = sides × blocks per day / rate
+(Bonferroni over the plates × axes × quantities); h solves Siegmund's approximation
+ARL₀ = (e^{2kb} − 2kb − 1)/(2k²), b = h + 1.166 (Siegmund 1985), averaged over the reference's own
+error, which a chart sees as a steady shift of 1/√n block σ's when the reference holds n blocks.
+So h is per series and follows its reference's n (`ThresholdTable`): high just after the learning
+or after an alarm re-learnt the level (a reference of 60 blocks is off by 0.13 σ, half the
+amplitude charts' k), down to its value for a full reference. Each block statistic is first made
+N(0, 1) as the threshold assumes: standardised by its block's own σ it is Student's t (made normal
+through its quantile), and it is divided by the spread its reference has seen beyond the model σ
+(coloured or frame-common noise; never below 1, `_Reference.spread`).
 
 An alarm names the quantity, the plate(s) and axes, the time of change (the start of the block
 after the chart last left zero) and the size: the mean deviation since then with its σ. Its class
@@ -36,7 +44,15 @@ import numpy as np
 from .blocks import BlockResult
 from .layout import Layout
 
-__all__ = ["DetectorSettings", "ChangeDetector", "cusum_threshold", "cusum_arl", "gls_mean"]
+__all__ = [
+    "DetectorSettings",
+    "ChangeDetector",
+    "ThresholdTable",
+    "cusum_threshold",
+    "cusum_arl",
+    "gls_mean",
+    "t_to_normal",
+]
 
 SECONDS_PER_DAY = 86400.0
 
@@ -57,8 +73,12 @@ class DetectorSettings:
 def cusum_arl(h: float, k: float) -> float:
     """In-control average run length (blocks) of a one-sided CUSUM on N(0, 1) (Siegmund)."""
     b = h + 1.166
-    x = 2 * k * b
+    x = np.minimum(2 * k * b, 700.0)  # beyond, the run length is infinite for any purpose
     return (np.exp(x) - x - 1) / (2 * k * k)
+
+
+_GH_X, _GH_W = np.polynomial.hermite_e.hermegauss(21)
+_GH_W = _GH_W / _GH_W.sum()
 
 
 def _alarm_rate(h: float, k: float, ref_sd: float) -> float:
@@ -66,8 +86,7 @@ def _alarm_rate(h: float, k: float, ref_sd: float) -> float:
     (the reference is itself an estimate; it changes slowly against the CUSUM's memory)."""
     if ref_sd <= 0:
         return 1.0 / cusum_arl(h, k)
-    x, w = np.polynomial.hermite_e.hermegauss(21)
-    w = w / w.sum()
+    x, w = _GH_X, _GH_W
     keff = k - ref_sd * x
     b = h + 1.166
     arl = np.where(keff > 0.02, cusum_arl(h, np.maximum(keff, 0.02)), b * b)  # no drift: ~b² steps
@@ -78,13 +97,40 @@ def cusum_threshold(arl_blocks: float, k: float, ref_sd: float = 0.0) -> float:
     """The h whose one-sided in-control ARL is ``arl_blocks`` (bisection on `cusum_arl`), with
     the alarm rate averaged over the reference's own error ``ref_sd`` (σ per block) if given."""
     lo, hi = 0.0, 400.0
-    for _ in range(200):
+    for _ in range(60):
         mid = 0.5 * (lo + hi)
         if _alarm_rate(mid, k, ref_sd) > 1.0 / arl_blocks:
             lo = mid
         else:
             hi = mid
     return 0.5 * (lo + hi)
+
+
+class ThresholdTable:
+    """h against the number n of blocks behind a chart's reference: `cusum_threshold` with the
+    reference's error 1/√n block σ's (tabulated on n, interpolated in log n). A reference learnt
+    on the first minutes, or re-learnt after an alarm, is far from the mean a full one reaches;
+    a chart on it gets the threshold that keeps its false alarms at the rate of a full one."""
+
+    def __init__(self, arl_blocks: float, k: float, n_max: int):
+        self.n = np.unique(np.round(np.geomspace(1, max(n_max, 2), 40)))
+        self.h = np.array([cusum_threshold(arl_blocks, k, 1 / np.sqrt(m)) for m in self.n])
+
+    def __call__(self, count: np.ndarray) -> np.ndarray:
+        m = np.clip(np.asarray(count, float), 1, self.n[-1])
+        return np.interp(np.log(m), np.log(self.n), self.h)
+
+
+def t_to_normal(t: np.ndarray, dof: np.ndarray) -> np.ndarray:
+    """The standard normal quantile of Student's t with ``dof`` (a block statistic standardised
+    by its own block's σ has heavier tails than N(0, 1), which a CUSUM threshold assumes)."""
+    from scipy.special import ndtri, stdtr
+
+    t = np.asarray(t, float)
+    d = np.where(np.isfinite(dof) & (dof > 0), dof, np.inf)
+    with np.errstate(invalid="ignore"):
+        z = -ndtri(stdtr(d, -np.abs(t)))
+    return np.where(np.isfinite(d), np.sign(t) * z, t)
 
 
 def gls_mean(values: np.ndarray, sigmas: np.ndarray, corr: np.ndarray) -> tuple[float, float]:
@@ -115,6 +161,7 @@ class _Reference:
         self.value = np.full(n, np.nan)
         self.var = np.zeros(n)  # running mean of the blocks' σ²
         self.count = np.zeros(n)
+        self.r2 = np.ones(n)  # running mean of the squared standardised prediction residuals
         self.n_max, self.lag = n_max, lag
         self.queue: deque[tuple[np.ndarray, np.ndarray, np.ndarray]] = deque()
         self.direct_until = np.zeros(n)  # after an alarm: take the new level's blocks at once
@@ -123,6 +170,11 @@ class _Reference:
         ok = mask & np.isfinite(x) & np.isfinite(var)
         a = 1.0 / np.minimum(self.count + 1, self.n_max)
         first = ok & ~np.isfinite(self.value)
+        seen = ok & ~first & (self.count >= 2)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            r2 = (x - self.value) ** 2 / (var + self.sigma() ** 2)
+        m = np.minimum(self.count - 1, self.n_max)  # residuals taken so far
+        self.r2 = np.where(seen, self.r2 + (r2 - self.r2) / np.maximum(m, 1), self.r2)
         self.value = np.where(first, x, self.value)
         self.value = np.where(ok & ~first, self.value + a * (x - self.value), self.value)
         self.var = np.where(ok, self.var + a * (var - self.var), self.var)
@@ -138,6 +190,20 @@ class _Reference:
     def sigma(self) -> np.ndarray:
         return np.sqrt(self.var / np.maximum(np.minimum(self.count, self.n_max), 1))
 
+    def spread(self) -> np.ndarray:
+        """The blocks' spread around the reference in units of their model σ: the square root
+        of the mean squared prediction residual, lowered by its standard error (so white noise
+        reads 1) and never below 1 (the model's σ is a floor: the spread never lowers a
+        threshold). Coloured or frame-common noise, or a wandering level, raise it."""
+        m = np.minimum(np.maximum(self.count - 2, 0), self.n_max)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            s = np.sqrt(self.r2) * (1 - 1 / np.sqrt(2 * np.maximum(m, 1)))
+        return np.where(m >= 10, np.maximum(s, 1.0), 1.0)
+
+    def blocks(self) -> np.ndarray:
+        """The number of blocks behind the level (its error is 1/√ of it in block σ's)."""
+        return np.maximum(np.minimum(self.count, self.n_max), 1)
+
     def restart(self, idx, value, count) -> None:
         """A change was found: the level is ``value`` (from ``count`` blocks); the next ``lag``
         blocks refine it at once (it is new, there is no change left to wait for)."""
@@ -151,8 +217,9 @@ class _Reference:
 class _Chart:
     """Two-sided (or upward) CUSUMs of a vector of statistics, with their change starts."""
 
-    def __init__(self, n: int, k: float, h: float, upward_only: bool = False):
-        self.k, self.h, self.up_only = k, h, upward_only
+    def __init__(self, n: int, k: float, table: ThresholdTable, upward_only: bool = False):
+        self.k, self.table, self.up_only = k, table, upward_only
+        self.h = np.full(n, float(table.h[-1]))  # per series: from its reference's blocks
         self.hi = np.zeros(n)
         self.lo = np.zeros(n)
         self.start_hi = np.zeros(n, np.int64)
@@ -172,7 +239,8 @@ class _Chart:
         score = np.where(cum > 0, cum * cum / m, 0.0)
         return self.block - int(np.argmax(score))
 
-    def step(self, z: np.ndarray, block: int) -> tuple[np.ndarray, np.ndarray]:
+    def step(self, z: np.ndarray, block: int, ref_blocks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        self.h = self.table(ref_blocks)
         self.z.append(np.array(z, float))
         self.block = block
         ok = np.isfinite(z)
@@ -237,13 +305,13 @@ class ChangeDetector:
         self.n_sides = 2 * (1 + n_amp + s) + s
         blocks_per_day = SECONDS_PER_DAY / st.block_s
         arl = self.n_sides * blocks_per_day / st.alarms_per_day
-        ref_sd = 1.0 / np.sqrt(n_max)  # a reference's error in block σ's, once it is full
-        self.h = cusum_threshold(arl, st.k, ref_sd)
-        self.h_amp = cusum_threshold(arl, st.k_amplitude, ref_sd)
-        self.ch_f0 = _Chart(1, st.k, self.h)
-        self.ch_amp = _Chart(s, st.k_amplitude, self.h_amp)
-        self.ch_off = _Chart(s, st.k, self.h)
-        self.ch_noise = _Chart(s, st.k, self.h, upward_only=True)
+        # h against the blocks behind a reference (its error is 1/√n block σ's)
+        table, table_amp = ThresholdTable(arl, st.k, n_max), ThresholdTable(arl, st.k_amplitude, n_max)
+        self.h, self.h_amp = float(table.h[-1]), float(table_amp.h[-1])  # full references
+        self.ch_f0 = _Chart(1, st.k, table)
+        self.ch_amp = _Chart(s, st.k_amplitude, table_amp)
+        self.ch_off = _Chart(s, st.k, table)
+        self.ch_noise = _Chart(s, st.k, table, upward_only=True)
         self.state = "monitoring"
         return [
             {
@@ -253,7 +321,9 @@ class ChangeDetector:
                 "message": (
                     f"references learnt on {len(L)} blocks of {st.block_s:g} s; {n_amp} of {s} series "
                     f"charted for amplitude and frequency; CUSUM h = {self.h:.2f} (k = {st.k:g}; "
-                    f"amplitude h = {self.h_amp:.2f}, k = {st.k_amplitude:g}) for "
+                    f"amplitude h = {self.h_amp:.2f}, k = {st.k_amplitude:g}) once the references "
+                    f"hold {n_max} blocks, {float(table(len(L))):.1f} and "
+                    f"{float(table_amp(len(L))):.1f} on the {len(L)} learnt, for "
                     f"{st.alarms_per_day:g} false alarm(s) per day over {self.n_sides} chart sides"
                 ),
                 "threshold_h": self.h,
@@ -300,21 +370,23 @@ class ChangeDetector:
         # frequency, the beam's
         dw, sdw = self._combined_domega(b)
         self.f0_history.append((dw, sdw))
-        z_f0 = (dw - self.ref_w.value) / np.hypot(sdw, self.ref_w.sigma())
-        up, down = self.ch_f0.step(z_f0, i)
+        z_f0 = (dw - self.ref_w.value) / np.hypot(sdw, self.ref_w.sigma()) / self.ref_w.spread()
+        up, down = self.ch_f0.step(z_f0, i, self.ref_w.blocks())
         if up[0] or down[0]:
             events.append(self._f0_alarm(b, bool(up[0])))
         # amplitude, offset, noise per series
+        # standardised by the block's own σ (Student's t, made normal), then by the spread the
+        # reference has seen beyond that σ (never below 1)
         with np.errstate(invalid="ignore", divide="ignore"):
             z_a = (b.amplitude_mm - self.ref_A.value) / np.hypot(b.sigma_amplitude_mm, self.ref_A.sigma())
-            z_a = np.where(live & self.charted, z_a, np.nan)
+            z_a = np.where(live & self.charted, t_to_normal(z_a, b.dof) / self.ref_A.spread(), np.nan)
             z_c = (b.offset_mm - self.ref_C.value) / np.hypot(b.sigma_offset_mm, self.ref_C.sigma())
-            z_c = np.where(live, z_c, np.nan)
+            z_c = np.where(live, t_to_normal(z_c, b.dof) / self.ref_C.spread(), np.nan)
             z_n = (np.log(b.resid_var) - self.ref_v.value) / np.sqrt(2 / b.dof + self.ref_v.sigma() ** 2)
-            z_n = np.where(live, z_n, np.nan)
-        a_up, a_dn = self.ch_amp.step(z_a, i)
-        c_up, c_dn = self.ch_off.step(z_c, i)
-        n_up, _ = self.ch_noise.step(z_n, i)
+            z_n = np.where(live, z_n / self.ref_v.spread(), np.nan)
+        a_up, a_dn = self.ch_amp.step(z_a, i, self.ref_A.blocks())
+        c_up, c_dn = self.ch_off.step(z_c, i, self.ref_C.blocks())
+        n_up, _ = self.ch_noise.step(z_n, i, self.ref_v.blocks())
         amp_alarm = np.flatnonzero(a_up | a_dn)
         if amp_alarm.size:
             events += self._amplitude_alarms(b, amp_alarm)
@@ -429,7 +501,7 @@ class ChangeDetector:
         for j in alarm:
             if j in done:
                 continue
-            since = self._since(self.ch_amp.onset(j, bool(self.ch_amp.hi[j] > self.h_amp)))
+            since = self._since(self.ch_amp.onset(j, bool(self.ch_amp.hi[j] > self.ch_amp.h[j])))
             same_axis = np.flatnonzero((self.axis_of == self.axis_of[j]) & self.charted & ~self.lost)
             alarming = set(int(a) for a in alarm if self.axis_of[a] == self.axis_of[j])
             others = np.array([k for k in same_axis if k not in alarming], np.int64)
@@ -502,7 +574,7 @@ class ChangeDetector:
         return ratio, s
 
     def _sensor_alarm(self, b: BlockResult, series: np.ndarray, quantity: str, chart: _Chart, sizer) -> dict:
-        since = self._since(min(chart.onset(j, bool(chart.hi[j] > chart.h)) for j in series))
+        since = self._since(min(chart.onset(j, bool(chart.hi[j] > chart.h[j])) for j in series))
         size, sig = sizer(since, series)
         chart.reset(series)
         ev = self._base(b, quantity, "sensor", series, since)

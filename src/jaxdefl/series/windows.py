@@ -218,6 +218,7 @@ def make_windows(
                 last = (t_all, clk)
             dt_all, k_all = clk.dt, clk.k
             resid = t_all - t_all[0] - clk.t if np.isfinite(clk.dt) else np.full(t_all.size, np.nan)
+            whole = {}  # the clock of a window without missing values, shared by the axes
             for axis in axes:
                 v = gp[axis].to_numpy()
                 ok = np.isfinite(v)
@@ -236,7 +237,12 @@ def make_windows(
                         plate=int(plate),
                         axis=axis,
                     )
-                    clock = _window_clock(dt_all, k_all[lo:hi][sel], resid[lo:hi][sel])
+                    if sel.all():
+                        if w not in whole:
+                            whole[w] = _window_clock(dt_all, k_all[lo:hi], resid[lo:hi])
+                        clock = whole[w]
+                    else:
+                        clock = _window_clock(dt_all, k_all[lo:hi][sel], resid[lo:hi][sel])
                     series.append((meta, t_all[lo:hi][sel], v[lo:hi][sel], clock))
     return _pack(series, min_samples)
 

@@ -17,16 +17,14 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from functools import partial
 from typing import Literal
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.fft
 
-from .. import _jax  # noqa: F401
 from .._errors import ConfigError
+from .._jax import persistent_jit
 from .._shapes import bucket, pow2_at_least, pow2_at_most
 from .._sincos import sincos
 from ..series import Windows
@@ -102,7 +100,7 @@ def _tau_terms(c2, s2, n):
     return cwt, swt, 1.0 / (0.5 * (n + r2)), jnp.where(ok, 1.0 / jnp.where(ok, ss, 1.0), 0.0)
 
 
-@partial(jax.jit, static_argnames=("n_fft", "j_lo", "j_hi"))
+@persistent_jit(static_argnames=("n_fft", "j_lo", "j_hi"))
 def _mask_terms(masks, *, n_fft, j_lo, j_hi):
     """τ terms of each distinct mask (mask, freq): from bins 2j of the mask's FFT."""
     fm = jnp.fft.rfft(masks, n=n_fft, axis=-1)
@@ -115,7 +113,7 @@ def _mask_terms(masks, *, n_fft, j_lo, j_hi):
     return jnp.stack(_tau_terms(z.real, -z.imag, n))
 
 
-@partial(jax.jit, static_argnames=("n_fft", "j_lo", "j_hi", "keep", "search_dtype"))
+@persistent_jit(static_argnames=("n_fft", "j_lo", "j_hi", "keep", "search_dtype"))
 def _grid_batch(h_dense, m_dense, terms, which, var, df_dt, *, n_fft, j_lo, j_hi, keep, search_dtype):
     """Peak search on dense, centred, zero-filled frame grids (window, frame) of one chunk.
 
@@ -256,13 +254,13 @@ def _peaks_grid(w: Windows, rows, out, fmin, fmax, oversampling, keep, search_dt
         u_pad = pow2_at_least(uniq.shape[0])
         masks = np.unpackbits(uniq, axis=1, count=length).astype(np.float64)
         masks = np.concatenate([masks, np.zeros((u_pad - masks.shape[0], length))])
-        terms = _mask_terms(jnp.asarray(masks), n_fft=n_fft, j_lo=j_lo, j_hi=j_hi)
+        terms = _mask_terms(masks, n_fft=n_fft, j_lo=j_lo, j_hi=j_hi)
         i, p0, pm, pp, power = _grid_batch(
-            jnp.asarray(h),
-            jnp.asarray(m, dtype=jnp.float64),
+            h,  # numpy arrays straight into the kernel (no eager JAX op per array)
+            m.astype(np.float64),
             terms,
-            jnp.asarray(inverse.ravel()),
-            jnp.asarray(var),
+            inverse.ravel(),
+            var,
             df * dt,
             n_fft=n_fft,
             j_lo=j_lo,
