@@ -1,7 +1,8 @@
 """The concealed-effect benchmark of ``jaxdefl diagnose`` (issue 7).
 
     python experiments/concealed_effects.py [--out DIR] [--cases N] [--controls N] [--minutes M]
-                                            [--seed S] [--workers K]
+                                            [--seed S] [--workers K] [--held-out ID]
+                                            [--ar1-controls SHARE]
 
 Generates recordings with the simulator (`jaxdefl.simulate.effects`): every effect several times
 alone, random pairs of effects, and effect-free controls, with decoys the nominal model handles
@@ -23,6 +24,14 @@ tables and the hints a user has (``sensor``, ``frame_rate_hz``) and nothing else
   (`jaxdefl.simulate.effects.primary_parameters`), within 25 % counts as recovered.
 - quality: share of reported effects with ΔBIC < −10 and rms_after < rms_before.
 - seconds per recording (the diagnose call only).
+- controls flagged: controls with any reported effect *or unnamed term* (the open world's
+  generic terms count as a flag). ``--ar1-controls SHARE`` (default 0.5) gives that share of the
+  controls AR(1) noise on top of the white noise, ρ drawn in 0.3-0.8, σ twice the recording's
+  white σ (so most of the noise is coloured); half of the ToF recordings carry frame-common noise.
+- held-out mode (``--held-out ID``): every effect case is ID alone, and the diagnosis runs with ID
+  removed from its registry (``effects=`` all other ids). Scored: the injected effect *modelled
+  as unnamed* — an ``unnamed`` term with ΔBIC < −10 on at least half of its plates — with no
+  vocabulary name claimed (no named effect reported).
 
 Writes DIR/cases.csv (one row per case and injected effect; one row per control), DIR/confusion.csv,
 DIR/summary.md and DIR/results/case_NNN.json (plan, truth, DIAG dict, seconds, error: saved as each
@@ -45,6 +54,7 @@ from typing import Any
 
 import numpy as np
 import pandas as pd
+from scipy.signal import lfilter
 
 from jaxdefl.simulate.effects import EFFECT_IDS, make_case, primary_parameters
 
@@ -62,23 +72,55 @@ DIAGNOSE = "jaxdefl.diagnose:diagnose"
 # the plan
 
 
-def plan_cases(n_cases: int, n_controls: int, seed: int) -> list[dict]:
+def plan_cases(
+    n_cases: int, n_controls: int, seed: int, held_out: str | None = None, ar1_controls: float = 0.0
+) -> list[dict]:
     """Cases: the first ceil(3N/4) are single effects, round-robin over `EFFECT_IDS` (so every effect
-    appears several times alone), the rest random compatible pairs; then the controls."""
+    appears several times alone), the rest random compatible pairs; then the controls. With
+    ``held_out`` every effect case is that effect alone (and carries ``held_out``); a share
+    ``ar1_controls`` of the controls gets AR(1) noise (``ar1_rho`` in 0.3-0.8)."""
     rng = np.random.default_rng([seed, 1])
-    n_single = min(n_cases, math.ceil(0.75 * n_cases))
+    n_single = n_cases if held_out else min(n_cases, math.ceil(0.75 * n_cases))
     plan = []
     for i in range(n_single):
-        plan.append({"kind": "single", "effects": [EFFECT_IDS[i % len(EFFECT_IDS)]]})
+        eid = held_out or EFFECT_IDS[i % len(EFFECT_IDS)]
+        plan.append({"kind": "single", "effects": [eid]})
     while len(plan) < n_cases:
         pair = sorted(rng.choice(EFFECT_IDS, size=2, replace=False).tolist())
         if frozenset(pair) not in INCOMPATIBLE:
             plan.append({"kind": "pair", "effects": pair})
-    plan += [{"kind": "control", "effects": []} for _ in range(n_controls)]
+    n_ar1 = int(round(ar1_controls * n_controls))
+    rho_rng = np.random.default_rng([seed, 2])
+    for j in range(n_controls):
+        c: dict[str, Any] = {"kind": "control", "effects": []}
+        if j < n_ar1:
+            c["ar1_rho"] = round(float(rho_rng.uniform(0.3, 0.8)), 3)
+        plan.append(c)
     for i, p in enumerate(plan):
         p["case"] = i
         p["seed"] = int(seed) * 100_000 + i
+        if held_out:
+            p["held_out"] = held_out
     return plan
+
+
+def add_ar1_noise(traj: pd.DataFrame, truth: Mapping, rho: float, seed: int) -> pd.DataFrame:
+    """AR(1) noise of coefficient ``rho`` on every plate and axis, its marginal σ twice the
+    recording's white σ of that plate and axis, on the frame clock (drop-outs skip frames)."""
+    rng = np.random.default_rng([int(seed), 9001])
+    rec = truth["recording"]
+    dt = 1.0 / float(rec["frame_rate_hz"])
+    k = np.rint((traj["t"].to_numpy() - float(rec["t_first"])) / dt).astype(np.int64)
+    n_frames = int(k.max()) + 1
+    out = traj.copy()
+    plates = traj["plate"].to_numpy()
+    for axis in ("x", "y", "z"):
+        sig = np.asarray(rec["noise_mm"][axis], float)
+        for p in np.unique(plates):
+            a = lfilter([1.0], [1.0, -rho], rng.standard_normal(n_frames) * math.sqrt(1 - rho * rho))
+            rows = plates == p
+            out.loc[rows, axis] = traj.loc[rows, axis].to_numpy() + 2.0 * sig[int(p) - 1] * a[k[rows]]
+    return out
 
 
 # ---------------------------------------------------------------------------------------------
@@ -92,26 +134,34 @@ def _resolve(diagnose: str | Callable) -> Callable:
     return getattr(importlib.import_module(module), name)
 
 
-def _blind_call(diagnose: Callable, traj: pd.DataFrame, lds: pd.DataFrame | None, hints: Mapping) -> dict:
-    """The diagnosing call: the tables and a user's hints, nothing from the truth."""
+def _blind_call(
+    diagnose: Callable, traj: pd.DataFrame, lds: pd.DataFrame | None, hints: Mapping, held_out: str | None = None
+) -> dict:
+    """The diagnosing call: the tables and a user's hints, nothing from the truth (with a held-out
+    effect, the registry without it)."""
+    extra = {"effects": tuple(e for e in EFFECT_IDS if e != held_out)} if held_out else {}
     return diagnose(
         traj,
         reference=lds,
         sensor=hints["sensor"],
         frame_rate_hz=hints["frame_rate_hz"],
         modulation_mhz=None,
+        **extra,
     )
 
 
 def run_case(plan: Mapping, minutes: float | None, diagnose: str | Callable = DIAGNOSE) -> dict:
     """Generate one case, run the blind diagnosis, return {plan, truth, diag, seconds, error}."""
     traj, lds, truth = make_case(plan["seed"], plan["effects"], minutes=minutes)
+    if plan.get("ar1_rho"):
+        traj = add_ar1_noise(traj, truth, float(plan["ar1_rho"]), plan["seed"])
+        truth["recording"]["ar1_rho"] = float(plan["ar1_rho"])
     rec = truth["recording"]
     hints = {"sensor": rec["sensor"], "frame_rate_hz": rec["frame_rate_hz"]}
     fn = _resolve(diagnose)
     t0 = time.perf_counter()
     try:
-        diag, error = _blind_call(fn, traj, lds, hints), ""
+        diag, error = _blind_call(fn, traj, lds, hints, plan.get("held_out")), ""
     except Exception as err:  # a failure is a result of the benchmark, not its end
         diag, error = None, f"{type(err).__name__}: {err}"
     seconds = time.perf_counter() - t0
@@ -244,6 +294,22 @@ def score_effect(injected: Mapping, reported: Sequence[Mapping], t_first: float)
     return out
 
 
+def unnamed_located(injected: Mapping, unnamed: Sequence[Mapping]) -> bool:
+    """An unnamed term with ΔBIC < −10 on at least half of the injected effect's plates (or of
+    its detectable plates, for the effects seen only against the reference)."""
+    true = set(int(p) for p in injected["plates"])
+    det = set(int(p) for p in injected.get("detectable_plates") or [])
+    for u in unnamed:
+        try:
+            strong = float(u["delta_bic"]) < DELTA_BIC_MAX
+        except (KeyError, TypeError, ValueError):
+            continue
+        rep = set(int(p) for p in u.get("plates") or [])
+        if strong and (len(rep & true) >= len(true) / 2 or (det and len(rep & det) >= len(det) / 2)):
+            return True
+    return False
+
+
 def good_report(r: Mapping) -> bool:
     """ΔBIC < −10 and a lower RMS after than before."""
     try:
@@ -262,6 +328,7 @@ def score(results: Sequence[Mapping]) -> tuple[pd.DataFrame, pd.DataFrame, dict]
         plan, truth, diag = res["plan"], res["truth"], res["diag"] or {}
         rec = truth["recording"]
         reported = list(diag.get("effects", []) or [])
+        unnamed = list(diag.get("unnamed", []) or [])
         rep_ids = sorted({str(r.get("id")) for r in reported})
         reports_total += len(reported)
         reports_good += sum(good_report(r) for r in reported)
@@ -278,6 +345,8 @@ def score(results: Sequence[Mapping]) -> tuple[pd.DataFrame, pd.DataFrame, dict]
             "n_plates": rec["n_plates"],
             "dropout_prob": rec["dropout_prob"],
             "frame_common": rec.get("frame_common", 0.0),
+            "ar1_rho": rec.get("ar1_rho", 0.0),
+            "n_unnamed": len(unnamed),
             "reference": rec["reference"],
             "reported_ids": ";".join(rep_ids),
             "extra_ids": ";".join(extras),
@@ -293,7 +362,7 @@ def score(results: Sequence[Mapping]) -> tuple[pd.DataFrame, pd.DataFrame, dict]
                 conf.loc["none", x] += 1
             if not extras:
                 conf.loc["none", "none"] += 1
-            rows.append(common | {"injected": "none", "any_reported": bool(reported)})
+            rows.append(common | {"injected": "none", "any_reported": bool(reported) or bool(unnamed)})
             continue
         for e in injected:
             s = score_effect(e, reported, rec["t_first"])
@@ -320,6 +389,10 @@ def score(results: Sequence[Mapping]) -> tuple[pd.DataFrame, pd.DataFrame, dict]
                     "param_errors": json.dumps({k: round(v, 4) for k, v in s["param_errors"].items()}),
                     "max_param_error": max(s["param_errors"].values(), default=float("nan")),
                     "any_reported": bool(reported),
+                    "unnamed_located": unnamed_located(e, unnamed),
+                    "held_out_modelled": bool(plan.get("held_out"))
+                    and unnamed_located(e, unnamed)
+                    and not reported,
                 }
             )
     cases = pd.DataFrame(rows)
@@ -350,6 +423,12 @@ def _summary(cases: pd.DataFrame, reports_total: int, reports_good: int) -> dict
         "quality": reports_good / reports_total if reports_total else float("nan"),
         "seconds_mean": float(cases.drop_duplicates("case").seconds.mean()) if len(cases) else float("nan"),
         "seconds_max": float(cases.drop_duplicates("case").seconds.max()) if len(cases) else float("nan"),
+        "held_out_modelled": mean(eff.held_out_modelled)
+        if len(eff) and "held_out_modelled" in eff
+        else float("nan"),
+        "false_positive_ar1": mean(ctl[ctl.ar1_rho > 0].any_reported)
+        if len(ctl) and "ar1_rho" in ctl
+        else float("nan"),
         "errors": int((cases.drop_duplicates("case").error.astype(str).str.len() > 0).sum())
         if len(cases)
         else 0,
@@ -401,7 +480,9 @@ def summary_markdown(cases: pd.DataFrame, conf: pd.DataFrame, summary: Mapping, 
         "|---|---|---|",
         f"| injected effects named and located | {pct(s['detected'])} | >= 90 % |",
         f"| injected effects named (any plates) | {pct(s['named'])} | |",
-        f"| controls with any reported effect | {pct(s['false_positive'])} | <= 5 % |",
+        f"| controls with any reported effect or unnamed term | {pct(s['false_positive'])} | <= 5 % |",
+        f"| of them AR(1) controls (ρ 0.3-0.8) | {pct(s['false_positive_ar1'])} | <= 5 % |",
+        f"| held-out effect modelled as unnamed, no name | {pct(s['held_out_modelled'])} | >= 80 % |",
         f"| effect cases with a spurious extra id | {pct(s['spurious_in_effect_cases'])} | |",
         f"| plates Jaccard (detected) | {s['jaccard']:.3f} | |",
         f"| level-jump time error, median | {s['jump_error_s_median']:.2f} s | |",
@@ -469,7 +550,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=1, help="processes")
     ap.add_argument("--diagnose", default=DIAGNOSE, help="module:function of the diagnosis")
     ap.add_argument("--rescore", action="store_true", help="score DIR/results again, no run")
+    ap.add_argument("--held-out", default=None, help="an effect id removed from the registry for the run")
+    ap.add_argument("--ar1-controls", type=float, default=0.5, help="share of controls with AR(1) noise")
     args = ap.parse_args(argv)
+    if args.held_out is not None and args.held_out not in EFFECT_IDS:
+        print(f"concealed_effects: --held-out: expected one of {', '.join(EFFECT_IDS)}", file=sys.stderr)
+        return 2
     if args.cases < 0 or args.controls < 0 or args.workers < 1:
         print("concealed_effects: --cases and --controls must be >= 0, --workers >= 1", file=sys.stderr)
         return 2
@@ -478,7 +564,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         results = load_results(args.out)
         shown = {"out": args.out, "rescore": "(scored again from DIR/results)"}
     else:
-        plan = plan_cases(args.cases, args.controls, args.seed)
+        plan = plan_cases(args.cases, args.controls, args.seed, args.held_out, args.ar1_controls)
         results = run_benchmark(plan, args.minutes, args.workers, args.diagnose, out=args.out)
     *_, md = write_outputs(args.out, results, shown)
     print(md)

@@ -264,12 +264,18 @@ def test_a_noise_free_table_says_cannot_tell():
 
 
 def test_only_named_effects_are_searched():
+    # the line is outside the vocabulary searched: located and modelled as unnamed, never named
     d = diagnose(record(seed=16, line=(1.37, 0.15)), effects=("drift",))
     assert d["effects"] == []
-    assert any(u["test"] == "spectrum" for u in d["unexplained"])  # the line, unexplained, located
-    u = next(u for u in d["unexplained"] if u["test"] == "spectrum")
-    assert u["band_hz"][0] - 0.01 < 1.37 < u["band_hz"][1] + 0.01
+    (u,) = d["unnamed"]
+    assert u["kind"] == "line" and u["band_hz"][0] - 0.01 < 1.37 < u["band_hz"][1] + 0.01
     assert set(u["plates"]) <= {1, 2, 3, 4, 5} and u["axes"] == ["z"]
+    assert u["parameters"]["freq_hz"]["value"] == pytest.approx(1.37, abs=2e-3)
+    assert u["delta_bic"] < -10 and u["rms_after_mm"] < u["rms_before_mm"]
+    assert "extra_periodic" not in u["explanation"]
+    assert not any(u["test"] == "spectrum" for u in d["unexplained"])  # modelled, so explained
+    d = diagnose(record(seed=16, line=(1.37, 0.15)), effects=("drift",), open_world=False)
+    assert d["unnamed"] == [] and any(u["test"] == "spectrum" for u in d["unexplained"])
 
 
 # --- errors and the CLI ---------------------------------------------------------------------

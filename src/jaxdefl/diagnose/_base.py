@@ -56,6 +56,8 @@ __all__ = [
 ]
 
 LOG_2PI = math.log(2 * math.pi)
+# the information gate: an effect is tried when one of plausible size would reach this ΔBIC
+GATE_DELTA_BIC = -10.0
 
 
 @dataclass(frozen=True)
@@ -274,6 +276,7 @@ class Context:
     tap_offsets: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75)
     left_out: tuple[dict, ...] = ()
     _nuisance: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+    _noise: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     @property
     def plates(self) -> list[int]:
@@ -302,6 +305,19 @@ class Context:
             return self._nuisance[i]
         return self._nuisance_at(i, t)
 
+    def noise_sigma(self, i: int) -> float:
+        """Series i's noise σ (mm) from the first differences of its residual about the nominal
+        harmonic (1.4826 MAD / √2: slow structure and outliers barely move it); cached."""
+        if i not in self._noise:
+            s = self.series[i]
+            r = s.y - self.nominal[i](s.t)
+            d = np.diff(r)[np.diff(s.k) == 1]
+            if d.size < 8:
+                d = np.diff(r)
+            sig = 1.4826 * float(np.median(np.abs(d - np.median(d)))) / math.sqrt(2) if d.size else 0.0
+            self._noise[i] = sig
+        return self._noise[i]
+
     def _nuisance_at(self, i: int, t: np.ndarray) -> np.ndarray:
         cols = [np.ones_like(t)]
         if not self.series[i].tied:
@@ -318,26 +334,65 @@ class Effect(abc.ABC):
         id: the DESIGN.md effect id.
         meaning: what physics it stands for (one line, for reports).
         needs_reference: it can only be told against an LDS reference.
-        min_cycles: loading cycles the record needs before the effect can be told apart from
-            the nominal model (e.g. a slow drift from the offset).
         min_plates: plates needed (an effect defined as common to all plates needs several).
+        plausible, plausible_unit, gate_params: the information gate (`expected_delta_bic`): the
+            size of the effect at a plausible magnitude and the parameters its simplest form adds.
+            Units: ``"noise"`` (× the series' noise σ), ``"motion"`` (× its motion amplitude),
+            ``"seconds"`` (a timing error: × its motion's velocity amplitude ωA), ``"mm"`` (an
+            absolute amplitude), and ``"mm_per_s"`` (a rate: × the record's duration, the term's
+            RMS that of a ramp). An effect with its own shape overrides `plausible_rms`.
     """
 
     id: str = ""
     meaning: str = ""
     needs_reference: bool = False
-    min_cycles: float = 20.0
     min_plates: int = 1
+    plausible: float = 0.2
+    plausible_unit: str = "noise"
+    gate_params: int = 3
+
+    def plausible_rms(self, ctx: Context, i: int) -> float:
+        """RMS (mm) of the effect's term on series i at a plausible magnitude."""
+        h = ctx.nominal[i]
+        u = self.plausible_unit
+        if u == "noise":
+            return self.plausible * ctx.noise_sigma(i)
+        if u == "motion":
+            return self.plausible * h.amplitude / math.sqrt(2)
+        if u == "seconds":
+            return self.plausible * h.omega * h.amplitude / math.sqrt(2)
+        if u == "mm":
+            return self.plausible / math.sqrt(2)
+        if u == "mm_per_s":
+            return self.plausible * ctx.duration_s / math.sqrt(12)
+        raise ValueError(f"plausible_unit: unknown unit {u!r}")
+
+    def expected_delta_bic(self, ctx: Context) -> float:
+        """ΔBIC an effect of plausible size would reach on this record: −Σ n_s (rms_s/σ_s)² +
+        k log N over the series, σ_s each series' noise (`Context.noise_sigma`). The evidence
+        grows as SNR² × samples: a short clean record is told, a long noisy one may not be."""
+        signal = 0.0
+        n_total = 0
+        for i, s in enumerate(ctx.series):
+            n_total += s.n
+            sig = ctx.noise_sigma(i)
+            if sig > 0 and math.isfinite(sig):
+                signal += s.n * (self.plausible_rms(ctx, i) / sig) ** 2
+        return -signal + self.gate_params * math.log(max(n_total, 2))
 
     def cannot_tell(self, ctx: Context) -> str | None:
         """Why this effect cannot be told on this record, or None when it can."""
         if self.needs_reference and not ctx.reference:
             return "needs a reference (--reference LDS.csv) on at least one plate"
-        cycles = ctx.f0_hz * ctx.duration_s
-        if not cycles >= self.min_cycles:
-            return f"record too short: {cycles:.0f} loading cycles, needs {self.min_cycles:.0f}"
         if len(ctx.plates) < self.min_plates:
             return f"needs at least {self.min_plates} plates, the table has {len(ctx.plates)}"
+        dbic = self.expected_delta_bic(ctx)
+        if not dbic < GATE_DELTA_BIC:
+            return (
+                f"not enough evidence: an effect of plausible size would reach ΔBIC {dbic:.0f} on "
+                f"this record ({sum(s.n for s in ctx.series)} samples, {ctx.duration_s:.3g} s, "
+                f"needs < {GATE_DELTA_BIC:.0f})"
+            )
         return None
 
     @abc.abstractmethod

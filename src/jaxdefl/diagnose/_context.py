@@ -14,6 +14,7 @@ from ..fit.estimate import MAX_ABS_VALUE_MM
 from ..io import timestamp_note, validate_trajectory
 from ..series import make_windows
 from ..series.windows import frame_clock, windows_like
+from ..spectral import lomb_peaks
 from ..status import Status
 from ._base import Context, Harmonic, Series, State, lstsq
 
@@ -119,6 +120,25 @@ def build_context(
     w = make_windows(df, axes=axes, window_s=None)
     est = estimate_windows(w).table
     free = _harmonic_rows(est, t0)
+    # A significant peak whose harmonic fit did not converge (a motion dying away within the
+    # record: a hammer hit's free vibration) keeps its periodogram peak; its harmonic is linear
+    # at that frequency and the decay is left to the open-world envelope (`unnamed`).
+    stuck = np.flatnonzero(
+        (est["status"].to_numpy() == Status.DID_NOT_CONVERGE) & (est["peak_fap"].to_numpy() <= 0.01)
+    )
+    if stuck.size:
+        peaks = lomb_peaks(w, rows=stuck)
+        for row in stuck:
+            r = est.iloc[row]
+            key = (int(r["plate"]), r["axis"])
+            g = df[df["plate"] == key[0]]
+            t, y = g["t"].to_numpy() - t0, g[key[1]].to_numpy()
+            ok = np.isfinite(y)
+            free[key] = _linear_harmonic(t[ok], y[ok], 2 * math.pi * float(peaks.freq_hz[row]), 0.5 * duration)
+            notes.append(
+                f"plate {key[0]} {key[1]}: the harmonic fit did not converge (a decaying motion?); "
+                f"harmonic at its periodogram peak {peaks.freq_hz[row]:.6g} Hz"
+            )
     if not free:
         raise InputError(f"{source}: no plate and axis shows a significant periodic motion to diagnose")
     f0 = float(

@@ -31,6 +31,7 @@ from ._context import build_context
 from ._correlation import FrameCorrelation, frame_correlation
 from ._whiteness import combined_p, residual_tests
 from .effects import EFFECT_IDS, load_effects
+from .unnamed import MAX_TERMS, colored_gain, UnnamedTerm, apply_term, best_term, search_unnamed
 
 __all__ = ["Diagnosis", "run_diagnosis", "diagnose", "DELTA_BIC_MAX", "ALPHA", "MAX_EFFECTS"]
 
@@ -66,6 +67,10 @@ class Diagnosis:
     seconds: float
     rounds: list[list[dict]] = field(default_factory=list)
     corr: FrameCorrelation | None = None
+    # the open world (`unnamed`): generic terms on what the named effects leave, and the states
+    # with them (the full model; ``final`` holds the named effects alone)
+    unnamed: list[UnnamedTerm] = field(default_factory=list)
+    open_final: list[State] | None = None
 
     # --- summaries --------------------------------------------------------------------------
     def _summary(self, states: list[State], tests: list[dict]) -> dict:
@@ -199,14 +204,37 @@ class Diagnosis:
                 },
                 "nominal": nominal,
                 "effects": effects,
+                "unnamed": [_unnamed_json_of(ctx, u) for u in self.unnamed],
                 "unexplained": self.unexplained(),
-                "final": self._summary(self.final, self.tests_final),
+                "final": self._summary(
+                    self.open_final if self.open_final is not None else self.final, self.tests_final
+                ),
                 "cannot_tell": self.cannot_tell,
                 "left_out": list(self.ctx.left_out),
                 "notes": self.notes,
                 "seconds": self.seconds,
             }
         )
+
+
+def _unnamed_json_of(ctx: Context, u: UnnamedTerm) -> dict:
+    return {
+        "kind": u.kind,
+        "plates": sorted({ctx.series[i].plate for i in u.series}),
+        "axes": sorted({ctx.series[i].axis for i in u.series}),
+        "series": [ctx.series[i].key for i in u.series],
+        "t_start": ctx.t0 + u.t_start,
+        "t_end": ctx.t0 + u.t_end,
+        "band_hz": u.band_hz,
+        "parameters": _jsonable(u.parameters),
+        "n_params": u.n_params,
+        "delta_bic": u.delta_bic,
+        "rms_before_mm": u.rms_before_mm,
+        "rms_after_mm": u.rms_after_mm,
+        "rms_gain": u.rms_before_mm / u.rms_after_mm if u.rms_after_mm > 0 else None,
+        "explanation": u.explanation,
+        "detail": _jsonable(u.detail),
+    }
 
 
 _UNEXPLAINED = {
@@ -248,6 +276,12 @@ def _score(
     for i in p.series:
         y = ctx.series[i].y
         a, b = loglik(y, states[i]), loglik(y, p.states[i])
+        q = p.states[i]
+        if q.scale is states[i].scale and q.inlier is states[i].inlier:
+            # a mean term under coloured noise: its evidence against AR(1) noise (`unnamed`)
+            c = colored_gain(ctx.series[i], states[i], q.mean)
+            if c is not None:
+                b = a + c
         ll0 += a
         ll1 += b
         dll[i] = b - a
@@ -297,6 +331,7 @@ def run_diagnosis(
     on_round=None,
     reference_source: str = "--reference",
     timestamps: str = "strict",
+    open_world: bool = True,
 ) -> Diagnosis:
     """Diagnose a trajectory table (DESIGN.md contract) against the nominal model.
 
@@ -308,6 +343,7 @@ def run_diagnosis(
         source, reference_source: the tables' names in error messages.
         timestamps: the timestamp policy the tables are read with (`jaxdefl.io.validate_trajectory`).
         on_round: optional callback(round number, accepted effect id or None).
+        open_world: search what the named effects leave with generic terms (`unnamed`).
     """
     start = time.perf_counter()
     library = load_effects()
@@ -363,6 +399,9 @@ def run_diagnosis(
             )
     states = list(nominal)
     accepted: list[Accepted] = []
+    terms: list[UnnamedTerm] = []
+    open_world = open_world and not noise_free
+    bases: dict = {}  # the open world's spline bases, for this search
     rounds: list[list[dict]] = []
     n_tests = max(len(usable), 1)
     # Proposals of every effect, with the states they were made on. After an effect is accepted
@@ -421,6 +460,19 @@ def run_diagnosis(
                 break
             if chosen is not None:
                 break
+        # The open world competes: a generic term far better than the named candidate (a free
+        # decay read as a noise level that changes, say) goes first, as unnamed.
+        if open_world and chosen is not None and len(terms) < MAX_TERMS:
+            generic = best_term(ctx, states, corr, bases)
+            if generic is not None and generic[0] < chosen.delta_bic + DELTA_BIC_MAX:
+                term, states = apply_term(ctx, states, generic)
+                terms.append(term)
+                if on_round is not None:
+                    on_round(len(rounds) - 1, "unnamed")
+                for eid in usable:
+                    screen(eid)
+                fresh_round = False
+                continue
         if on_round is not None:
             on_round(len(rounds) - 1, chosen.proposal.effect if chosen else None)
         check_interrupt()
@@ -446,6 +498,9 @@ def run_diagnosis(
                 screen(eid)
         fresh_round = False
 
+    open_states = states
+    if open_world and not noise_free:
+        terms, open_states = search_unnamed(ctx, states, corr, MAX_TERMS, check_interrupt, bases, prior=terms)
     if noise_free:  # whiteness of rounding errors says nothing of the physics
         tests_nominal = tests_final = []
     else:
@@ -453,7 +508,7 @@ def run_diagnosis(
         # a series no accepted effect touched keeps its nominal state and so its nominal tests
         tests_final = [
             tests_nominal[i] if st is nominal[i] else residual_tests(ctx, i, st)
-            for i, st in enumerate(states)
+            for i, st in enumerate(open_states)
         ]
     return Diagnosis(
         ctx=ctx,
@@ -467,6 +522,8 @@ def run_diagnosis(
         seconds=time.perf_counter() - start,
         rounds=rounds,
         corr=corr,
+        unnamed=terms,
+        open_final=open_states,
     )
 
 

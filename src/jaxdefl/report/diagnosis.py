@@ -137,6 +137,16 @@ def diagnosis_markdown(d: dict, figures: list[str]) -> str:
         if k < len(figures):
             lines += ["", f"![{e['id']}]({figures[k]})"]
         lines.append("")
+    if d.get("unnamed"):
+        lines += ["## Structure outside the vocabulary (unnamed, modelled)", ""]
+        for u in d["unnamed"]:
+            where = f"plates {', '.join(map(str, u['plates']))} ({', '.join(u['axes'])})"
+            lines += [
+                f"- `{u['kind']}` on {where}: {u['explanation']}",
+                f"  ΔBIC {u['delta_bic']:.1f}; residual RMS {u['rms_before_mm']:.4g} → "
+                f"{u['rms_after_mm']:.4g} mm",
+            ]
+        lines.append("")
     if d["unexplained"]:
         lines += ["## Unexplained structure", ""]
         for u in d["unexplained"]:

@@ -8,8 +8,10 @@ Public surface:
 - `simulate_trajectories(config, duration_s, seed)` -> (truth, lds) without rendering frames.
 - `render_frames(config, duration_s, seed)`: frames in memory for small runs.
 - `camera_blocks(config, duration_s, seed)`: a live camera's measured centroids, block by block,
-  with the ``[[change]]`` schedule (stiffness loss, debonding, sensor faults); `write_live` appends
+  with the scheduled effects (stiffness loss, debonding, sensor faults); `write_live` appends
   them to a growing trajectory table (``jaxdefl simulate --live``).
+- `REGISTRY`, `EffectSpec`: the effects the simulator injects (`jaxdefl.simulate.injection`),
+  spelled ``[[effect]]`` or, for the scheduled ones, ``[[change]]`` (`jaxdefl.simulate.schedule`).
 - `measured_centroids(...)`: plate centroids measured from rendered ToF range frames.
 - physics helpers: `non_ambiguity_range_m`, `range_noise_mm`, `integration_time_ms`, `beam_shape`,
   `midspan_amplitude_mm`, `kinematics`.
@@ -17,10 +19,10 @@ Public surface:
 
 from .centroids import measured_centroids
 from .config import SimConfig, config_from_dict, load_config
+from .injection import REGISTRY, EffectSpec
 from .lds import frame_clock, lds_block, truth_table
 from .live import camera_blocks, centroid_noise_mm, write_live
 from .scene import beam_shape, intrinsics, kinematics, midspan_amplitude_mm, pixel_model
-from .schedule import Change
 from .tof import TABLE_6_1_MM, integration_time_ms, non_ambiguity_range_m, range_noise_mm
 from .writer import render_frames, simulate_to_dir, simulate_trajectories, tap_times
 
@@ -45,7 +47,8 @@ __all__ = [
     "integration_time_ms",
     "tap_times",
     "TABLE_6_1_MM",
-    "Change",
+    "REGISTRY",
+    "EffectSpec",
     "camera_blocks",
     "centroid_noise_mm",
     "write_live",

@@ -23,7 +23,7 @@ from typing import Any
 from .._configs import not_found_hint, resolve_config
 from .._errors import ConfigError
 from .injection import EffectSpec, parse_effects
-from .schedule import Change, parse_changes
+from .schedule import CHANGE_IDS, parse_changes
 
 __all__ = [
     "SimConfig",
@@ -174,22 +174,28 @@ class SimConfig:
     fatigue: FatigueConfig = field(default_factory=FatigueConfig)
     camera: CameraConfig = field(default_factory=CameraConfig)
     lds: LDSConfig = field(default_factory=LDSConfig)
-    effects: tuple[EffectSpec, ...] = ()  # [[effect]] tables (`jaxdefl.simulate.injection`)
-    changes: tuple[Change, ...] = ()  # [[change]] tables (`jaxdefl.simulate.schedule`)
+    # [[effect]] tables, then [[change]] tables (their scheduled spelling): one registry,
+    # `jaxdefl.simulate.injection`
+    effects: tuple[EffectSpec, ...] = ()
     source: str = "<config>"
 
     def to_dict(self) -> dict:
-        """The effective config as TOML-shaped tables: `config_from_dict` reads it back."""
+        """The effective config as TOML-shaped tables: `config_from_dict` reads it back (every
+        effect as an ``[[effect]]`` table, ``[[change]]`` ones included)."""
         d = dataclasses.asdict(
             self, dict_factory=lambda kv: {k: list(v) if isinstance(v, tuple) else v for k, v in kv}
         )
-        for key in ("source", "effects", "changes"):
+        for key in ("source", "effects"):
             d.pop(key)
         if self.effects:
             d["effect"] = [e.to_dict() for e in self.effects]
-        if self.changes:
-            d["change"] = [c.to_table() for c in self.changes]
         return d
+
+    @property
+    def changes(self) -> tuple[EffectSpec, ...]:
+        """The scheduled effects (the ids a ``[[change]]`` table spells: stiffness_change,
+        debond, sensor_fault), in config order."""
+        return tuple(e for e in self.effects if e.id in CHANGE_IDS.values())
 
     @property
     def t0_s(self) -> float:
@@ -199,9 +205,7 @@ class SimConfig:
         return [self.plates.x0_mm + i * self.plates.spacing_mm for i in range(self.plates.count)]
 
 
-_SECTIONS = {
-    f.name: f.type for f in dataclasses.fields(SimConfig) if f.name not in ("source", "effects", "changes")
-}
+_SECTIONS = {f.name: f.type for f in dataclasses.fields(SimConfig) if f.name not in ("source", "effects")}
 _CLASSES = {
     "recording": RecordingConfig,
     "beam": BeamConfig,
@@ -344,8 +348,8 @@ def config_from_dict(raw: dict, source: str = "<config>", session: str | None = 
         cam = dataclasses.replace(cam, frame_rate_hz=30.0)
     parts["camera"] = cam
     effects = parse_effects(source, effect_tables, parts["plates"].count)
-    changes = parse_changes(source, raw_changes, parts["plates"].count)
-    cfg = SimConfig(**parts, effects=effects, changes=changes, source=source)
+    effects += parse_changes(source, raw_changes, parts["plates"].count)
+    cfg = SimConfig(**parts, effects=effects, source=source)
     validate(cfg)
     return cfg
 

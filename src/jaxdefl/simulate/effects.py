@@ -64,6 +64,7 @@ import numpy as np
 import pandas as pd
 
 from .config import SimConfig, config_from_dict
+from .injection import make_spec, motion_terms
 from .lds import frame_clock, truth_table
 from .writer import simulate_trajectories
 
@@ -315,37 +316,25 @@ def _by_id(effects: Sequence[Mapping], eid: str) -> Mapping | None:
 
 
 def _modulations(base: CleanRecording, effects: Sequence[Mapping]):
-    """AM gain g(t) and FM phase Δφ(t) functions of true epoch time (None when absent)."""
-    am = fm = None
-    e = _by_id(effects, "amplitude_modulation")
-    if e is not None:
-        p = e["parameters"]
+    """AM gain g(t) and FM phase Δφ(t) functions of true epoch time (None when absent): the
+    simulator's registry injections (`jaxdefl.simulate.injection`), the linear kinds about t_mid."""
+    out = []
+    for eid in ("amplitude_modulation", "frequency_modulation"):
+        e = _by_id(effects, eid)
+        if e is None:
+            out.append(None)
+            continue
+        params = {k: float(v) for k, v in e["parameters"].items()}
         if e["kind"] == "linear":
-            r = float(p["relative_rate_per_s"])
+            params["t_ref_s"] = base.t_mid - base.t_first
+        spec = make_spec(eid, params)
 
-            def am(t, r=r):
-                return 1.0 + r * (t - base.t_mid)
-        else:
-            m, fmod, psi = float(p["depth"]), float(p["freq_hz"]), float(p["phase_rad"])
+        def term(t, spec=spec, am=eid == "amplitude_modulation"):
+            m = motion_terms((spec,), np.asarray(t, np.float64) - base.t_first, 0.0)
+            return m.gain if am else m.shift
 
-            def am(t, m=m, fmod=fmod, psi=psi):
-                return 1.0 + m * np.cos(2 * math.pi * fmod * (t - base.t_first) + psi)
-
-    e = _by_id(effects, "frequency_modulation")
-    if e is not None:
-        p = e["parameters"]
-        if e["kind"] == "linear":
-            d = float(p["drift_hz_per_s"])
-
-            def fm(t, d=d):
-                return math.pi * d * (t - base.t_mid) ** 2
-        else:
-            beta, fmod, psi = float(p["depth_rad"]), float(p["freq_hz"]), float(p["phase_rad"])
-
-            def fm(t, beta=beta, fmod=fmod, psi=psi):
-                return beta * np.sin(2 * math.pi * fmod * (t - base.t_first) + psi)
-
-    return am, fm
+        out.append(term)
+    return tuple(out)
 
 
 def _camera_clean(base: CleanRecording, effects: Sequence[Mapping]) -> tuple[np.ndarray, np.ndarray]:
@@ -632,26 +621,19 @@ def draw_effect(
             axes=["z"],
         )
         key = "size_mm"
-    elif effect_id == "amplitude_modulation":
+    elif effect_id in ("amplitude_modulation", "frequency_modulation"):
+        am = effect_id == "amplitude_modulation"
+        rate, depth = ("relative_rate_per_s", "depth") if am else ("drift_hz_per_s", "depth_rad")
         if rng.random() < 0.5:
-            pars = {"relative_rate_per_s": float(rng.choice([-1.0, 1.0])) * 1e-4}
-            e = dict(kind="linear", parameters=pars)
-            key = "relative_rate_per_s"
+            e = dict(
+                kind="linear", parameters={rate: float(rng.choice([-1.0, 1.0])) * (1e-4 if am else 1e-7)}
+            )
+            key = rate
         else:
-            pars = {"depth": 0.05, "freq_hz": round(_loguniform(rng, 0.005, 0.05), 5), "phase_rad": psi}
+            pars = {depth: 0.05, "freq_hz": round(_loguniform(rng, 0.005, 0.05), 5), "phase_rad": psi}
             e = dict(kind="sinusoidal", parameters=pars)
-            key = "depth"
-        e |= dict(plates=everyone, axes=["z", "x"])
-    elif effect_id == "frequency_modulation":
-        if rng.random() < 0.5:
-            pars = {"drift_hz_per_s": float(rng.choice([-1.0, 1.0])) * 1e-7}
-            e = dict(kind="linear", parameters=pars)
-            key = "drift_hz_per_s"
-        else:
-            pars = {"depth_rad": 0.05, "freq_hz": round(_loguniform(rng, 0.005, 0.05), 5), "phase_rad": psi}
-            e = dict(kind="sinusoidal", parameters=pars)
-            key = "depth_rad"
-        e |= dict(plates=everyone, axes=list(_AXES))
+            key = depth
+        e |= dict(plates=everyone, axes=["z", "x"] if am else list(_AXES))
     elif effect_id == "extra_periodic":
         axes = ["z", "x"] if rng.random() < 0.3 else ["z"]
         fac = rng.uniform(0.8, 1.2, n_pl)

@@ -13,6 +13,7 @@ import numpy as np
 import pandas as pd
 
 from .config import SimConfig
+from .injection import plate_motion
 from .scene import beam_shape, kinematics, plate_centres_world
 
 __all__ = ["frame_clock", "truth_table", "lds_block", "LDS_BLOCK_S"]
@@ -45,16 +46,8 @@ def truth_table(cfg: SimConfig, t_s: np.ndarray) -> pd.DataFrame:
     n, m = len(t_s), len(c)
     motion = shape[None, :] * defl[:, None]
     dxp, dyp = np.repeat(dx[:, None], m, axis=1), np.repeat(dy[:, None], m, axis=1)
-    for ch in cfg.changes:  # a debonded plate follows the beam only partly
-        if ch.kind == "debond":
-            from .schedule import amplitude_factor
-
-            f = amplitude_factor((ch,), t_s - cfg.t0_s, ch.plate)
-            j = ch.plate - 1
-            rest = cfg.loading.mean_mm * shape[j]
-            motion[:, j] = f * (motion[:, j] - rest) + rest
-            dxp[:, j] *= f
-            dyp[:, j] *= f
+    # a plate's own motion (a debonded plate follows the beam only partly)
+    plate_motion(cfg.effects, t_s - cfg.t0_s, motion, dxp, dyp, cfg.loading.mean_mm * shape)
     # time-major rows (every plate at one instant, then the next), so that files written in
     # chunks of frames are identical whatever the chunk size
     return pd.DataFrame(

@@ -26,6 +26,7 @@ import pandas as pd
 from .._errors import ConfigError
 from .._signals import check_interrupt
 from .config import SimConfig, load_config
+from .injection import measurement_faults
 from .lds import frame_clock, truth_table
 
 __all__ = ["COMMON_FRACTION", "AXIS_NOISE_RATIO", "centroid_noise_mm", "camera_blocks", "write_live"]
@@ -57,7 +58,6 @@ def camera_blocks(
     sz = centroid_noise_mm(cfg)
     sig = np.array([AXIS_NOISE_RATIO[a] for a in ("x", "y", "z")]) * sz
     common = COMMON_FRACTION if cfg.camera.sensor == "sr4000" else 0.3
-    faults = [c for c in cfg.changes if c.kind == "sensor_fault"]
     for b, s in enumerate(range(0, len(t_all), block_frames)):
         t = t_all[s : s + block_frames]
         tr = truth_table(cfg, t)
@@ -66,16 +66,7 @@ def camera_blocks(
         noise = rng.standard_normal((len(t), n_pl, 3)) * sig
         shared = rng.standard_normal((len(t), 1)) * sz * np.sqrt(common)
         noise[..., 2] = noise[..., 2] * np.sqrt(1 - common) + shared
-        tau = t - cfg.t0_s
-        for c in faults:
-            on = c.active(tau)
-            j = c.plate - 1
-            if c.fault == "noise":
-                noise[on, j, :] *= c.size
-            elif c.fault == "jump":
-                xyz[on, j, 2] += c.size
-            else:
-                xyz[on, j, :] = np.nan
+        measurement_faults(cfg.effects, t - cfg.t0_s, xyz, noise)  # scheduled sensor faults
         yield t, xyz + noise
 
 

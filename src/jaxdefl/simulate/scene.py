@@ -24,7 +24,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .injection import motion_modulations
+from .injection import motion_terms
 
 if TYPE_CHECKING:  # the config validates geometry through this module: no import cycle
     from .config import SimConfig
@@ -132,25 +132,16 @@ def kinematics(cfg: SimConfig, t_s) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     ld = cfg.loading
     t_s = np.asarray(t_s, np.float64)
     tau = t_s - cfg.t0_s
-    cycles = cfg.recording.cycles_at_start + ld.frequency_hz * tau
-    theta = 2 * np.pi * ld.frequency_hz * tau + ld.phase_rad
-    amp = midspan_amplitude_mm(cfg, cycles)
-    if cfg.changes:  # scheduled stiffness changes (jaxdefl.simulate.schedule): phase continuous
-        from .schedule import amplitude_factor, frequency_phase
-
-        phase = frequency_phase(cfg.changes, ld.frequency_hz, tau)
-        cycles = cfg.recording.cycles_at_start + phase / (2 * np.pi)
-        theta = phase + ld.phase_rad
-        amp = midspan_amplitude_mm(cfg, cycles) * amplitude_factor(cfg.changes, tau)
-    if not cfg.effects:
-        s = np.sin(theta)
-        return ld.mean_mm + amp * s, ld.longitudinal_mm * s, ld.lateral_mm * s
-    # [[effect]] tables that move the beam: the load's AM / FM, its harmonics, a second motion
-    gain, shift, extra = motion_modulations(cfg.effects, cfg.t0_s)
-    s = np.sin(theta + (shift(t_s) if shift is not None else 0.0))
-    g = gain(t_s) if gain is not None else 1.0
-    defl = ld.mean_mm + amp * g * s + sum((f(t_s, theta) for f in extra), np.zeros_like(tau))
-    return defl, ld.longitudinal_mm * g * s, ld.lateral_mm * s
+    # the registry's motion effects ([[effect]] and [[change]] tables): a stiffness change's
+    # phase (continuous, counted in load cycles) and amplitude, the load's AM / FM, its
+    # harmonics, a second motion
+    m = motion_terms(cfg.effects, tau, ld.frequency_hz)
+    cycles = cfg.recording.cycles_at_start + ld.frequency_hz * tau + m.load_phase / (2 * np.pi)
+    theta = 2 * np.pi * ld.frequency_hz * tau + m.load_phase + ld.phase_rad
+    amp = midspan_amplitude_mm(cfg, cycles) * m.amplitude
+    s = np.sin(theta + m.shift)
+    defl = ld.mean_mm + amp * m.gain * s + sum((f(theta) for f in m.extra), np.zeros_like(tau))
+    return defl, ld.longitudinal_mm * m.gain * s, ld.lateral_mm * s
 
 
 @dataclass(frozen=True)

@@ -21,7 +21,7 @@ from .._errors import ConfigError
 from .._signals import check_interrupt
 from ..io.output import Outputs
 from .config import SimConfig, load_config
-from .injection import range_offset, stamp_times
+from .injection import FRAME_LEVELS, range_offset, stamp_times
 from .lds import LDS_BLOCK_S, frame_clock, lds_block, truth_table
 from .scene import kinematics, pixel_model
 
@@ -147,9 +147,20 @@ class _Renderer:
         return r, np.asarray(a, np.float32).reshape(n, h, w)
 
 
+def _frames_show(cfg: SimConfig) -> None:
+    """Rendered frames show the range, timestamp and motion levels of the registry."""
+    local = [e.id for e in cfg.effects if e.level not in FRAME_LEVELS]
+    if local:
+        raise ConfigError(
+            f"{cfg.source}: effect {local[0]} acts on trajectories only; use jaxdefl simulate --live "
+            "(or jaxdefl monitor --config) for it, or remove it"
+        )
+
+
 def render_frames(config: SimConfig | str | Path, duration_s: float | None = None, seed: int | None = None):
     """All frames in memory (small simulations and tests): (timestamps, frames, amplitude, facts)."""
     cfg = config if isinstance(config, SimConfig) else load_config(config)
+    _frames_show(cfg)
     duration = _check_duration(cfg, duration_s)
     seed = cfg.recording.seed if seed is None else int(seed)
     idx, t = frame_clock(cfg, duration, seed)
@@ -183,12 +194,7 @@ def simulate_to_dir(
         ConfigError: a bad config file or a negative duration.
     """
     cfg = load_config(config_path, session)
-    local = [c.kind for c in cfg.changes if c.kind != "stiffness"]
-    if local:  # rendered frames see the beam's kinematics only
-        raise ConfigError(
-            f"{cfg.source}: key 'change': kind {local[0]} acts on trajectories only; "
-            "use jaxdefl simulate --live (or jaxdefl monitor --config) for it, or remove it"
-        )
+    _frames_show(cfg)
     duration = _check_duration(cfg, duration_s)
     seed = cfg.recording.seed if seed is None else int(seed)
     out = Path(out_dir)
@@ -219,21 +225,16 @@ def _write_recording(cfg: SimConfig, outs: Outputs, out: Path, duration: float, 
     store = outs.path(out / "recording.zarr")
     root = zarr.open_group(str(store), mode="w")
     root.attrs.update(rend.facts())
-    frames = root.create_array(
-        rend.kind,
-        shape=(0, h, w),
-        chunks=(chunk, h, w),
-        dtype="float32",
-        dimension_names=("frame", "h", "w"),
-        fill_value=np.nan,
-    )
-    amp = root.create_array(
-        "amplitude",
-        shape=(0, h, w),
-        chunks=(chunk, h, w),
-        dtype="float32",
-        dimension_names=("frame", "h", "w"),
-        fill_value=np.nan,
+    frames, amp = (
+        root.create_array(
+            name,
+            shape=(0, h, w),
+            chunks=(chunk, h, w),
+            dtype="float32",
+            dimension_names=("frame", "h", "w"),
+            fill_value=np.nan,
+        )
+        for name in (rend.kind, "amplitude")
     )
     stamps = root.create_array(
         "timestamps", shape=(0,), chunks=(max(chunk, 4096),), dtype="float64", dimension_names=("frame",)

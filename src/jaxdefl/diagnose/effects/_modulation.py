@@ -5,7 +5,7 @@ differ in the demodulation that sees it (in phase for the amplitude, quadrature 
 in the model term and in what is reported. `ModulationEffect` holds what is common: the linear
 kind's χ²₁ test and the sinusoidal kind's scan of the combined demodulated spectrum between
 2/duration and 0.2 Hz (each doubled for the two kinds tried), the rejection of a line on one side
-of f0 (`extra_periodic`), the Levenberg-Marquardt fit over all carriers (`Carriers.fit`) and the
+of f0 (`extra_periodic`), the optimistix fit over all carriers (`Carriers.fit`) and the
 selection of the series that keep the term. Subclasses give the terms and the reports.
 """
 
@@ -17,9 +17,9 @@ import math
 import numpy as np
 
 from .._base import Context, Effect, Proposal, State
-from .shared_fits import Carriers, chi2_p_value, one_sided, scan_p_value
+from .shared_fits import Carriers, chi2_p_value, one_sided, param, scan_p_value
 
-__all__ = ["ModulationEffect", "modulation_band", "depth_and_phase", "P_MAX", "KINDS"]
+__all__ = ["ModulationEffect", "modulation_band", "P_MAX", "KINDS"]
 
 P_MAX = 1e-3  # weaker signatures cannot pass the search's Bonferroni (α = 0.01 over ~10 effects)
 F_MAX_HZ = 0.2
@@ -40,31 +40,59 @@ class ModulationEffect(Effect):
 
     demodulation: str = ""
     trend: bool = False
-    min_cycles = 50.0
+    plausible_depth = 0.02  # the sinusoidal kind: relative depth (AM) or β in rad (FM)
+    gate_params = 3
+
+    def plausible_rms(self, ctx: Context, i: int) -> float:
+        """The larger of the linear kind's term (``plausible`` × `linear_shape`) and, when the
+        record spans the modulation band, the sinusoidal kind's (``plausible_depth``)."""
+        u = self.linear_shape(ctx, np.linspace(0.0, ctx.duration_s, 257))
+        lin = self.plausible * float(np.std(u))
+        f_lo, f_hi = modulation_band(ctx)
+        sin = self.plausible_depth / math.sqrt(2) if f_hi > f_lo else 0.0
+        return ctx.nominal[i].amplitude / math.sqrt(2) * max(lin, sin)
 
     @property
     def twin(self) -> str:
         return "quadrature" if self.demodulation == "in_phase" else "in_phase"
 
+    @staticmethod
     @abc.abstractmethod
-    def linear_shape(self, ctx: Context, t: np.ndarray) -> np.ndarray:
-        """u(t) of the linear kind per unit parameter, as the demodulation sees it."""
+    def shape(t, half):
+        """u(t) of the linear kind per unit parameter, ``half`` = duration / 2 (numpy or jax)."""
 
+    @staticmethod
     @abc.abstractmethod
-    def linear_term(self, ctx: Context, it, theta: np.ndarray, jac: bool):
-        """The linear kind's term on carrier ``it`` (and its Jacobian when ``jac``)."""
+    def linear_term(theta, t, aux):
+        """The linear kind's term on one carrier (jax.numpy; `Carriers.fit`'s aux)."""
 
+    @staticmethod
     @abc.abstractmethod
-    def sinusoidal_term(self, ctx: Context, it, theta: np.ndarray, jac: bool):
+    def sinusoidal_term(theta, t, aux):
         """The sinusoidal kind's term, θ = (cosine, sine coefficient, f_m)."""
+
+    def linear_shape(self, ctx: Context, t: np.ndarray) -> np.ndarray:
+        return self.shape(t, 0.5 * ctx.duration_s)
 
     @abc.abstractmethod
     def linear_report(self, ctx: Context, value: float, sigma: float, plates: list[int]):
         """(parameters, band_hz, explanation, detail) of a fitted linear kind."""
 
+    depth_name: str = ""  # the sinusoidal kind's depth parameter
+
     @abc.abstractmethod
+    def sinusoidal_text(self, theta: np.ndarray, depth: float, f: float, plates: list[int]):
+        """(explanation, detail) of a fitted sinusoidal kind of ``depth`` at ``f`` Hz."""
+
     def sinusoidal_report(self, ctx: Context, theta: np.ndarray, cov: np.ndarray, plates: list[int]):
-        """(parameters, band_hz, explanation, detail) of a fitted sinusoidal kind."""
+        """(parameters, band_hz, explanation, detail) of a fitted sinusoidal kind: the depth
+        √(a² + b²) of a cos + b sin and f_m with their σ's, the side lines at f0 ± f_m."""
+        m = math.hypot(theta[0], theta[1])
+        g = np.array([theta[0], theta[1]]) / max(m, 1e-300)
+        sm = math.sqrt(max(float(g @ cov[:2, :2] @ g), 0.0))
+        f, sf = float(theta[2]), math.sqrt(max(cov[2, 2], 0.0))
+        parameters = {self.depth_name: param(m, sm), "freq_hz": param(f, sf)}
+        return (parameters, [ctx.f0_hz - f, ctx.f0_hz + f], *self.sinusoidal_text(theta, m, f, plates))
 
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
         if self.cannot_tell(ctx) is not None:
@@ -73,12 +101,12 @@ class ModulationEffect(Effect):
         if not car.items:
             return []
         out = []
-        stat, x0, _ = car.linear_stat(
+        stat, x0, sx = car.linear_stat(
             self.demodulation, lambda t: self.linear_shape(ctx, t), trend=self.trend
         )
         p_lin = min(1.0, KINDS * chi2_p_value(stat, 1))
         if p_lin < P_MAX:
-            prop = self._linear(ctx, states, car, x0, p_lin)
+            prop = self._linear(ctx, states, car, x0, sx, p_lin)
             if prop is not None:
                 out.append(prop)
         f_lo, f_hi = modulation_band(ctx)
@@ -114,14 +142,11 @@ class ModulationEffect(Effect):
             detail=detail,
         )
 
-    def _linear(self, ctx, states, car, x0, p_value) -> Proposal | None:
-        def term(it, th, jac):
-            return self.linear_term(ctx, it, th, jac)
-
-        res = car.fit(term, np.array([x0]))
+    def _linear(self, ctx, states, car, x0, sx, p_value) -> Proposal | None:
+        res = car.fit(self.linear_term, np.array([x0]), np.array([sx]))
         if not res.converged:
             return None
-        kept, new, gains = car.proposal_states(states, term, res.theta, self.id, 1)
+        kept, new, gains = car.proposal_states(states, res, self.id, 1)
         if not kept:
             return None
         plates = sorted({ctx.series[i].plate for i in kept})
@@ -130,23 +155,15 @@ class ModulationEffect(Effect):
         return self._proposal(ctx, kept, new, gains, 1, p_value, report)
 
     def _sinusoidal(self, ctx, states, car, f_pk, n_pk, q, p_value) -> Proposal | None:
-        def term(it, th, jac):
-            return self.sinusoidal_term(ctx, it, th, jac)
-
-        res = car.fit(term, np.array([2 * n_pk.real / q, -2 * n_pk.imag / q, f_pk]))
+        theta0 = np.array([2 * n_pk.real / q, -2 * n_pk.imag / q, f_pk])
+        m0 = max(math.hypot(theta0[0], theta0[1]), 1e-12)  # steps: the depth, a tenth of 1/duration
+        res = car.fit(self.sinusoidal_term, theta0, np.array([m0, m0, 0.1 / ctx.duration_s]))
         f_lo, f_hi = modulation_band(ctx)
         if not (res.converged and 0.5 * f_lo <= res.theta[2] <= 1.5 * f_hi):
             return None
-        kept, new, gains = car.proposal_states(states, term, res.theta, self.id, 3)
+        kept, new, gains = car.proposal_states(states, res, self.id, 3)
         if not kept:
             return None
         plates = sorted({ctx.series[i].plate for i in kept})
         report = self.sinusoidal_report(ctx, res.theta, res.cov, plates)
         return self._proposal(ctx, kept, new, gains, 3, p_value, report)
-
-
-def depth_and_phase(theta: np.ndarray, cov: np.ndarray) -> tuple[float, float]:
-    """(depth, σ) of a sinusoid a cos + b sin from its coefficients and their covariance."""
-    m = math.hypot(theta[0], theta[1])
-    g = np.array([theta[0], theta[1]]) / max(m, 1e-300)
-    return m, math.sqrt(max(float(g @ cov[:2, :2] @ g), 0.0))

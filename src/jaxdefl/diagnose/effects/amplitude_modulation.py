@@ -19,7 +19,7 @@ motion when a phase modulation is already in the model: `current_motion`), u(t) 
 or m cos(2π f_m t + ψ) shared by all series (parameters counted once: 1 or 3); fitted by
 Levenberg-Marquardt on all carrying series with each series' free nuisance profiled out. On a
 tied series the term's part along the carrier is left out: the LDS's harmonic holds it
-(`Carriers.visible`). The series reported are those where the term is individually significant.
+(`shared_fits.visible`). The series reported are those where the term is individually significant.
 Scan and fit are shared with `frequency_modulation` (`_modulation.ModulationEffect`).
 """
 
@@ -27,10 +27,9 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
+import jax.numpy as jnp
 
-from .._base import Context
-from ._modulation import ModulationEffect, depth_and_phase
+from ._modulation import ModulationEffect
 from .shared_fits import param
 
 __all__ = ["AmplitudeModulation", "EFFECT"]
@@ -43,25 +42,21 @@ class AmplitudeModulation(ModulationEffect):
     )
     demodulation = "in_phase"
     trend = False
+    depth_name = "depth"
+    plausible = 1e-4  # linear kind: relative change per s (fatigue: 1e-5 to 1e-4 /s)
 
-    def linear_shape(self, ctx: Context, t: np.ndarray) -> np.ndarray:
-        return t - 0.5 * ctx.duration_s
+    @staticmethod
+    def shape(t, half):
+        return t - half
 
-    def linear_term(self, ctx, it, theta, jac):
-        x = it.a * it.cos * self.linear_shape(ctx, ctx.series[it.i].t)
-        m = theta[0] * x
-        return (m, x[:, None]) if jac else m
+    @staticmethod
+    def linear_term(theta, t, aux):
+        return theta[0] * aux["a"] * aux["cos"] * (t - aux["half"])
 
-    def sinusoidal_term(self, ctx, it, theta, jac):
-        t = ctx.series[it.i].t
-        al, be, f = theta
-        ph = 2 * math.pi * f * t
-        c, s = np.cos(ph), np.sin(ph)
-        x = it.a * it.cos
-        m = x * (al * c + be * s)
-        if not jac:
-            return m
-        return m, np.stack([x * c, x * s, x * 2 * math.pi * t * (-al * s + be * c)], axis=1)
+    @staticmethod
+    def sinusoidal_term(theta, t, aux):
+        ph = 2 * jnp.pi * theta[2] * t
+        return aux["a"] * aux["cos"] * (theta[0] * jnp.cos(ph) + theta[1] * jnp.sin(ph))
 
     def linear_report(self, ctx, r, sr, plates):
         change = r * ctx.duration_s
@@ -75,17 +70,12 @@ class AmplitudeModulation(ModulationEffect):
             {"kind": "linear"},
         )
 
-    def sinusoidal_report(self, ctx, theta, cov, plates):
-        al, be, f = theta
-        m, sm = depth_and_phase(theta, cov)
-        sf = math.sqrt(max(cov[2, 2], 0.0))
+    def sinusoidal_text(self, theta, m, f, plates):
         return (
-            {"depth": param(m, sm), "freq_hz": param(f, sf)},
-            [ctx.f0_hz - f, ctx.f0_hz + f],
             f"The deflection amplitude swings by ±{100 * m:.1f} % every {1 / f:.0f} s "
             f"({f:.4f} Hz), alike on plate(s) {', '.join(map(str, plates))}: the load controller "
             "or the hydraulic supply modulates the load.",
-            {"kind": "sinusoidal", "phase_rad": math.atan2(-be, al)},
+            {"kind": "sinusoidal", "phase_rad": math.atan2(-theta[1], theta[0])},
         )
 
 

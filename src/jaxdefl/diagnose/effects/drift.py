@@ -35,10 +35,10 @@ from .screening import (
     combined_p,
     gain,
     median_signed,
+    open_series,
     param,
     residual,
     screen_grid,
-    touched,
     updated,
     weights,
 )
@@ -72,21 +72,15 @@ def _legendre(u: np.ndarray, degree: int) -> np.ndarray:
 class Drift(Effect):
     id = "drift"
     meaning = "slow drift of the measured position (camera warm-up, settling): exponential or polynomial"
-    min_cycles = 60.0
+    plausible, plausible_unit, gate_params = 1.0 / 600, "mm_per_s", 2  # 1 mm in 10 minutes (warm-up)
 
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
-        idx = [i for i in range(len(ctx.series)) if not touched(states[i], self.id) and ctx.series[i].n >= 64]
+        idx = open_series(ctx, states, self.id)
         if not idx:
             return []
         nus = {i: ctx.nuisance(i) for i in idx}
-        out = []
-        exp_prop = self._exponential(ctx, states, idx, nus)
-        if exp_prop is not None:
-            out.append(exp_prop)
-        poly_prop = self._polynomial(ctx, states, idx, nus)
-        if poly_prop is not None:
-            out.append(poly_prop)
-        return out
+        kinds = (self._exponential(ctx, states, idx, nus), self._polynomial(ctx, states, idx, nus))
+        return [p for p in kinds if p is not None]
 
     # -- exponential -------------------------------------------------------------------------
     def _exponential(self, ctx: Context, states: list[State], idx: list[int], nus: dict) -> Proposal | None:

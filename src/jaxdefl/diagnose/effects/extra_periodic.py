@@ -51,7 +51,7 @@ def _columns(theta, t, aux):
 class ExtraPeriodic(Effect):
     id = "extra_periodic"
     meaning = "a vibration at a frequency unrelated to the loading (pump, mount, floor), common to the plates"
-    min_cycles = 20.0
+    plausible, plausible_unit, gate_params = 0.05, "mm", 3  # a 0.05-mm vibration (pump, mount)
     min_plates = 2  # "common to the plates" cannot be told on one
 
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:

@@ -21,7 +21,7 @@ series (1 or 3 parameters counted once), arg_s and a_s from the series' nominal 
 its current motion when an amplitude modulation is already in the model (`current_motion`);
 Levenberg-Marquardt on the exact term with each series' free nuisance profiled out, started from
 the demodulation's estimate. On a tied series the term's part along the carrier is left out:
-the LDS's harmonic holds it (`Carriers.visible`). The series reported are those where the term
+the LDS's harmonic holds it (`shared_fits.visible`). The series reported are those where the term
 is individually significant. Scan and fit are shared with `amplitude_modulation`
 (`_modulation.ModulationEffect`).
 """
@@ -30,10 +30,9 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
+import jax.numpy as jnp
 
-from .._base import Context
-from ._modulation import ModulationEffect, depth_and_phase
+from ._modulation import ModulationEffect
 from .shared_fits import param
 
 __all__ = ["FrequencyModulation", "EFFECT"]
@@ -44,29 +43,24 @@ class FrequencyModulation(ModulationEffect):
     meaning = "the loading frequency wanders or drifts during the record alike on every plate"
     demodulation = "quadrature"
     trend = True
+    depth_name = "depth_rad"
+    plausible = 3e-7  # linear kind: Hz/s of frequency drift
 
-    def linear_shape(self, ctx: Context, t: np.ndarray) -> np.ndarray:
+    @staticmethod
+    def shape(t, half):
         """π ((t − t_mid)² − D²/12): the phase of a unit linear frequency drift, its mean removed."""
-        d = ctx.duration_s
-        return math.pi * ((t - 0.5 * d) ** 2 - d * d / 12.0)
+        return math.pi * ((t - half) ** 2 - half * half / 3.0)
 
-    def linear_term(self, ctx, it, theta, jac):
-        u = self.linear_shape(ctx, ctx.series[it.i].t)
-        arg = it.arg + theta[0] * u
-        m = it.a * (np.cos(arg) - it.cos)
-        return (m, (-it.a * np.sin(arg) * u)[:, None]) if jac else m
+    @staticmethod
+    def linear_term(theta, t, aux):
+        u = FrequencyModulation.shape(t, aux["half"])
+        return aux["a"] * (jnp.cos(aux["arg"] + theta[0] * u) - aux["cos"])
 
-    def sinusoidal_term(self, ctx, it, theta, jac):
-        t = ctx.series[it.i].t
-        bc, bs, f = theta
-        ph = 2 * math.pi * f * t
-        c, s = np.cos(ph), np.sin(ph)
-        arg = it.arg + bc * c + bs * s
-        m = it.a * (np.cos(arg) - it.cos)
-        if not jac:
-            return m
-        q = -it.a * np.sin(arg)
-        return m, np.stack([q * c, q * s, q * 2 * math.pi * t * (-bc * s + bs * c)], axis=1)
+    @staticmethod
+    def sinusoidal_term(theta, t, aux):
+        ph = 2 * jnp.pi * theta[2] * t
+        arg = aux["arg"] + theta[0] * jnp.cos(ph) + theta[1] * jnp.sin(ph)
+        return aux["a"] * (jnp.cos(arg) - aux["cos"])
 
     def linear_report(self, ctx, d, sd, plates):
         return (
@@ -79,17 +73,16 @@ class FrequencyModulation(ModulationEffect):
             {"kind": "linear"},
         )
 
-    def sinusoidal_report(self, ctx, theta, cov, plates):
-        bc, bs, f = theta
-        beta, sb = depth_and_phase(theta, cov)
-        sf = math.sqrt(max(cov[2, 2], 0.0))
+    def sinusoidal_text(self, theta, beta, f, plates):
         return (
-            {"depth_rad": param(beta, sb), "freq_hz": param(f, sf)},
-            [ctx.f0_hz - f, ctx.f0_hz + f],
             f"The motion's phase swings by ±{math.degrees(beta):.1f}° every {1 / f:.0f} s ({f:.4f} Hz; "
             f"the loading frequency wanders by ±{1e3 * beta * f:.2f} mHz), alike on plate(s) "
             f"{', '.join(map(str, plates))}: the actuator's controller hunts around its set frequency.",
-            {"kind": "sinusoidal", "phase_rad": math.atan2(bc, bs), "frequency_excursion_hz": beta * f},
+            {
+                "kind": "sinusoidal",
+                "phase_rad": math.atan2(theta[0], theta[1]),
+                "frequency_excursion_hz": beta * f,
+            },
         )
 
 

@@ -70,7 +70,7 @@ def _columns(ctx: Context, i: int, omega: float | None = None, t_ref: float | No
 class HarmonicDistortion(Effect):
     id = "harmonic_distortion"
     meaning = "motion not purely sinusoidal: components at 2-5 x f0 (support contact, cyclic range error)"
-    min_cycles = 20.0
+    plausible, plausible_unit, gate_params = 0.01, "motion", 2  # a 2nd harmonic of 1 % of A
     min_plates = 1
 
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:

@@ -31,7 +31,7 @@ import math
 import numpy as np
 
 from .._base import Context, Effect, Proposal, State, keep_series, lstsq
-from .screening import combined_p, gain, median_signed, param, residual, touched, updated
+from .screening import combined_p, gain, median_signed, open_series, param, residual, updated
 
 __all__ = ["HeteroscedasticNoise", "EFFECT"]
 
@@ -120,10 +120,10 @@ def _binned(x: np.ndarray, v: np.ndarray, key: np.ndarray, n_bins: int):
 class HeteroscedasticNoise(Effect):
     id = "heteroscedastic_noise"
     meaning = "noise level that depends on the motion's phase or changes over the record"
-    min_cycles = 20.0
+    plausible, plausible_unit, gate_params = 0.15, "noise", 2  # the variance ±30 % with the phase
 
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
-        idx = [i for i in range(len(ctx.series)) if not touched(states[i], self.id) and ctx.series[i].n >= 64]
+        idx = open_series(ctx, states, self.id)
         if not idx:
             return []
         fits = {kind: {} for kind in KINDS}

@@ -81,7 +81,7 @@ def _cusum(ctx: Context, i: int, st: State):
 class LevelJump(Effect):
     id = "level_jump"
     meaning = "a step of the measured position (structured-light instability, integration-time change)"
-    min_cycles = 20.0
+    plausible, plausible_unit, gate_params = 0.15, "noise", 2  # a step of 0.3 σ at mid-record
 
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
         idx = [i for i in range(len(ctx.series)) if ctx.series[i].n >= 64]

@@ -28,16 +28,15 @@ import math
 
 import numpy as np
 
-from .._base import Context, Effect, Proposal, State
+from .._base import Context, Proposal, State
 from .shared_fits import (
     AMBIGUOUS_CHI2,
-    TiedModel,
+    TiedEffect,
     chi2_p_value,
     motion_parameters,
     param,
     tap_response,
     tied_proposal_states,
-    tied_series,
 )
 
 __all__ = ["MotionArtefact", "EFFECT"]
@@ -45,19 +44,14 @@ __all__ = ["MotionArtefact", "EFFECT"]
 P_MAX = 1e-3  # weaker signatures cannot pass the search's Bonferroni (α = 0.01 over ~10 effects)
 
 
-class MotionArtefact(Effect):
+class MotionArtefact(TiedEffect):
     id = "motion_artefact"
     meaning = "gain loss and lag of the camera against the LDS from its sequential four-phase sampling"
-    needs_reference = True
-    min_cycles = 20.0
+    plausible, plausible_unit, gate_params = 0.001, "seconds", 1  # 1 ms of lag against the LDS
 
-    def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
-        idx = tied_series(self, ctx, states)
-        if idx is None:
-            return []
-        model = TiedModel(ctx, states, idx)
+    def propose_tied(self, ctx: Context, states: list[State], model, period: float) -> list[Proposal]:
+        idx = model.idx
         free = [0] + ([1] if "timing_error" in model.accepted else [])
-        period = 1.0 / ctx.frame_rate_hz if ctx.frame_rate_hz else ctx.dt_s
         t_max = 3.0 * period
         bounds = [(0.0, t_max)] + [(-0.5 / ctx.f0_hz, 0.5 / ctx.f0_hz)] * (len(free) - 1)
 

@@ -102,7 +102,7 @@ def _em(r: np.ndarray, scale: np.ndarray, sigma0: float, kind: str):
 class Outliers(Effect):
     id = "outliers"
     meaning = "heavy-tailed residuals: single frames far off (mixed pixels, segmentation failures)"
-    min_cycles = 5.0
+    plausible, plausible_unit, gate_params = 0.5, "noise", 2  # 1 % of the frames 5 σ off
 
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
         cand = []

@@ -240,7 +240,7 @@ def _joint(ctx: Context, states: list[State], use: list[int], h: dict, q: float,
 class Quantization(Effect):
     id = "quantization"
     meaning = "depth measured in steps (structured-light disparity quantisation)"
-    min_cycles = 20.0
+    plausible, plausible_unit, gate_params = 0.3, "noise", 2  # a step of about σ (RMS q/√12)
 
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
         if ctx.sensor == "tof":

@@ -27,6 +27,7 @@ __all__ = [
     "screen_columns",
     "screen_grid",
     "touched",
+    "open_series",
     "median_signed",
     "SharedAmplitude",
     "shared_amplitude",
@@ -68,6 +69,13 @@ def updated(st: State, effect: str, k_own: int, **kw) -> State:
 
 def touched(st: State, effect: str) -> bool:
     return effect in st.effects
+
+
+def open_series(ctx, states: list[State], effect: str, min_samples: int = 64) -> list[int]:
+    """Series an effect may still propose on: not already carrying it, ``min_samples`` or more."""
+    return [
+        i for i in range(len(ctx.series)) if not touched(states[i], effect) and ctx.series[i].n >= min_samples
+    ]
 
 
 def chi2_sf(x, dof) -> np.ndarray:

@@ -1,12 +1,12 @@
 """Fits shared by many series (motion_artefact, timing_error, amplitude_modulation, frequency_modulation).
 
 - `Block`: the weighted projection of one series out of its free nuisance columns.
-- `lm_shared`: Levenberg-Marquardt over a few parameters shared by many series, each series'
-  nuisance profiled out (variable projection with the nuisance as the linear part). Unlike
-  `_varpro.fit_shared` the effect term may carry no per-series amplitude at all (the modulation
-  depth, the tap spread and the clock offset are shared; each series' scale is its known
-  amplitude), so the whole model is nonlinear in θ and solved here in numpy with analytic
-  Jacobians accumulated series by series (no padding, no compilation).
+- the shared fits go to the diagnosis' one nonlinear solver, `_varpro.fit_shared` (optimistix
+  Levenberg-Marquardt, jitted, all series batched), with the effect as a term without per-series
+  amplitudes (``term_fn``: the modulation depth, the tap spread and the clock offset are shared;
+  each series' scale is its known amplitude), each series' nuisance profiled out and its
+  residual weighted by 1/σ̂² of its current residual. The terms are jax.numpy functions of one
+  series (θ, t, aux); the same functions give the new means.
 - `TiedModel`: the camera's view of the reference's harmonic on the tied series,
   offset + Re[H(ω; T) Z e^{iω(t/(1+ε) − δ − t_ref)}], with the tap spread T of the four-phase
   sampling and the camera clock's offset δ and rate ε; the two reference effects each fit their
@@ -20,14 +20,17 @@
 
 from __future__ import annotations
 
+import abc
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+import jax.numpy as jnp
 import numpy as np
 from scipy import stats
 
-from .._base import Context, State, keep_series, loglik
+from .._base import Context, Effect, Proposal, State, keep_series, loglik
+from .._varpro import SharedFit, fit_shared
 from .screening import param, updated, weights
 
 __all__ = [
@@ -35,11 +38,12 @@ __all__ = [
     "param",
     "updated",
     "Block",
-    "lm_shared",
+    "SharedFit",
     "scan_p_value",
     "chi2_p_value",
     "tap_response",
     "TiedModel",
+    "TiedEffect",
     "tied_series",
     "AMBIGUOUS_CHI2",
     "motion_parameters",
@@ -100,84 +104,37 @@ class Block:
     def proj(self, x: np.ndarray) -> np.ndarray:
         return x - self.fit(x)
 
-    def _gram(self, m: np.ndarray) -> np.ndarray:
-        """Projected weighted Gram matrix of the columns of m (sample, k), over σ̂²."""
-        mw = m * self.w[:, None]
-        a = mw.T @ m
-        b = self.nwT @ m  # (q, k)
-        return (a - b.T @ self.ginv @ b) / self.s2
-
     def chi2(self, x: np.ndarray) -> float:
         """Σ w (proj x)² / σ̂²."""
         b = np.einsum("qn,n->q", self.nwT, x)  # not @: a one-row gemv is a threaded dot
         return float((_dot(self.w * x, x) - b @ self.ginv @ b) / self.s2)
 
-    def normal(self, res: np.ndarray, jac: np.ndarray):
-        """(χ², JᵀJ, Jᵀres) of the projected residual and Jacobian (σ̂²-scaled)."""
-        g = self._gram(np.column_stack([res, jac]))
-        return float(g[0, 0]), g[1:, 1:], g[1:, 0]
 
-
-@dataclass
-class LMResult:
-    theta: np.ndarray
-    cov: np.ndarray
-    chi2: float
-    chi2_start: float
-    converged: bool
-
-
-def lm_shared(
-    evaluate: Callable[[np.ndarray, bool], tuple],
+def shared_fit(
+    term_fn: Callable,
     theta0: np.ndarray,
-    max_iter: int = 40,
-    rtol: float = 1e-9,
-    bounds: Sequence[tuple[float, float]] | None = None,
-) -> LMResult:
-    """Levenberg-Marquardt on χ²(θ) = Σ_series |P_s (r_s − term_s(θ))|² / σ̂_s².
-
-    Args:
-        evaluate: ``evaluate(theta, jac)`` -> χ² if not jac, else (χ², JᵀJ, Jᵀres) with J the
-            Jacobian of the (projected, σ̂-scaled) term and res the residual after the term.
-        theta0: (param,) start.
-        bounds: optional (lo, hi) per parameter; steps are clipped into them.
-    Returns:
-        LMResult with cov = (JᵀJ)⁻¹ at the optimum (χ² already in units of σ̂²).
-    """
-    theta = np.asarray(theta0, dtype=np.float64).copy()
-    lo = np.array([b[0] for b in bounds]) if bounds else None
-    hi = np.array([b[1] for b in bounds]) if bounds else None
-    chi2, jtj, jtr = evaluate(theta, True)
-    chi2_start = chi2
-    lam = 1e-3
-    converged = False
-    for _ in range(max_iter):
-        d = np.sqrt(np.maximum(np.diag(jtj), 1e-300))
-        a = jtj / np.outer(d, d)
-        try:
-            step = np.linalg.solve(a + lam * np.eye(theta.size), jtr / d) / d
-        except np.linalg.LinAlgError:
-            break
-        trial = theta + step
-        if lo is not None:
-            trial = np.clip(trial, lo, hi)
-        c_trial = evaluate(trial, False)
-        if np.isfinite(c_trial) and c_trial <= chi2:
-            small = chi2 - c_trial <= rtol * max(chi2, 1.0)
-            theta = trial
-            chi2, jtj, jtr = evaluate(theta, True)
-            lam = max(lam / 10, 1e-12)
-            if small:
-                converged = True
-                break
-        else:
-            lam *= 10
-            if lam > 1e10:
-                converged = True  # no step improves: at a minimum (or a bound)
-                break
-    cov = np.linalg.pinv(jtj)
-    return LMResult(
-        theta, cov, float(chi2), float(chi2_start), converged and bool(np.all(np.isfinite(theta)))
+    blocks: list[Block],
+    t: list[np.ndarray],
+    targets: list[np.ndarray],
+    aux: dict,
+    scale: np.ndarray,
+    bounds: tuple[np.ndarray, np.ndarray] | None = None,
+) -> SharedFit:
+    """θ of χ²(θ) = Σ_series |P_s (target_s − term_s(θ))|²_w / σ̂_s² by `fit_shared`: each
+    block's nuisance profiled out, its weights over its σ̂², the covariance (JᵀJ)⁻¹."""
+    return fit_shared(
+        None,
+        np.asarray(theta0, np.float64),
+        t,
+        targets,
+        [b.w / b.s2 for b in blocks],
+        [np.asarray(b.nu) for b in blocks],
+        aux=aux,
+        scale=scale,
+        term_fn=term_fn,
+        bounds=bounds,
+        known_scale=True,
+        max_steps=64,
     )
 
 
@@ -193,20 +150,19 @@ def select_series(gains: dict[int, float], n: dict[int, int], k_own: int = 1) ->
 # the camera against the reference (tied series)
 
 
-def tap_response(omega, tap_spread_s: float, offsets=(0.0, 0.25, 0.5, 0.75), derivative: bool = False):
+def tap_response(omega, tap_spread_s: float, offsets=(0.0, 0.25, 0.5, 0.75), derivative: bool = False, xp=np):
     """H(ω; T) of four taps at offsets·T after the frame time (`fit.motion`, vectorised over ω);
-    with ``derivative`` also dH/dT."""
-    w = np.asarray(omega, dtype=np.float64)
-    o = np.asarray(offsets, dtype=np.float64)
+    with ``derivative`` also dH/dT. ``xp``: numpy, or jax.numpy inside a fit's term."""
+    w, T = omega, tap_spread_s
+    o = offsets
     al, be = (o[0] + o[2]) / 2, (o[2] - o[0]) / 2
     ga, ka = (o[1] + o[3]) / 2, (o[3] - o[1]) / 2
-    T = float(tap_spread_s)
-    e1, e2 = np.exp(1j * w * al * T), np.exp(1j * w * ga * T)
-    c1, c2 = np.cos(w * be * T), np.cos(w * ka * T)
+    e1, e2 = xp.exp(1j * w * al * T), xp.exp(1j * w * ga * T)
+    c1, c2 = xp.cos(w * be * T), xp.cos(w * ka * T)
     h = 0.5 * (e1 * c1 + e2 * c2)
     if not derivative:
         return h
-    s1, s2 = np.sin(w * be * T), np.sin(w * ka * T)
+    s1, s2 = xp.sin(w * be * T), xp.sin(w * ka * T)
     dh = 0.5 * w * (e1 * (1j * al * c1 - be * s1) + e2 * (1j * ga * c2 - ka * s2))
     return h, dh
 
@@ -214,7 +170,7 @@ def tap_response(omega, tap_spread_s: float, offsets=(0.0, 0.25, 0.5, 0.75), der
 def motion_parameters(ctx: Context, T: float, sigma_T: float) -> dict:
     """The contract parameters of `motion_artefact` for a tap spread T (gain and lag at f0)."""
     w0 = 2 * math.pi * ctx.f0_hz
-    h, dh = tap_response(w0, T, ctx.tap_offsets, derivative=True)
+    h, dh = tap_response(w0, float(T), np.asarray(ctx.tap_offsets, np.float64), derivative=True)
     gain, lag = float(abs(h)), float(np.angle(h))
     dgain = float((np.conj(h) * dh).real / max(abs(h), 1e-300))
     dlag = float((dh / h).imag)
@@ -233,6 +189,24 @@ TIED_EFFECTS = ("motion_artefact", "timing_error")
 NAMES = ("tap_spread_s", "offset_s", "rate_ppm")
 
 
+class TiedEffect(Effect):
+    """An effect of the camera against the reference (motion_artefact, timing_error): seen on the
+    reference-tied z series only, through their `TiedModel`."""
+
+    needs_reference = True
+
+    def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
+        idx = tied_series(self, ctx, states)
+        if idx is None:
+            return []
+        period = 1.0 / ctx.frame_rate_hz if ctx.frame_rate_hz else ctx.dt_s
+        return self.propose_tied(ctx, states, TiedModel(ctx, states, idx), period)
+
+    @abc.abstractmethod
+    def propose_tied(self, ctx: Context, states: list[State], model: TiedModel, period: float):
+        """The proposals on the tied series of ``model`` (``period``: the frame period, s)."""
+
+
 def tied_series(effect, ctx: Context, states: list[State]) -> list[int] | None:
     """The reference-tied z series a tied effect (motion_artefact, timing_error) may propose on,
     or None when it cannot tell or is already in the model."""
@@ -242,6 +216,25 @@ def tied_series(effect, ctx: Context, states: list[State]) -> list[int] | None:
     if not idx or any(effect.id in states[i].effects for i in idx):
         return None
     return idx
+
+
+def tied_motion(theta, t, aux, xp=np):
+    """Re[H(ω; T) Z e^{iω(t/(1+ε) − δ − t_ref)}] of one tied series at θ = (T, δ, ε ppm)
+    (``aux``: omega, zr, zi, t_ref and the tap offsets o0..o3; ``xp``: numpy or jax.numpy)."""
+    om = aux["omega"]
+    h = tap_response(om, theta[0], (aux["o0"], aux["o1"], aux["o2"], aux["o3"]), xp=xp)
+    tt = t / (1.0 + theta[2] * PPM)
+    z = (aux["zr"] + 1j * aux["zi"]) * xp.exp(1j * om * (tt - theta[1] - aux["t_ref"]))
+    return xp.real(h * z)
+
+
+def tied_term(theta, t, aux):
+    """`tied_motion` in jax.numpy: the term `shared_fit` fits."""
+    return tied_motion(theta, t, aux, jnp)
+
+
+# steps of θ = (T, δ, ε) the solver's tolerances are measured in: 1 ms, 0.1 ms, 1 ppm
+TIED_SCALE = np.array([1e-3, 1e-4, 1.0])
 
 
 class TiedModel:
@@ -267,6 +260,11 @@ class TiedModel:
         self.Z = np.array([x.C - 1j * x.D for x in h])
         self.t_ref = np.array([x.t_ref for x in h])
         self.offsets = ctx.tap_offsets
+        taps = {f"o{j}": float(o) for j, o in enumerate(ctx.tap_offsets)}
+        self.aux = [
+            {"omega": float(om), "zr": float(z.real), "zi": float(z.imag), "t_ref": float(tr), **taps}
+            for om, z, tr in zip(self.omega, self.Z, self.t_ref, strict=True)
+        ]
         self.accepted = {e for i in idx for e in states[i].effects if e in TIED_EFFECTS}
         means = [states[i].mean for i in idx]
         cur = np.zeros(3)
@@ -281,59 +279,26 @@ class TiedModel:
         self.current = cur
         self.other = [m - self.term(k, cur) for k, m in enumerate(means)]
 
-    def term(self, k: int, theta: np.ndarray, jac: Sequence[int] = ()):
-        """The motion of tied series k at θ (and its derivatives for the parameters in ``jac``)."""
-        T, d, e = theta
-        om = self.omega[k]
-        h, dh = tap_response(om, T, self.offsets, derivative=True)
-        tt = self.t[k] / (1.0 + e * PPM)
-        ph = np.exp(1j * om * (tt - d - self.t_ref[k]))
-        z = self.Z[k] * ph
-        m = (h * z).real
-        if not jac:
-            return m
-        cols = []
-        for j in jac:
-            if j == 0:
-                cols.append((dh * z).real)
-            elif j == 1:
-                cols.append((h * z * (-1j * om)).real)
-            else:
-                cols.append((h * z * (1j * om) * tt * (-PPM / (1.0 + e * PPM))).real)
-        return m, np.stack(cols, axis=1)
+    def term(self, k: int, theta: np.ndarray) -> np.ndarray:
+        """The motion of tied series k at θ."""
+        return tied_motion(np.asarray(theta, np.float64), self.t[k], self.aux[k])
 
-    def fit(self, theta0: np.ndarray, free: Sequence[int], data: list[np.ndarray] | None = None, **kw):
-        """Fit the ``free`` components of θ (the others fixed at theta0) to y − other (or to
-        ``data``, e.g. the current means)."""
-        free = list(free)
+    def fit(
+        self,
+        theta0: np.ndarray,
+        free: Sequence[int],
+        data: list[np.ndarray] | None = None,
+        bounds: Sequence[tuple[float, float]] | None = None,
+    ) -> SharedFit:
+        """Fit the ``free`` components of θ (the others fixed at theta0, ``bounds`` per free
+        component) to y − other (or to ``data``, e.g. the current means)."""
         base = np.asarray(theta0, float).copy()
+        lo, hi = base.copy(), base.copy()
+        for j, f in enumerate(free):
+            lo[f], hi[f] = bounds[j] if bounds else (-np.inf, np.inf)
         targets = data if data is not None else [y - o for y, o in zip(self.y, self.other, strict=True)]
-
-        def full(p):
-            th = base.copy()
-            th[free] = p
-            return th
-
-        def evaluate(p, jac):
-            th = full(p)
-            if not jac:
-                return sum(
-                    b.chi2(y - self.term(k, th))
-                    for k, (b, y) in enumerate(zip(self.blocks, targets, strict=True))
-                )
-            c, a, g = 0.0, 0.0, 0.0
-            for k, (b, y) in enumerate(zip(self.blocks, targets, strict=True)):
-                m, j = self.term(k, th, free)
-                ck, ak, gk = b.normal(y - m, j)
-                c, a, g = c + ck, a + ak, g + gk
-            return c, a, g
-
-        res = lm_shared(evaluate, base[free], **kw)
-        res.theta = full(res.theta)
-        cov = np.zeros((3, 3))
-        cov[np.ix_(free, free)] = res.cov
-        res.cov = cov
-        return res
+        aux = {name: [a[name] for a in self.aux] for name in self.aux[0]}
+        return shared_fit(tied_term, base, self.blocks, self.t, targets, aux, TIED_SCALE, (lo, hi))
 
     def chi2_at(self, theta: np.ndarray) -> float:
         return sum(
@@ -567,56 +532,38 @@ class Carriers:
         den = max(den, 1e-300)
         return num * num / den, num / den, 1.0 / math.sqrt(den)
 
-    @staticmethod
-    def visible(term: Callable) -> Callable:
-        """``term`` as the model of each series carries it: on a tied series without its part
-        along the carrier's cos and sin. The LDS sees the same load, so the reference's
-        harmonic, fitted over the record, already holds the modulation's projection on the
-        carrier (e.g. the mean phase of a few modulation cycles); counted again, it is a phase
-        or gain offset against the LDS that `timing_error` or `motion_artefact` would take up.
-        (On untied series the free C and D take it up alike.)"""
+    def fit(self, term: Callable, theta0: np.ndarray, scale: np.ndarray) -> SharedFit:
+        """Fit shared θ of ``term(theta, t, aux) -> (sample,)`` (jax.numpy, one carrier; aux:
+        a, cos, sin, arg, half = duration/2) over all carriers, each series' free nuisance
+        profiled out, the term as `visible` gives it."""
+        items = self.items
+        half = 0.5 * self.ctx.duration_s
+        aux: dict = {"a": [], "cos": [], "sin": [], "arg": [], "absorbed": [], "absorber": [], "half": []}
+        for it in items:
+            aux["a"].append(np.broadcast_to(np.asarray(it.a, np.float64), it.cos.shape))
+            aux["cos"].append(it.cos)
+            aux["sin"].append(it.sin)
+            aux["arg"].append(it.arg)
+            if it.absorbed:  # the weighted LS fit on the carrier's cos, sin: nu @ (P x)
+                aux["absorbed"].append(np.asarray(it.absorbed.nu))
+                aux["absorber"].append((it.absorbed.ginv @ it.absorbed.nwT).T)
+            else:
+                aux["absorbed"].append(np.zeros((it.w.size, 2)))
+                aux["absorber"].append(np.zeros((it.w.size, 2)))
+            aux["half"].append(half)
+        t = [self.ctx.series[it.i].t for it in items]
+        blocks = [it.block for it in items]
+        return shared_fit(visible(term), theta0, blocks, t, [it.r for it in items], aux, scale)
 
-        def seen(it, theta, jac):
-            out = term(it, theta, jac)
-            if it.absorbed is None:
-                return out
-            if not jac:
-                return out - it.absorbed.fit(out)
-            m, j = out
-            return m - it.absorbed.fit(m), j - it.absorbed.fit(j)
-
-        return seen
-
-    def fit(self, term: Callable, theta0: np.ndarray, **kw) -> LMResult:
-        """Fit shared θ of ``term(it, theta, jac) -> m or (m, J)`` over all carriers, with each
-        series' free nuisance profiled out (the term as `visible` gives it)."""
-        term = self.visible(term)
-
-        def evaluate(p, jac):
-            if not jac:
-                return sum(it.block.chi2(it.r - term(it, p, False)) for it in self.items)
-            c, a, g = 0.0, 0.0, 0.0
-            for it in self.items:
-                m, j = term(it, p, True)
-                ck, ak, gk = it.block.normal(it.r - m, j)
-                c, a, g = c + ck, a + ak, g + gk
-            return c, a, g
-
-        return lm_shared(evaluate, theta0, **kw)
-
-    def proposal_states(
-        self, states: list[State], term: Callable, theta: np.ndarray, effect: str, n_shared: int
-    ):
-        """(kept, {index: State}, gains): the new means, kept where the term is individually
-        significant (`select_series`)."""
+    def proposal_states(self, states: list[State], fit: SharedFit, effect: str, n_shared: int):
+        """(kept, {index: State}, gains): the new means of a `fit` (its term and nuisance), kept
+        where the term is individually significant (`select_series`)."""
         ctx = self.ctx
-        term = self.visible(term)
         gains, means, ns = {}, {}, {}
-        for it in self.items:
+        for k, it in enumerate(self.items):
             st = states[it.i]
             y = ctx.series[it.i].y
-            m = term(it, theta, False)
-            mean = st.mean + m + it.block.fit(it.r - m)
+            mean = st.mean + fit.term[k] + fit.fitted[k]
             means[it.i] = mean
             gains[it.i] = loglik(y, st, mean) - loglik(y, st)
             ns[it.i] = ctx.series[it.i].n
@@ -626,3 +573,25 @@ class Carriers:
             for j, i in enumerate(kept)
         }
         return kept, new, gains
+
+
+_VISIBLE: dict = {}
+
+
+def visible(term: Callable) -> Callable:
+    """``term`` as the model of each series carries it: on a tied series without its part along
+    the carrier's cos and sin (``aux["absorbed"]``, its weighted LS fit ``aux["absorber"]``; zero
+    columns elsewhere). The LDS sees the
+    same load, so the reference's harmonic, fitted over the record, already holds the
+    modulation's projection on the carrier (e.g. the mean phase of a few modulation cycles);
+    counted again, it is a phase or gain offset against the LDS that `timing_error` or
+    `motion_artefact` would take up. (On untied series the free C and D take it up alike.)
+    One wrapper per term: its compiled solver is reused."""
+    if term not in _VISIBLE:
+
+        def seen(theta, t, aux):
+            m = term(theta, t, aux)
+            return m - aux["absorbed"] @ (aux["absorber"].T @ m)
+
+        _VISIBLE[term] = seen
+    return _VISIBLE[term]

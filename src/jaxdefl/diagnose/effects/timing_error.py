@@ -31,16 +31,16 @@ import math
 
 import numpy as np
 
-from .._base import Context, Effect, Proposal, State
+from .._base import Context, Proposal, State
 from .shared_fits import (
     AMBIGUOUS_CHI2,
     PPM,
+    TiedEffect,
     TiedModel,
     chi2_p_value,
     motion_parameters,
     param,
     tied_proposal_states,
-    tied_series,
 )
 
 __all__ = ["TimingError", "EFFECT"]
@@ -49,19 +49,14 @@ P_MAX = 1e-3  # weaker signatures cannot pass the search's Bonferroni (α = 0.01
 VARIANTS = {"offset": [1], "rate": [2], "both": [1, 2]}
 
 
-class TimingError(Effect):
+class TimingError(TiedEffect):
     id = "timing_error"
     meaning = "the camera's clock runs late or at another rate than the reference's"
-    needs_reference = True
-    min_cycles = 20.0
+    plausible, plausible_unit, gate_params = 0.002, "seconds", 1  # 2 ms late (stamped on delivery)
 
-    def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
-        idx = tied_series(self, ctx, states)
-        if idx is None:
-            return []
-        model = TiedModel(ctx, states, idx)
+    def propose_tied(self, ctx: Context, states: list[State], model, period: float) -> list[Proposal]:
+        idx = model.idx
         extra = [0] if "motion_artefact" in model.accepted else []
-        period = 1.0 / ctx.frame_rate_hz if ctx.frame_rate_hz else ctx.dt_s
         half = 0.5 / ctx.f0_hz
 
         # starts: the rate from the camera's own frequency against the LDS's, the offset from
