@@ -81,19 +81,22 @@ def normal_equations(cols, w, y):
     return jnp.stack([jnp.stack(row) for row in gtg]), jnp.stack([jnp.sum(a * y) for a in wc])
 
 
-def gauss_newton(residual, n_params: int, rtol: float, atol: float, max_steps: int):
+def gauss_newton(residual, n_params: int, rtol: float, atol: float, max_steps: int, has_aux: bool = False):
     """The Gauss-Newton solve of every fit: optimistix from 0 on a problem scaled to units of σ.
 
     ``residual(u, None)`` is the weighted residual in units of the noise σ at the parameters
     ``p0 + u * scale`` (the caller's start and scale), so that ``rtol``/``atol`` mean "a step
     below that many σ". Failure is a value (``sol.result``), never an exception, so a vmapped
-    solve reports per window.
+    solve reports per window. With ``has_aux``, ``residual`` returns (residual, aux) and
+    ``sol.state.aux`` is the aux at the solution.
     """
     import lineax as lx  # imported when a kernel is traced (a traced kernel is kept on disk)
     import optimistix as optx
 
     solver = optx.GaussNewton(rtol=rtol, atol=atol, linear_solver=lx.Normal(lx.Cholesky()))
-    return optx.least_squares(residual, solver, jnp.zeros(n_params), max_steps=max_steps, throw=False)
+    return optx.least_squares(
+        residual, solver, jnp.zeros(n_params), has_aux=has_aux, max_steps=max_steps, throw=False
+    )
 
 
 def fit_harmonic(t, y, w, omega0, rtol=RTOL, atol=ATOL, max_steps=MAX_STEPS):

@@ -10,12 +10,14 @@ Model of one window, ``t`` centred on the window's samples as for the default fi
 - ``kind="damped"`` (with ``lines=N``, default 1): each line also decays at its own rate
   λ_j = ζ_j ω_n,j, with ω_n,j² = ω_j² + λ_j² (ω_j is the damped frequency seen in the record).
 
-Parameters p = [C_1, D_1, ..., C_m, D_m, E, ω_1..ω_L, (λ_1..λ_L)]. Per window: the C, D, E by
-linear least squares at the start (periodogram frequencies; for a damped model, decay rates
-from the envelope of a few segments), one Gauss-Newton step from there, then the scaled
-optimistix Gauss-Newton every fit uses (`jaxdefl.fit.harmonic.gauss_newton`), the covariance
-σ0² (JᵀWJ)⁻¹ (thesis 5.42-5.43) and derived quantities (amplitudes, phases, damping ratios) by
-the delta method (5.44-5.45). Lines after the first are found one at a time: the highest
+Parameters p = [C_1, D_1, ..., C_m, D_m, E, ω_1..ω_L, (λ_1..λ_L)]. Per window, by variable
+projection: the linear C, D, E are solved exactly (weighted least squares) wherever the
+nonlinear θ = [ω's, λ's] are, and only θ is iterated: from the start (periodogram frequencies;
+for a damped model, decay rates from the envelope of a few segments) one Gauss-Newton step,
+then the scaled optimistix Gauss-Newton every fit uses (`jaxdefl.fit.harmonic.gauss_newton`)
+on θ with Kaufman's Jacobian; the covariance σ0² (JᵀWJ)⁻¹ of all parameters (thesis
+5.42-5.43) from the sums of its last evaluation, and derived quantities (amplitudes, phases,
+damping ratios) by the delta method (5.44-5.45). Lines after the first are found one at a time: the highest
 periodogram peak of the residual of the lines found so far (fitted jointly), then all N lines
 are fitted jointly; they keep the order they were found in (line 1 is the periodogram's highest
 peak, the line the thesis model fits).
@@ -66,7 +68,8 @@ _ENVELOPE_SEGMENTS = 8
 # Samples solved together by one vmapped Gauss-Newton loop (a few windows). Unlike the default
 # model, whose windows all take 2 evaluations, these take 2 to 6, and a vmapped loop runs as
 # many steps as its slowest window: small groups waste fewer steps (K = 3 on workload W: 1.5-1.8x
-# less time than the default's 64-window groups, `experiments/bench_models.py`).
+# less time than the default's 64-window groups, `experiments/bench_models.py`; with windows in
+# periodogram-power order, 8k samples stay faster than 16k or 32k for K = 3 and damped).
 GROUP_CELLS = 1 << 13
 
 
@@ -148,76 +151,97 @@ def signal_model(kind: str = "harmonic", harmonics: int = 1, lines: int = 1) -> 
 # the kernel (one window)
 
 
-def _evaluate(spec: SignalModel, p, t):
-    """Model value, its Jacobian columns (one per parameter, `SignalModel` order) and d value/dt."""
-    m, n_lines = spec.n_components, spec.lines
-    zero = jnp.zeros_like(t)
-    cols = [None] * spec.n_params
-    cols[spec.offset_index] = jnp.ones_like(t)
-    value = p[spec.offset_index] + zero
-    dvdt = zero
-    om_cols = [zero] * n_lines
-    decay_cols = [zero] * n_lines
+def _design(spec: SignalModel, theta, t):
+    """Columns of the linear parameters C, D, E (`SignalModel` order) at the nonlinear ones
+    ``theta`` = [ω_1..ω_L, (λ_1..λ_L)]."""
+    m = spec.n_components
+    cols = [None] * (2 * m + 1)
+    cols[2 * m] = jnp.ones_like(t)
+    env = [jnp.exp(-theta[spec.lines + line] * t) for line in range(spec.lines)] if spec.damped else None
     s1 = c1 = None
     for j in range(m):
         line, k = spec.line_of(j), spec.multiplier(j)
-        om = k * p[spec.omega_index(line)]
         if k == 1:
-            sk, ck = s1, c1 = sincos(om * t)
+            sk, ck = s1, c1 = sincos(theta[line] * t)
         else:
             # harmonic k from harmonic k - 1 and the fundamental by the angle-addition formulas
             # (a few multiply-adds instead of a sincos; error ~k ulp)
             sk, ck = sk * c1 + ck * s1, ck * c1 - sk * s1
-        s, c = sk, ck
-        if spec.damped:
-            lam = p[spec.decay_index(line)]
-            env = jnp.exp(-lam * t)
-            c, s = c * env, s * env
-        osc = p[2 * j] * c + p[2 * j + 1] * s
-        slope = p[2 * j + 1] * c - p[2 * j] * s  # d osc / d(ωt)
-        value = value + osc
+        c, s = (ck * env[line], sk * env[line]) if spec.damped else (ck, sk)
         cols[2 * j], cols[2 * j + 1] = c, s
-        om_cols[line] = om_cols[line] + k * t * slope
-        dvdt = dvdt + om * slope
+    return cols
+
+
+def _theta_columns(spec: SignalModel, lin, g, t):
+    """Jacobian columns of the nonlinear parameters (ω's, then λ's) at the linear parameters
+    ``lin``, from the design columns ``g`` (`_design`)."""
+    om_cols = [0.0] * spec.lines
+    decay_cols = [0.0] * spec.lines
+    for j in range(spec.n_components):
+        line, k = spec.line_of(j), spec.multiplier(j)
+        c, s = g[2 * j], g[2 * j + 1]
+        om_cols[line] = om_cols[line] + k * (lin[2 * j + 1] * c - lin[2 * j] * s)  # d osc / d(ωt)
         if spec.damped:
-            decay_cols[line] = decay_cols[line] - t * osc
-            dvdt = dvdt - lam * osc
-    for line in range(n_lines):
-        cols[spec.omega_index(line)] = om_cols[line]
-        if spec.damped:
-            cols[spec.decay_index(line)] = decay_cols[line]
-    return value, cols, dvdt
+            decay_cols[line] = decay_cols[line] - (lin[2 * j] * c + lin[2 * j + 1] * s)
+    return [t * c for c in om_cols] + ([t * c for c in decay_cols] if spec.damped else [])
 
 
-@partial(jax.custom_jvp, nondiff_argnums=(0,))
-def _model(spec, p, t):
-    return _evaluate(spec, p, t)[0]
+def _value(spec: SignalModel, p, t):
+    """The model at parameters ``p`` (`SignalModel` order)."""
+    n_lin = 2 * spec.n_components + 1
+    g = _design(spec, p[n_lin:], t)
+    return sum(p[i] * g[i] for i in range(n_lin))
 
 
-@_model.defjvp
-def _model_jvp(spec, primals, tangents):
-    # The Jacobian columns reuse the primal's sines, cosines and envelopes (as the default
-    # model's do): no autodiff through the polynomial kernels.
-    p, t = primals
-    dp, dt = tangents
-    value, cols, dvdt = _evaluate(spec, p, t)
-    tangent = dvdt * dt
-    for i, c in enumerate(cols):
-        tangent = tangent + c * dp[i]
-    return value, tangent
+def _project(spec: SignalModel, theta, t, yc, w):
+    """Variable projection at ``theta``: the linear parameters by weighted least squares, the
+    residual, Kaufman's Jacobian of the residual over ``theta`` (the nonlinear columns V with
+    their part in the span of the linear ones G removed), and the sums the normal matrix of all
+    parameters is made of (GᵀWG, GᵀWV, VᵀWV) and VᵀWr."""
+    g = _design(spec, theta, t)
+    import jax.scipy.linalg as jsl  # imported when the kernel is traced
+
+    gtg, gty = normal_equations(g, w, yc)
+    chol = jsl.cho_factor(gtg)  # one factorisation for both solves
+    lin = jsl.cho_solve(chol, gty)
+    r = jnp.where(w > 0, yc - sum(lin[i] * g[i] for i in range(len(g))), 0.0)
+    v = _theta_columns(spec, lin, g, t)
+    wv = [w * c for c in v]
+    gtv = jnp.stack([jnp.stack([jnp.sum(a * b) for a in wv]) for b in g])  # (lin, theta)
+    vtv = jnp.stack([jnp.stack([jnp.sum(a * b) for b in v]) for a in wv])
+    vtr = jnp.stack([jnp.sum(a * r) for a in wv])
+    coef = jsl.cho_solve(chol, gtv)
+    jac = [-(v[q] - sum(coef[i, q] * g[i] for i in range(len(g)))) for q in range(len(v))]
+    sums = dict(lin=lin, gtg=gtg, gtv=gtv, vtv=vtv, rss=jnp.sum(w * r**2), rr=jnp.sum(r**2))
+    return r, jac, vtv - gtv.T @ coef, vtr, sums
 
 
 def _segment_sums(t, yc, w, omega, g_n):
     """Per-segment sums for the amplitude of the line at ``omega`` in ``g_n`` consecutive
-    segments of the window: (sample count, Σt, Σc², Σcs, Σs², Σcy, Σsy, Σy²), each (segment,)."""
+    segments of the window: (sample count, Σt, Σc², Σcs, Σs², Σcy, Σsy, Σy²), each (segment,).
+
+    The samples (in time order, as `Windows` holds them) are first summed in blocks of a few
+    (at least four blocks a segment), and each block goes to the segment of its mean time: a
+    segment's edges move by up to half a block (a start value depends on them, not the fit),
+    and the (segment x block) product costs a few times less than a (segment x sample) one or
+    a scatter-add over the samples (those were a quarter of a damped fit's time).
+    """
     valid = w > 0
     lo = jnp.min(jnp.where(valid, t, jnp.inf))
     hi = jnp.max(jnp.where(valid, t, -jnp.inf))
-    seg = jnp.clip(jnp.floor((t - lo) / jnp.maximum(hi - lo, 1e-300) * g_n), 0, g_n - 1)
-    onehot = (seg[None, :] == jnp.arange(g_n)[:, None]) * w[None, :]  # (segment, sample)
     s, c = sincos(omega * t)
-    cols = jnp.stack([jnp.ones_like(t), t, c * c, c * s, s * s, c * yc, s * yc, yc * yc], axis=1)
-    return (onehot @ cols).T
+    wy = w * yc
+    size, block = t.shape[0], 1
+    while size % (2 * block) == 0 and size // (2 * block) >= 4 * g_n:
+        block *= 2
+    sums = [
+        x.reshape(size // block, block).sum(axis=1)
+        for x in (w, w * t, w * c * c, w * c * s, w * s * s, c * wy, s * wy, yc * wy)
+    ]
+    t_block = sums[1] / jnp.maximum(sums[0], 1e-300)
+    seg = jnp.clip(jnp.floor((t_block - lo) / jnp.maximum(hi - lo, 1e-300) * g_n), 0, g_n - 1)
+    onehot = (seg[None, :] == jnp.arange(g_n)[:, None]).astype(t.dtype)  # (segment, block)
+    return (onehot @ jnp.stack(sums, axis=1)).T
 
 
 def _envelope_slope(sums):
@@ -273,7 +297,6 @@ def fit_model_window(spec: SignalModel, t, y, w, omega0, rtol=RTOL, atol=ATOL, m
     (solver converged, numbers finite).
     """
     m, n_par = spec.n_components, spec.n_params
-    n_lin = 2 * m + 1
     valid = w > 0
     sw = jnp.sqrt(w)
     n = jnp.sum(valid)
@@ -292,47 +315,50 @@ def fit_model_window(spec: SignalModel, t, y, w, omega0, rtol=RTOL, atol=ATOL, m
         origin = jnp.sum(e * t) / jnp.sum(e)
         t = jnp.where(valid, t - origin, 0.0)
 
-    # Linear least squares for the C, D, E at the start frequencies (and decays).
-    _, cols0, _ = _evaluate(spec, jnp.concatenate([jnp.zeros(n_lin), theta0]), t)
-    gtg, gty = normal_equations(cols0[:n_lin], w, yc)
-    p1 = jnp.concatenate([jnp.linalg.solve(gtg, gty), theta0])
-
-    # One Gauss-Newton step on every parameter from there (as in `fit_harmonic`); a step of
-    # more than a quarter cycle, or of more than one e-fold of decay, over the window is not
-    # taken (a start far from any optimum).
-    value, cols, _ = _evaluate(spec, p1, t)
-    r1 = jnp.where(valid, yc - value, 0.0)
-    jtj0, jtr0 = normal_equations(cols, w, r1)
-    step = jnp.linalg.solve(jtj0, jtr0)
+    # Variable projection: the C, D, E are solved exactly (linear least squares) wherever the
+    # frequencies (and decays) θ are, and Gauss-Newton iterates on θ alone, with Kaufman's
+    # Jacobian (its gradient is exact, so the optimum is that of all the parameters). One step
+    # from the start (periodogram frequencies; decays from the envelope) is taken here; a step
+    # of more than a quarter cycle, or of more than one e-fold of decay, over the window is not
+    # (a start far from any optimum).
+    r0, _, s_theta, vtr0, _ = _project(spec, theta0, t, yc, w)
+    step = jnp.linalg.solve(s_theta, vtr0)
     span = jnp.max(jnp.where(valid, jnp.abs(t), 0.0))
     k_max = spec.multiplier(m - 1)
-    om_step = step[spec.omega_index(0) : spec.omega_index(0) + spec.lines]
-    near = jnp.all(jnp.isfinite(step)) & jnp.all(jnp.abs(om_step) * k_max * span < 0.5 * jnp.pi)
+    near = jnp.all(jnp.isfinite(step)) & jnp.all(jnp.abs(step[: spec.lines]) * k_max * span < 0.5 * jnp.pi)
     if spec.damped:
-        near = near & jnp.all(jnp.abs(step[spec.decay_index(0) :]) * span < 1.0)
-    p0 = p1 + jnp.where(near, step, 0.0)
+        near = near & jnp.all(jnp.abs(step[spec.lines :]) * span < 1.0)
+    theta1 = theta0 + jnp.where(near, step, 0.0)
 
     # Scaled to units of σ as in `fit_harmonic`: the noise from the linearised residual after the
-    # step, each parameter's σ from the same normal matrix.
-    rss_lin = jnp.sum(w * r1**2)
-    rss = jnp.where(near, rss_lin - step @ jtr0, rss_lin)
+    # step, the σ of each of θ from the projected normal matrix (the θ block of the inverse of
+    # the whole normal matrix).
+    rss_lin = jnp.sum(w * r0**2)
+    rss = jnp.where(near, rss_lin - step @ vtr0, rss_lin)
     rss = jnp.maximum(rss, 1e-20 * rss_lin)
     noise = jnp.sqrt(jnp.maximum(rss / jnp.maximum(n - n_par, 1), 1e-300))
-    scale = noise * jnp.sqrt(jnp.abs(jnp.diag(jnp.linalg.inv(jtj0))))
+    scale = noise * jnp.sqrt(jnp.abs(jnp.diag(jnp.linalg.inv(s_theta))))
 
     def residual(u, _):
-        return sw * (yc - _model(spec, p0 + u * scale, t)) / noise
+        # value r(θ), derivative Kaufman's Jacobian: r + J (u - u) with r and J held constant
+        u_c = jax.lax.stop_gradient(u)
+        r, jac, _, _, sums = _project(spec, theta1 + u_c * scale, t, yc, w)
+        f = sw * r / noise
+        for q, col in enumerate(jac):
+            f = f + (sw * col * (scale[q] / noise)) * (u[q] - u_c[q])
+        return f, sums
 
     import optimistix as optx  # imported when the kernel is traced
 
-    sol = gauss_newton(residual, n_par, rtol, atol, max_steps)
-    p = p0 + sol.value * scale
-
-    value, cols, _ = _evaluate(spec, p, t)
-    r = jnp.where(valid, yc - value, 0.0)
-    jtj, _ = normal_equations(cols, w, r)
+    sol = gauss_newton(residual, theta1.size, rtol, atol, max_steps, has_aux=True)
+    theta = theta1 + sol.value * scale
+    # the sums at the solution (the last evaluation is at it): the normal matrix of all
+    # parameters [[GᵀWG, GᵀWV], [VᵀWG, VᵀWV]], the covariance σ0² (JᵀWJ)⁻¹
+    sums = sol.state.aux
+    p = jnp.concatenate([sums["lin"], theta])
+    jtj = jnp.block([[sums["gtg"], sums["gtv"]], [sums["gtv"].T, sums["vtv"]]])
     dof = n - n_par
-    s0sq = jnp.sum(w * r**2) / dof
+    s0sq = sums["rss"] / dof
     cov = s0sq * jnp.linalg.inv(jtj)
     diag = jnp.diag(cov)
     ok = (
@@ -346,7 +372,7 @@ def fit_model_window(spec: SignalModel, t, y, w, omega0, rtol=RTOL, atol=ATOL, m
         origin=origin,
         cov=cov,
         s0sq=s0sq,
-        sigma_res=jnp.sqrt(jnp.sum(r**2) / dof),
+        sigma_res=jnp.sqrt(sums["rr"] / dof),
         n=n,
         steps=sol.stats["num_steps"],
         ok=ok,
@@ -365,7 +391,7 @@ def _fit_batch(t, y, w, omega0, *, spec, rtol, atol, max_steps, group):
 
 @partial(jax.jit, static_argnames=("spec",))
 def _values(p, t, *, spec):
-    return jax.vmap(lambda pp, tt: _evaluate(spec, pp, tt)[0])(p, t)
+    return jax.vmap(lambda pp, tt: _value(spec, pp, tt))(p, t)
 
 
 def model_values(
@@ -407,9 +433,17 @@ class ModelFit(HarmonicFit):
     origin_s: np.ndarray
 
 
-def _solve(spec, w, rows, weights, omega0, rtol, atol, max_steps):
+def _solve(spec, w, rows, weights, omega0, power, rtol, atol, max_steps):
+    """`fit_model_window` on the windows at ``rows``. A vmapped Gauss-Newton loop runs as many
+    steps as its slowest window, and the steps a window takes depend on its SNR: windows go to
+    the solver in the order of their periodogram peak's ``power``, so that those solved
+    together take about as many steps."""
+    order = np.argsort(power[rows], kind="stable")
     fit_batch = partial(_fit_batch, spec=spec, rtol=rtol, atol=atol, max_steps=max_steps)
-    return batch_windows(fit_batch, w, rows, weights, omega0, group_cells=GROUP_CELLS)
+    out = batch_windows(fit_batch, w, rows[order], weights, omega0, group_cells=GROUP_CELLS)
+    back = np.empty_like(order)
+    back[order] = np.arange(order.size)
+    return {k: v[back] for k, v in out.items()}
 
 
 def fit_model(
@@ -441,11 +475,12 @@ def fit_model(
     fap = np.full((b, n_lines), np.nan)
     omega0[:, 0] = 2 * np.pi * periodogram.freq_hz
     fap[:, 0] = periodogram.fap
+    power = np.nan_to_num(np.asarray(periodogram.power, dtype=float))
     for line in range(1, n_lines):
         if not rows.size:
             break
         part = dataclasses.replace(spec, lines=line)
-        out = _solve(part, w, rows, weights, omega0[:, :line], rtol, atol, max_steps)
+        out = _solve(part, w, rows, weights, omega0[:, :line], power, rtol, atol, max_steps)
         rows = rows[out["ok"]]
         if not rows.size:
             break
@@ -466,7 +501,7 @@ def fit_model(
     steps = np.zeros(b, np.int64)
     ok = np.zeros(b, bool)
     if rows.size:
-        out = _solve(spec, w, rows, weights, omega0, rtol, atol, max_steps)
+        out = _solve(spec, w, rows, weights, omega0, power, rtol, atol, max_steps)
         p[rows], cov[rows] = out["p"], out["cov"]
         for k in scal:
             scal[k][rows] = out[k]

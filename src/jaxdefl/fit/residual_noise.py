@@ -209,15 +209,20 @@ def _chunk(w, residual, f0_hz, rows, g, dt, frames, m_len) -> dict:
     for j in range(f0.shape[1]):  # each line's band (one for the thesis model)
         fj = f0[:, j]
         half = np.minimum(np.maximum(BAND_MIN_ORDINATES, np.sqrt(n)) / span, BAND_MAX_FRACTION * fj)
-        # Only the bins of the chunk's bands are transformed into powers.
+        # Only the bins of each window's own band are transformed into powers (a window whose
+        # f0 lies far from the others' does not widen everyone's).
         lo_bin, hi_bin = (fj - half) * m_len * dt, (fj + half) * m_len * dt
         finite = np.isfinite(lo_bin) & np.isfinite(hi_bin)
-        lo = int(max(1, np.floor(lo_bin[finite].min()))) if finite.any() else 1
-        hi = int(min(m_len // 2 + 1, np.ceil(hi_bin[finite].max()) + 1)) if finite.any() else 1
-        fr = fr_all[:, lo:hi]
-        freq = np.arange(lo, hi)[None, :] / (m_len * dt[:, None])
+        top = m_len // 2
+        lo = np.clip(np.floor(np.where(finite, lo_bin, 1.0)), 1, top).astype(np.int64)
+        hi = np.clip(np.ceil(np.where(finite, hi_bin, 0.0)) + 1, lo, top + 1).astype(np.int64)
+        idx = lo[:, None] + np.arange(max(1, int((hi - lo).max())))[None, :]
+        inside = idx < hi[:, None]
+        idx = np.minimum(idx, top)
+        fr = np.take_along_axis(fr_all, idx, axis=1)
+        freq = idx / (m_len * dt[:, None])
         dist = np.abs(freq - fj[:, None])
-        band = (dist >= 2.0 / span[:, None]) & (dist <= half[:, None]) & (freq < nyq)
+        band = inside & (dist >= 2.0 / span[:, None]) & (dist <= half[:, None]) & (freq < nyq)
         power = (fr.real**2 + fr.imag**2) / n[:, None]
         with np.errstate(invalid="ignore", divide="ignore"):
             flat = np.where(band, power / shape(freq), 0.0).sum(axis=1) / band.sum(axis=1)
