@@ -31,7 +31,7 @@ from ._context import build_context
 from ._correlation import FrameCorrelation, frame_correlation
 from ._whiteness import combined_p, residual_tests
 from .effects import EFFECT_IDS, load_effects
-from .unnamed import MAX_TERMS, colored_gain, UnnamedTerm, apply_term, best_term, search_unnamed
+from .unnamed import MAX_TERMS, UnnamedTerm, apply_term, best_term, colored_gain, search_unnamed
 
 __all__ = ["Diagnosis", "run_diagnosis", "diagnose", "DELTA_BIC_MAX", "ALPHA", "MAX_EFFECTS"]
 
