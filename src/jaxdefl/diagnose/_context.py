@@ -134,7 +134,9 @@ def build_context(
             g = df[df["plate"] == key[0]]
             t, y = g["t"].to_numpy() - t0, g[key[1]].to_numpy()
             ok = np.isfinite(y)
-            free[key] = _linear_harmonic(t[ok], y[ok], 2 * math.pi * float(peaks.freq_hz[row]), 0.5 * duration)
+            free[key] = _linear_harmonic(
+                t[ok], y[ok], 2 * math.pi * float(peaks.freq_hz[row]), 0.5 * duration
+            )
             notes.append(
                 f"plate {key[0]} {key[1]}: the harmonic fit did not converge (a decaying motion?); "
                 f"harmonic at its periodogram peak {peaks.freq_hz[row]:.6g} Hz"

@@ -31,7 +31,7 @@ from ._context import build_context
 from ._correlation import FrameCorrelation, frame_correlation
 from ._whiteness import combined_p, residual_tests
 from .effects import EFFECT_IDS, load_effects
-from .unnamed import MAX_TERMS, colored_gain, UnnamedTerm, apply_term, best_term, search_unnamed
+from .unnamed import MAX_TERMS, UnnamedTerm, apply_term, best_term, colored_gain, search_unnamed
 
 __all__ = ["Diagnosis", "run_diagnosis", "diagnose", "DELTA_BIC_MAX", "ALPHA", "MAX_EFFECTS"]
 
@@ -146,18 +146,13 @@ class Diagnosis:
             effects.append(
                 {
                     "id": p.effect,
-                    "plates": sorted({ctx.series[i].plate for i in p.series}),
-                    "axes": sorted({ctx.series[i].axis for i in p.series}),
-                    "t_start": ctx.t0 + p.t_start,
-                    "t_end": ctx.t0 + p.t_end,
-                    "band_hz": p.band_hz,
+                    **_where(ctx, p.series, p.t_start, p.t_end, p.band_hz),
                     "parameters": _jsonable(p.parameters),
                     "delta_bic": a.delta_bic,
                     "rms_before_mm": a.rms_before,
                     "rms_after_mm": a.rms_after,
                     "p_value": p.p_value,
                     "explanation": p.explanation,
-                    "series": [ctx.series[i].key for i in p.series],
                     "detail": _jsonable(p.detail),
                 }
             )
@@ -217,15 +212,22 @@ class Diagnosis:
         )
 
 
+def _where(ctx: Context, series, t_start: float, t_end: float, band_hz) -> dict:
+    """Where a term acts, as DIAG.json says it: plates, axes, series, time span, band."""
+    return {
+        "plates": sorted({ctx.series[i].plate for i in series}),
+        "axes": sorted({ctx.series[i].axis for i in series}),
+        "series": [ctx.series[i].key for i in series],
+        "t_start": ctx.t0 + t_start,
+        "t_end": ctx.t0 + t_end,
+        "band_hz": band_hz,
+    }
+
+
 def _unnamed_json_of(ctx: Context, u: UnnamedTerm) -> dict:
     return {
         "kind": u.kind,
-        "plates": sorted({ctx.series[i].plate for i in u.series}),
-        "axes": sorted({ctx.series[i].axis for i in u.series}),
-        "series": [ctx.series[i].key for i in u.series],
-        "t_start": ctx.t0 + u.t_start,
-        "t_end": ctx.t0 + u.t_end,
-        "band_hz": u.band_hz,
+        **_where(ctx, u.series, u.t_start, u.t_end, u.band_hz),
         "parameters": _jsonable(u.parameters),
         "n_params": u.n_params,
         "delta_bic": u.delta_bic,

@@ -43,7 +43,17 @@ from ._base import LOG_2PI, Context, State, masked_periodogram, peak_offset
 from ._correlation import FrameCorrelation
 from ._varpro import fit_shared
 
-__all__ = ["UnnamedTerm", "search_unnamed", "best_term", "apply_term", "colored_gain", "ar1_loglik", "ar1_rho", "MAX_TERMS", "KINDS"]
+__all__ = [
+    "UnnamedTerm",
+    "search_unnamed",
+    "best_term",
+    "apply_term",
+    "colored_gain",
+    "ar1_loglik",
+    "ar1_rho",
+    "MAX_TERMS",
+    "KINDS",
+]
 
 KINDS = ("line", "envelope", "trend")
 MAX_TERMS = 4
@@ -366,9 +376,7 @@ def _carriers(ctx: Context, states: list[State]) -> list[int]:
     """Series whose loading motion stands above their noise (≥ 1 σ: the envelope is shared, a
     series of little motion adds little evidence and no parameter)."""
     return [
-        i
-        for i in range(len(ctx.series))
-        if ctx.nominal[i].amplitude >= 1.0 * max(ctx.noise_sigma(i), 1e-12)
+        i for i in range(len(ctx.series)) if ctx.nominal[i].amplitude >= 1.0 * max(ctx.noise_sigma(i), 1e-12)
     ]
 
 
@@ -432,7 +440,11 @@ def _envelope(ctx: Context, states: list[State], noise: _Noise, n_total: int) ->
         gain = sum(noise.loglik(i, means[i]) for i in idx) - base
         # the re-estimated harmonic (C, D) of the reference series as a relative complex factor
         h, g = ctx.nominal[ref], gammas[ref]
-        shift = 0j if ctx.series[ref].tied else (g[1] - 1j * g[2]) * np.exp(1j * h.phase) / max(h.amplitude, 1e-300)
+        shift = (
+            0j
+            if ctx.series[ref].tied
+            else (g[1] - 1j * g[2]) * np.exp(1j * h.phase) / max(h.amplitude, 1e-300)
+        )
         return -2 * gain + k_par * math.log(n_total), (beta, shift), means
 
     best = None
@@ -485,7 +497,9 @@ def _envelope(ctx: Context, states: list[State], noise: _Noise, n_total: int) ->
         shift = 0j
         if not ctx.series[ref].tied:  # the re-estimated harmonic: what the term leaves of the fit
             term = _decay_columns(theta, ctx.series[ref].t, {k: v[j] for k, v in aux.items()}) @ coef
-            gam = np.linalg.lstsq(_nuisance(ctx, ref), means[ref] - states[ref].mean - np.asarray(term), rcond=None)[0]
+            gam = np.linalg.lstsq(
+                _nuisance(ctx, ref), means[ref] - states[ref].mean - np.asarray(term), rcond=None
+            )[0]
             shift = (gam[1] - 1j * gam[2]) * np.exp(1j * h.phase) / h.amplitude
         info = {"form": "exponential", "decay_per_s": float(theta[0]), "coef": coef, "shift": shift}
         info["relative_envelope"] = _relative_envelope(ctx, info)
@@ -628,7 +642,15 @@ def _report(ctx: Context, c: _Candidate, states: list[State]) -> UnnamedTerm:
             )
         text += ": structure no named effect explains."
         return UnnamedTerm(
-            "line", c.series, c.means, c.n_params, par, t_lo, t_hi, [f - half, f + half], text,
+            "line",
+            c.series,
+            c.means,
+            c.n_params,
+            par,
+            t_lo,
+            t_hi,
+            [f - half, f + half],
+            text,
             detail={"amplitudes_mm": {ctx.series[i].key: a for i, a in amps.items()}},
         )
     if c.kind == "envelope":
@@ -657,8 +679,17 @@ def _report(ctx: Context, c: _Candidate, states: list[State]) -> UnnamedTerm:
         )
         df = 1.0 / ctx.duration_s
         return UnnamedTerm(
-            "envelope", c.series, c.means, c.n_params, par, t_lo, t_hi,
-            [ctx.f0_hz - 2 * df * (1 + info.get("knots", 0)), ctx.f0_hz + 2 * df * (1 + info.get("knots", 0))],
+            "envelope",
+            c.series,
+            c.means,
+            c.n_params,
+            par,
+            t_lo,
+            t_hi,
+            [
+                ctx.f0_hz - 2 * df * (1 + info.get("knots", 0)),
+                ctx.f0_hz + 2 * df * (1 + info.get("knots", 0)),
+            ],
             text,
         )
     swing = info["swing_mm"]
@@ -677,22 +708,34 @@ def _report(ctx: Context, c: _Candidate, states: list[State]) -> UnnamedTerm:
         f"({shape}): structure no named effect explains."
     )
     return UnnamedTerm(
-        "trend", c.series, c.means, c.n_params, par, t_lo, t_hi,
-        [0.0, (info["knots"] + 1) / ctx.duration_s], text,
+        "trend",
+        c.series,
+        c.means,
+        c.n_params,
+        par,
+        t_lo,
+        t_hi,
+        [0.0, (info["knots"] + 1) / ctx.duration_s],
+        text,
         detail={"swing_mm": {ctx.series[i].key: v for i, v in swing.items()}},
     )
 
 
 def best_term(
-    ctx: Context, states: list[State], corr: FrameCorrelation | None = None, bases: dict | None = None
+    ctx: Context,
+    states: list[State],
+    corr: FrameCorrelation | None = None,
+    bases: dict | None = None,
+    kinds: tuple[str, ...] = KINDS,
 ):
     """The best generic term on the residual of ``states``: (ΔBIC, candidate) or None. Every
-    kind screens (grids, linear fits); the best candidate alone is refined (its ``refine``) when
-    its ΔBIC is below `REFINE_BELOW`, and kept refined when that scores better. ``bases``: the search's cache of spline bases."""
+    kind of ``kinds`` screens (grids, linear fits); the best candidate alone is refined (its
+    ``refine``) when its ΔBIC is below `REFINE_BELOW`, and kept refined when that scores better.
+    ``bases``: the search's cache of spline bases."""
     n_total = sum(s.n for s in ctx.series)
     noise = _Noise(ctx, states, bases)
     best = None
-    for kind in KINDS:
+    for kind in kinds:
         try:
             cands = _BUILDERS[kind](ctx, states, noise, n_total)
         except np.linalg.LinAlgError:  # one generic term that cannot be fitted never stops the rest
@@ -742,23 +785,6 @@ def apply_term(ctx: Context, states: list[State], best) -> tuple[UnnamedTerm, li
     return _as_term(ctx, states, best), _term_states(ctx, states, [delta], [c])
 
 
-def _best_of_kind(ctx, states, corr, bases, kind):
-    n_total = sum(s.n for s in ctx.series)
-    noise = _Noise(ctx, states, bases)
-    best = None
-    for c in _BUILDERS[kind](ctx, states, noise, n_total):
-        d = _score(ctx, noise, states, corr, c, n_total)
-        if best is None or d < best[0]:
-            best = (d, c)
-    if best is not None and best[1].refine is not None and best[0] < REFINE_BELOW:
-        q = best[1].refine()
-        if q is not None:
-            d = _score(ctx, noise, states, corr, q, n_total)
-            if d < best[0]:
-                best = (d, q)
-    return best
-
-
 def search_unnamed(
     ctx: Context,
     states: list[State],
@@ -798,7 +824,7 @@ def search_unnamed(
         j = 0
         while j < len(cands):
             others = _term_states(ctx, base, deltas[:j] + deltas[j + 1 :], cands[:j] + cands[j + 1 :])
-            best = _best_of_kind(ctx, others, corr, bases, cands[j].kind)
+            best = best_term(ctx, others, corr, bases, kinds=(cands[j].kind,))
             if check is not None:
                 check()
             if best is None or not best[0] < DELTA_BIC_MAX:
