@@ -186,27 +186,11 @@ class Drift(Effect):
             return None
         amp = float(fit.beta[0])
         amp_sigma = math.sqrt(max(float(fit.cov[0, 0]), 0.0))
-        where = ", ".join(ctx.series[i].key for i in fit.series)
-        return Proposal(
-            effect=self.id,
-            series=fit.series,
-            states=fit.states,
-            n_params=2,
-            p_value=p_value,
-            parameters={
-                "amplitude_mm": param(amp, amp_sigma),
-                "tau_s": param(tau, sig_tau),
-                "kind": param("exponential"),
-            },
-            t_start=0.0,
-            t_end=float(min(ctx.duration_s, 3.0 * tau)),
-            band_hz=[0.0, float(1.0 / (2 * math.pi * tau))],
-            explanation=(
-                f"The measured positions of {where} all drift by {amp:+.3f} mm at the start of the "
-                f"record, decaying with a time constant of {tau / 60:.1f} min: the camera warming up "
-                "shifts its range for the whole image alike."
-            ),
-            detail={"mode": "common"},
+        return _exponential_proposal(
+            ctx, fit.series, fit.states, 2, p_value, (amp, amp_sigma), (tau, sig_tau),
+            "all drift by {amp:+.3f} mm",
+            "the camera warming up shifts its range for the whole image alike.",
+            {"mode": "common"},
         )
 
     def _linear(self, ctx, states, sel, nus, tau, sig_tau, p_value) -> Proposal | None:
@@ -253,27 +237,11 @@ class Drift(Effect):
         sa = np.array([sds[i] for i in kept])
         amp = median_signed(a)
         amp_sigma = 1.2533 * math.sqrt(float(np.mean(sa**2)) / a.size)
-        where = ", ".join(ctx.series[i].key for i in kept)
-        return Proposal(
-            effect=self.id,
-            series=kept,
-            states=new,
-            n_params=1 + len(kept),
-            p_value=p_value,
-            parameters={
-                "amplitude_mm": param(amp, amp_sigma),
-                "tau_s": param(tau, sig_tau),
-                "kind": param("exponential"),
-            },
-            t_start=0.0,
-            t_end=float(min(ctx.duration_s, 3.0 * tau)),
-            band_hz=[0.0, float(1.0 / (2 * math.pi * tau))],
-            explanation=(
-                f"The measured positions of {where} drift by {amp:+.3f} mm at the start of the record, "
-                f"decaying with a time constant of {tau / 60:.1f} min: the camera warming up "
-                "(or its mount settling) adds a slowly vanishing offset."
-            ),
-            detail={"amplitudes_mm": {ctx.series[i].key: amps[i] for i in kept}},
+        return _exponential_proposal(
+            ctx, kept, new, 1 + len(kept), p_value, (amp, amp_sigma), (tau, sig_tau),
+            "drift by {amp:+.3f} mm",
+            "the camera warming up (or its mount settling) adds a slowly vanishing offset.",
+            {"amplitudes_mm": {ctx.series[i].key: amps[i] for i in kept}},
         )
 
     # -- polynomial --------------------------------------------------------------------------
@@ -353,3 +321,37 @@ class Drift(Effect):
 
 
 EFFECT = Drift()
+
+
+def _exponential_proposal(
+    ctx: Context,
+    series: list[int],
+    states: list[State],
+    n_params: int,
+    p_value: float,
+    amplitude: tuple[float, float],
+    tau: tuple[float, float],
+    what: str,
+    why: str,
+    detail: dict,
+) -> Proposal:
+    """An exponential warm-up's proposal: amplitude and τ with their σ's, the span 3τ, the band
+    below 1/(2πτ) and its explanation (``what`` formatted with the amplitude, then ``why``)."""
+    amp, t = amplitude[0], tau[0]
+    where = ", ".join(ctx.series[i].key for i in series)
+    return Proposal(
+        effect=Drift.id,
+        series=series,
+        states=states,
+        n_params=n_params,
+        p_value=p_value,
+        parameters={"amplitude_mm": param(*amplitude), "tau_s": param(*tau), "kind": param("exponential")},
+        t_start=0.0,
+        t_end=float(min(ctx.duration_s, 3.0 * t)),
+        band_hz=[0.0, float(1.0 / (2 * math.pi * t))],
+        explanation=(
+            f"The measured positions of {where} {what.format(amp=amp)} at the start of the record, "
+            f"decaying with a time constant of {t / 60:.1f} min: {why}"
+        ),
+        detail=detail,
+    )
