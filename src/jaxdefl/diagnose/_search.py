@@ -33,6 +33,9 @@ from ._whiteness import combined_p, residual_tests
 from .effects import EFFECT_IDS, load_effects
 from .unnamed import MAX_TERMS, UnnamedTerm, apply_term, best_term, colored_gain, search_unnamed
 
+GENERIC_FIRST_RATIO = 2.0  # see the open world's competition in `run_diagnosis`
+NOISE_STRUCTURE = frozenset({"heteroscedastic_noise", "outliers"})  # effects on the noise, not the mean
+
 __all__ = ["Diagnosis", "run_diagnosis", "diagnose", "DELTA_BIC_MAX", "ALPHA", "MAX_EFFECTS"]
 
 DELTA_BIC_MAX = -10.0
@@ -463,10 +466,18 @@ def run_diagnosis(
             if chosen is not None:
                 break
         # The open world competes: a generic term far better than the named candidate (a free
-        # decay read as a noise level that changes, say) goes first, as unnamed.
+        # decay read as a noise level that changes, say) goes first, as unnamed. Far better means
+        # a better mean than a noise-structure effect's (a decaying mode makes the residual's
+        # variance fall), or, against a named mean shape, one the named shape explains less than
+        # 1/GENERIC_FIRST_RATIO of: a flexible spline always beats a physical shape by some ΔBIC
+        # on a strong signal (a camera warm-up seen through the extraction's gains), and that is
+        # not missing physics.
         if open_world and chosen is not None and len(terms) < MAX_TERMS:
             generic = best_term(ctx, states, corr, bases)
-            if generic is not None and generic[0] < chosen.delta_bic + DELTA_BIC_MAX:
+            far_better = chosen.delta_bic + DELTA_BIC_MAX
+            if chosen.proposal.effect not in NOISE_STRUCTURE:  # a mean shape against a mean shape
+                far_better = min(far_better, GENERIC_FIRST_RATIO * chosen.delta_bic)
+            if generic is not None and generic[0] < far_better:
                 term, states = apply_term(ctx, states, generic)
                 terms.append(term)
                 if on_round is not None:

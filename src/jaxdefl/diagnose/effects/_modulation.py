@@ -40,7 +40,7 @@ class ModulationEffect(Effect):
 
     demodulation: str = ""
     trend: bool = False
-    plausible_depth = 0.02  # the sinusoidal kind: relative depth (AM) or β in rad (FM)
+    plausible_depth = 0.05  # the sinusoidal kind: relative depth (AM) or β in rad (FM)
     gate_params = 3
 
     def plausible_rms(self, ctx: Context, i: int) -> float:
