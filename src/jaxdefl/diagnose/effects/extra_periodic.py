@@ -201,25 +201,10 @@ class ExtraPeriodic(Effect):
         half = max(3 * sigma_f, 0.5 / ctx.duration_s)
         keys = [ctx.series[i].key for i in fit.series]
         where = f"{len(keys)} series" if len(keys) > 3 else ", ".join(keys)
-        return Proposal(
-            effect=self.id,
-            series=fit.series,
-            states=fit.states,
-            n_params=3,
-            p_value=p_value,
-            parameters={
-                "freq_hz": {"value": f_hat, "sigma": sigma_f},
-                "amplitude_mm": {"value": amp, "sigma": amp_sig},
-            },
-            t_start=0.0,
-            t_end=ctx.duration_s,
-            band_hz=[f_hat - half, f_hat + half],
-            explanation=(
-                f"A periodic motion at {f_hat:.4f} Hz ({f_hat / ctx.f0_hz:.3f} × the loading frequency, "
-                f"not one of its harmonics) moves {where} alike by about {amp:.3f} mm along {axis}: "
-                "a vibration of the pump, the camera mount or the floor that the nominal model leaves out."
-            ),
-            detail={"mode": "common", "amplitude_axis": axis},
+        return _line_proposal(
+            ctx, fit.series, fit.states, 3, p_value, f_hat, sigma_f, half, (amp, amp_sig),
+            f"moves {where} alike by about {amp:.3f} mm along {axis}",
+            {"mode": "common", "amplitude_axis": axis},
         )
 
     def _refine(self, ctx, states, kept, f_peak, p_value) -> Proposal | None:
@@ -266,26 +251,11 @@ class ExtraPeriodic(Effect):
         amp_med = float(np.median(np.asarray(amps)[on_main]))
         amp_sig_med = float(np.median(np.asarray(amp_sig)[on_main]))
         half = max(3 * sigma_f, 0.5 / ctx.duration_s) if np.isfinite(sigma_f) else 1.0 / ctx.duration_s
-        return Proposal(
-            effect=self.id,
-            series=list(kept),
-            states=new_states,
-            n_params=1 + 2 * len(kept),
-            p_value=p_value,
-            parameters={
-                "freq_hz": {"value": f_hat, "sigma": sigma_f if np.isfinite(sigma_f) else None},
-                "amplitude_mm": {"value": amp_med, "sigma": amp_sig_med},
-            },
-            t_start=0.0,
-            t_end=ctx.duration_s,
-            band_hz=[f_hat - half, f_hat + half],
-            explanation=(
-                f"A periodic motion at {f_hat:.4f} Hz ({f_hat / ctx.f0_hz:.3f} × the loading frequency, "
-                f"not one of its harmonics) moves {len(plates)} plate(s) by about {amp_med:.3f} mm along "
-                f"{main}: a "
-                "vibration of the pump, the camera mount or the floor that the nominal model leaves out."
-            ),
-            detail={
+        return _line_proposal(
+            ctx, list(kept), new_states, 1 + 2 * len(kept), p_value, f_hat,
+            sigma_f if np.isfinite(sigma_f) else None, half, (amp_med, amp_sig_med),
+            f"moves {len(plates)} plate(s) by about {amp_med:.3f} mm along {main}",
+            {
                 "amplitudes_mm": {ctx.series[i].key: float(a) for i, a in zip(kept, amps, strict=True)},
                 "median_amplitude_by_axis_mm": {ax: float(np.median(v)) for ax, v in by_axis.items()},
                 "amplitude_axis": main,
@@ -294,3 +264,40 @@ class ExtraPeriodic(Effect):
 
 
 EFFECT = ExtraPeriodic()
+
+
+def _line_proposal(
+    ctx: Context,
+    series: list[int],
+    states: list[State],
+    n_params: int,
+    p_value: float,
+    f_hat: float,
+    sigma_f: float | None,
+    half: float,
+    amplitude: tuple[float, float],
+    moves: str,
+    detail: dict,
+) -> Proposal:
+    """An extra line's proposal over the whole record: frequency and amplitude with σ's, the band
+    f ± ``half`` and its explanation (``moves`` says what moves how much)."""
+    return Proposal(
+        effect=ExtraPeriodic.id,
+        series=series,
+        states=states,
+        n_params=n_params,
+        p_value=p_value,
+        parameters={
+            "freq_hz": {"value": f_hat, "sigma": sigma_f},
+            "amplitude_mm": {"value": amplitude[0], "sigma": amplitude[1]},
+        },
+        t_start=0.0,
+        t_end=ctx.duration_s,
+        band_hz=[f_hat - half, f_hat + half],
+        explanation=(
+            f"A periodic motion at {f_hat:.4f} Hz ({f_hat / ctx.f0_hz:.3f} × the loading frequency, "
+            f"not one of its harmonics) {moves}: a vibration of the pump, the camera mount or the "
+            "floor that the nominal model leaves out."
+        ),
+        detail=detail,
+    )
