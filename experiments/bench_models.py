@@ -72,6 +72,11 @@ lines, 2.01 -> 1.56 s damped, the thesis model 1.23 -> 1.30 s, same loaded machi
 ratios would be ~22x (lines) and ~15x (damped): the 20x target is met for the harmonics only,
 not robustly, and not for the damped model.
 
+13:36, after all of the session's merges, on a quiet machine (load 2.3 -> 1.9, nothing else
+running): harmonics 33.8, 18.1, 16.2x (median 18.1x; jaxdefl 1.50-1.58 s a round), lines 29.1,
+22.2, 22.4x (22.4x), damped 18.7, 17.5, 17.3x (17.5x; 0.92-1.00 s): the 20x target is met by the
+lines only; harmonics and damped stay at 17-18x.
+
 Agreement with the loop (12:17 and 12:35): max |Δf0|/σ_f0 0.0021 (harmonics), 0.0010 (lines), 0.07
 (damped: the loop's 'lm' stops at its default tolerances).
 """
