@@ -342,6 +342,8 @@ class Effect(abc.ABC):
             ``"seconds"`` (a timing error: × its motion's velocity amplitude ωA), ``"mm"`` (an
             absolute amplitude), and ``"mm_per_s"`` (a rate: × the record's duration, the term's
             RMS that of a ramp). An effect with its own shape overrides `plausible_rms`.
+        noise_structure: it models the noise (its level, its outliers), not the mean: a generic
+            mean term that explains the same residual better goes before it (`run_diagnosis`).
     """
 
     id: str = ""
@@ -351,6 +353,7 @@ class Effect(abc.ABC):
     plausible: float = 0.2
     plausible_unit: str = "noise"
     gate_params: int = 3
+    noise_structure: bool = False
 
     def plausible_rms(self, ctx: Context, i: int) -> float:
         """RMS (mm) of the effect's term on series i at a plausible magnitude."""

@@ -34,7 +34,6 @@ from .effects import EFFECT_IDS, load_effects
 from .unnamed import MAX_TERMS, UnnamedTerm, apply_term, best_term, colored_gain, search_unnamed
 
 GENERIC_FIRST_RATIO = 2.0  # see the open world's competition in `run_diagnosis`
-NOISE_STRUCTURE = frozenset({"heteroscedastic_noise", "outliers"})  # effects on the noise, not the mean
 
 __all__ = ["Diagnosis", "run_diagnosis", "diagnose", "DELTA_BIC_MAX", "ALPHA", "MAX_EFFECTS"]
 
@@ -475,7 +474,7 @@ def run_diagnosis(
         if open_world and chosen is not None and len(terms) < MAX_TERMS:
             generic = best_term(ctx, states, corr, bases)
             far_better = chosen.delta_bic + DELTA_BIC_MAX
-            if chosen.proposal.effect not in NOISE_STRUCTURE:  # a mean shape against a mean shape
+            if not library[chosen.proposal.effect].noise_structure:  # a mean shape against a mean one
                 far_better = min(far_better, GENERIC_FIRST_RATIO * chosen.delta_bic)
             if generic is not None and generic[0] < far_better:
                 term, states = apply_term(ctx, states, generic)

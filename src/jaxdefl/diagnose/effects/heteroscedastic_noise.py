@@ -121,6 +121,7 @@ class HeteroscedasticNoise(Effect):
     id = "heteroscedastic_noise"
     meaning = "noise level that depends on the motion's phase or changes over the record"
     plausible, plausible_unit, gate_params = 0.15, "noise", 2  # the variance ±30 % with the phase
+    noise_structure = True
 
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
         idx = open_series(ctx, states, self.id)

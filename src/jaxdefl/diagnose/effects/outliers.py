@@ -103,6 +103,7 @@ class Outliers(Effect):
     id = "outliers"
     meaning = "heavy-tailed residuals: single frames far off (mixed pixels, segmentation failures)"
     plausible, plausible_unit, gate_params = 0.5, "noise", 2  # 1 % of the frames 5 σ off
+    noise_structure = True
 
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
         cand = []

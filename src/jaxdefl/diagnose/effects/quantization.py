@@ -9,17 +9,17 @@ y − h = −q·saw((h − o)/q), saw(x) = x − round(x).
 
 Signature test: the residual binned by the current model value h (z series, whatever the
 ``--sensor`` hint says: the data decide — a ToF camera's range comes in steps too, and a wrong
-hint must not hide a staircase), then for every step q of a grid uniform in 1/q (the
-"frequency" along h, spaced a quarter of a cycle over the motion's span) the first harmonic of the sawtooth, cos and sin of
-2π h/q, is regressed on the binned residual with the offset and h itself free (the harmonic's
-cosine is a function of h): a χ²_2 statistic per series, summed over the series for a common
-step. The p-value is the largest single-series statistic Bonferroni-corrected over series × the
-grid, or the summed statistic (χ²_2S) corrected over the grid, whichever is smaller (doubled).
+hint must not hide a staircase), then for every step q of a grid uniform in 1/q (the "frequency"
+along h, spaced a quarter of a cycle over the motion's span) the first harmonic of the sawtooth,
+cos and sin of 2π h/q, is regressed on the binned residual with the offset and h itself free (the
+harmonic's cosine is a function of h): a χ²_2 statistic per series, summed over the series for a
+common step. The p-value is the largest single-series statistic Bonferroni-corrected over series ×
+the grid, or the summed statistic (χ²_2S) corrected over the grid, whichever is smaller (doubled).
 Then q and the staircase's phase are refined on the exact staircase: the likelihood of y against
-q·round((h − φ_s)/q) + φ_s (no free amplitude). The phase is free per series because the
-nominal offset is itself biased by the quantisation; the camera's levels o_s = φ_s + c_s (c_s the
-refitted offset) come out alike on every plate when the levels are the camera's (reported:
-their circular mean).
+q·round((h − φ_s)/q) + φ_s (no free amplitude). The phase is free per series because the nominal
+offset is itself biased by the quantisation; the camera's levels o_s = φ_s + c_s (c_s the refitted
+offset) come out alike on every plate when the levels are the camera's (reported: their circular
+mean).
 
 Model term: mean = q·round((h' − φ_s)/q) + φ_s + c_s, h' the current model with its free
 nuisance refitted inside the rounding (`_inside`: the nominal harmonic fitted to a staircase is
