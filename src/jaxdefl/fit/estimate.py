@@ -16,7 +16,7 @@ from ..series import Windows
 from ..spectral import Periodogram, lomb_peaks
 from ..status import STATUSES, Status
 from .harmonic import N_PARAMS, HarmonicFit, fit_harmonics
-from .models import SignalModel, fit_model, model_table
+from .models import SignalModel, fit_model, model_residual_noise, model_table
 from .residual_noise import ResidualNoise, harmonic_residual, residual_noise
 
 __all__ = ["ESTIMATE_COLUMNS", "STATUSES", "Estimates", "estimate_windows"]
@@ -128,20 +128,21 @@ def estimate_windows(
             search = dict(fmin_hz=fmin_hz, fmax_hz=fmax_hz, oversampling=oversampling)
             f = fit_model(w, p, rows[go], model, weights=weights, **search)
         converged = f.converged[rows]
-        noise = None
+        # Model adequacy and σ's honest under coloured noise (`residual_noise`), on this
+        # thread: numpy releases the GIL, so the blocks' statistics run side by side.
+        ok = rows[converged]
         if model is None:
-            # Model adequacy and σ's honest under coloured noise (`residual_noise`), on this
-            # thread: numpy releases the GIL, so the blocks' statistics run side by side.
-            ok = rows[converged]
             resid[ok] = harmonic_residual(w, f.params, rows=ok)
             noise = residual_noise(w, resid, f.f0_hz, rows=ok)
+        else:
+            noise = model_residual_noise(w, f, model, rows, resid)
         return rows, p, np.where(go & ~converged, Status.DID_NOT_CONVERGE, st), f, noise
 
     # Blocks run on a thread per core: XLA and the FFTs release the GIL.
     workers = max(1, os.cpu_count() or 1) if workers is None else max(1, workers)
     size = min(block, max(256, -(-todo.size // workers)))
     blocks = [todo[i : i + size] for i in range(0, todo.size, size)]
-    resid = np.empty_like(w.y) if model is None else None  # rows filled by their block
+    resid = np.empty_like(w.y)  # rows filled by their block
     noise_parts = []
     with ThreadPoolExecutor(max_workers=workers) as pool:
         for rows, p, st, f, noise in (fut.result() for fut in [pool.submit(run, r) for r in blocks]):
@@ -151,8 +152,7 @@ def estimate_windows(
             spectra.update(p.spectra)
             status[rows] = st
             fit_parts.append((rows, f))
-            if noise is not None:
-                noise_parts.append((rows, noise))
+            noise_parts.append((rows, noise))
             if on_block is not None:
                 on_block(rows.size)
             check_interrupt()
@@ -182,7 +182,8 @@ def estimate_windows(
     tab["peak_fap"] = periodogram.fap
     if model is not None:
         # adequacy and σ's from the whole model's residual (`jaxdefl.fit.models.model_table`)
-        tab, added, noise = model_table(w, tab, fit, model)
+        noise = _merge_fits(b, noise_parts, ResidualNoise) if noise_parts else None
+        tab, added, noise = model_table(w, tab, fit, model, noise)
         return Estimates(tab[ESTIMATE_COLUMNS + added], w, periodogram, fit, noise)
     # Model adequacy and σ's honest under coloured noise (`residual_noise`): the white-noise σ's
     # (thesis 5.43-5.45) are kept beside; the default ones use the residual's density near f0.

@@ -53,6 +53,7 @@ __all__ = [
     "fit_model",
     "fit_model_window",
     "model_columns",
+    "model_residual_noise",
     "model_table",
     "model_values",
     "signal_model",
@@ -195,9 +196,10 @@ def _value(spec: SignalModel, p, t):
 
 def _project(spec: SignalModel, theta, t, yc, w):
     """Variable projection at ``theta``: the linear parameters by weighted least squares, the
-    residual, Kaufman's Jacobian of the residual over ``theta`` (the nonlinear columns V with
-    their part in the span of the linear ones G removed), and the sums the normal matrix of all
-    parameters is made of (GᵀWG, GᵀWV, VᵀWV) and VᵀWr."""
+    residual r, and the normal equations of Kaufman's Jacobian of r over ``theta`` (the
+    nonlinear columns V with their part in the span of the linear ones G removed): JᵀWJ and
+    JᵀWr = -VᵀWr (GᵀWr = 0 at the linear solution); also the sums the normal matrix of all
+    parameters is made of (GᵀWG, GᵀWV, VᵀWV). Returns (r, JᵀWJ, VᵀWr, sums)."""
     g = _design(spec, theta, t)
     import jax.scipy.linalg as jsl  # imported when the kernel is traced
 
@@ -211,9 +213,8 @@ def _project(spec: SignalModel, theta, t, yc, w):
     vtv = jnp.stack([jnp.stack([jnp.sum(a * b) for b in v]) for a in wv])
     vtr = jnp.stack([jnp.sum(a * r) for a in wv])
     coef = jsl.cho_solve(chol, gtv)
-    jac = [-(v[q] - sum(coef[i, q] * g[i] for i in range(len(g)))) for q in range(len(v))]
     sums = dict(lin=lin, gtg=gtg, gtv=gtv, vtv=vtv, rss=jnp.sum(w * r**2), rr=jnp.sum(r**2))
-    return r, jac, vtv - gtv.T @ coef, vtr, sums
+    return r, vtv - gtv.T @ coef, vtr, sums
 
 
 def _segment_sums(t, yc, w, omega, g_n):
@@ -298,7 +299,6 @@ def fit_model_window(spec: SignalModel, t, y, w, omega0, rtol=RTOL, atol=ATOL, m
     """
     m, n_par = spec.n_components, spec.n_params
     valid = w > 0
-    sw = jnp.sqrt(w)
     n = jnp.sum(valid)
     ybar = jnp.sum(w * y) / jnp.sum(w)
     yc = jnp.where(valid, y - ybar, 0.0)
@@ -321,7 +321,7 @@ def fit_model_window(spec: SignalModel, t, y, w, omega0, rtol=RTOL, atol=ATOL, m
     # from the start (periodogram frequencies; decays from the envelope) is taken here; a step
     # of more than a quarter cycle, or of more than one e-fold of decay, over the window is not
     # (a start far from any optimum).
-    r0, _, s_theta, vtr0, _ = _project(spec, theta0, t, yc, w)
+    r0, s_theta, vtr0, _ = _project(spec, theta0, t, yc, w)
     step = jnp.linalg.solve(s_theta, vtr0)
     span = jnp.max(jnp.where(valid, jnp.abs(t), 0.0))
     k_max = spec.multiplier(m - 1)
@@ -340,15 +340,22 @@ def fit_model_window(spec: SignalModel, t, y, w, omega0, rtol=RTOL, atol=ATOL, m
     scale = noise * jnp.sqrt(jnp.abs(jnp.diag(jnp.linalg.inv(s_theta))))
 
     def residual(u, _):
-        # value r(θ), derivative Kaufman's Jacobian: r + J (u - u) with r and J held constant
+        # The weighted residual f = √w r / noise (n samples) with Kaufman's Jacobian J, handed
+        # to optimistix compressed to p + 1 numbers with the same Gauss-Newton steps and loss:
+        # with JᵀJ = L Lᵀ (Cholesky), f̃ = [L⁻¹ Jᵀf, (|f|² - |L⁻¹ Jᵀf|²)^½] and J̃ = [Lᵀ; 0]
+        # give J̃ᵀJ̃ = JᵀJ, J̃ᵀf̃ = Jᵀf and |f̃| = |f|. The solver's work per step is then that of
+        # a (p + 1) x p problem, not n x p (a third of the damped fit's time went there). Value
+        # f̃, derivative J̃: f̃ + J̃ (u - u) with f̃ and J̃ held constant.
         u_c = jax.lax.stop_gradient(u)
-        r, jac, _, _, sums = _project(spec, theta1 + u_c * scale, t, yc, w)
-        f = sw * r / noise
-        for q, col in enumerate(jac):
-            f = f + (sw * col * (scale[q] / noise)) * (u[q] - u_c[q])
+        _, s_theta, vtr, sums = _project(spec, theta1 + u_c * scale, t, yc, w)
+        chol = jnp.linalg.cholesky(s_theta * jnp.outer(scale, scale) / noise**2)
+        g = jsl.solve_triangular(chol, -scale * vtr / noise**2, lower=True)
+        rest = jnp.sqrt(jnp.maximum(sums["rss"] / noise**2 - g @ g, 0.0))
+        f = jnp.concatenate([g, rest[None]]) + jnp.concatenate([chol.T @ (u - u_c), jnp.zeros(1)])
         return f, sums
 
-    import optimistix as optx  # imported when the kernel is traced
+    import jax.scipy.linalg as jsl  # imported when the kernel is traced
+    import optimistix as optx
 
     sol = gauss_newton(residual, theta1.size, rtol, atol, max_steps, has_aux=True)
     theta = theta1 + sol.value * scale
@@ -643,31 +650,48 @@ def model_columns(
     return tab, added
 
 
+def model_residual_noise(
+    w: Windows, fit: HarmonicFit, spec: SignalModel, rows: np.ndarray, resid: np.ndarray
+) -> ResidualNoise:
+    """`residual_noise` of the whole model's residual, for the windows at ``rows`` that were
+    fitted (run by each block of `jaxdefl.fit.estimate_windows` on its own thread): ``r2``,
+    ``whiteness_p`` and ``kappa`` (window, component), the residual's spectral density at each
+    component's frequency. ``resid`` (window, sample) receives the residual of ``rows``."""
+    m = spec.n_components
+    if not isinstance(fit, ModelFit):  # no window was fitted
+        fit_rows = np.zeros(0, np.int64)
+        f_hz = np.full((len(w), m), np.nan)
+    else:
+        fit_rows = rows[fit.converged[rows]]
+        # the model at all of ``rows`` (NaN where not fitted): one compiled shape per block size
+        resid[rows] = w.y[rows] - model_values(spec, fit.model_params[rows], w.t[rows], fit.origin_s[rows])
+        omega = fit.model_params[:, [spec.omega_index(spec.line_of(j)) for j in range(m)]]
+        f_hz = omega * np.array([spec.multiplier(j) for j in range(m)]) / (2 * np.pi)
+    return residual_noise(w, resid, f_hz, rows=fit_rows)
+
+
 def model_table(
-    w: Windows, tab: pd.DataFrame, fit: HarmonicFit, spec: SignalModel
+    w: Windows, tab: pd.DataFrame, fit: HarmonicFit, spec: SignalModel, noise: ResidualNoise | None
 ) -> tuple[pd.DataFrame, list[str], ResidualNoise]:
     """`model_columns` with the σ's honest under coloured noise, and the adequacy columns.
 
-    From the whole model's residual: ``r2``, ``whiteness_p`` and, per component, the residual's
-    spectral density at the component's frequency (`residual_noise`), which scales that
-    component's σ's; ``sigma_amplitude_white_mm``/``sigma_f0_white_hz`` keep the first
-    component's white-noise σ's, as for the default model.
+    From the whole model's residual (``noise``, `model_residual_noise` of every window; None
+    when no window was fitted): ``r2``, ``whiteness_p`` and, per component, the residual's
+    spectral density at the component's frequency, which scales that component's σ's;
+    ``sigma_amplitude_white_mm``/``sigma_f0_white_hz`` keep the first component's white-noise
+    σ's, as for the default model.
 
     Returns:
         The table, the names of the model's added columns, and the first component's
         `ResidualNoise`.
     """
-    b, m = len(w), spec.n_components
-    rows = np.flatnonzero(fit.converged)
+    b = len(w)
     kappa = None
-    noise = residual_noise(w, w.y, np.full(b, np.nan), rows=np.zeros(0, np.int64))  # all NaN
-    if isinstance(fit, ModelFit) and rows.size:
-        resid = w.y - model_values(spec, fit.model_params, w.t, fit.origin_s)
-        omega = fit.model_params[:, [spec.omega_index(spec.line_of(j)) for j in range(m)]]
-        f_hz = omega * np.array([spec.multiplier(j) for j in range(m)]) / (2 * np.pi)
-        full = residual_noise(w, resid, f_hz, rows=rows)  # kappa (window, component)
-        kappa = full.kappa
-        noise = dataclasses.replace(full, kappa=kappa[:, 0])
+    if noise is None:
+        noise = residual_noise(w, w.y, np.full(b, np.nan), rows=np.zeros(0, np.int64))  # all NaN
+    else:
+        kappa = noise.kappa
+        noise = dataclasses.replace(noise, kappa=kappa[:, 0])
     white, _ = model_columns(tab, fit, spec)
     tab, added = model_columns(tab, fit, spec, kappa)
     tab["r2"] = noise.r2
