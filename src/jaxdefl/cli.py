@@ -190,21 +190,13 @@ def diagnose(
     timestamps: Annotated[str, typer.Option("--timestamps", help=_TIMESTAMPS_HELP)] = "strict",
 ) -> None:
     """Locate where a recording departs from the nominal model and name the missing physics."""
-    from . import pipeline
+    from .settings import DIAGNOSE_FLAGS, DiagnoseSettings
 
-    pipeline.diagnose_file(
-        traj,
-        out,
-        reference=reference,
-        sensor=sensor,
-        frame_rate_hz=frame_rate,
-        modulation_mhz=modulation_mhz,
-        config=config,
-        segment=segment,
-        effects=None if effects is None else tuple(e.strip() for e in effects.split(",") if e.strip()),
-        figures=figures,
-        timestamps=timestamps,
-    )
+    with _flag_names(DIAGNOSE_FLAGS):
+        settings = DiagnoseSettings(**_flag_values(locals(), DIAGNOSE_FLAGS))  # before any input is read
+        from . import pipeline
+
+        pipeline.diagnose_file(traj, out, settings, reference=reference, config=config, figures=figures)
 
 
 @app.command()
@@ -224,19 +216,13 @@ def reconcile(
     timestamps: Annotated[str, typer.Option("--timestamps", help=_TIMESTAMPS_HELP)] = "strict",
 ) -> None:
     """Compare a recording with its simulation, name the missing physics, simulate it, compare again."""
-    from . import pipeline
+    from .settings import RECONCILE_FLAGS, ReconcileSettings
 
-    pipeline.reconcile_file(
-        recording,
-        config,
-        out,
-        reference=reference,
-        session=session,
-        segment=segment,
-        n_null=null_sims,
-        seed=seed,
-        timestamps=timestamps,
-    )
+    with _flag_names(RECONCILE_FLAGS):
+        settings = ReconcileSettings(**_flag_values(locals(), RECONCILE_FLAGS))  # before any input is read
+        from . import pipeline
+
+        pipeline.reconcile_file(recording, config, out, settings, reference=reference)
 
 
 @app.command()

@@ -8,12 +8,20 @@ names to its flags (`FIT_FLAGS`: ``--window: ...``).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from ._errors import ParameterError
 
-__all__ = ["FIT_FLAGS", "FitSettings"]
+__all__ = [
+    "DIAGNOSE_FLAGS",
+    "DiagnoseSettings",
+    "FIT_FLAGS",
+    "FitSettings",
+    "RECONCILE_FLAGS",
+    "ReconcileSettings",
+    "SENSORS",
+]
 
 # parameter -> flag of `jaxdefl fit`
 FIT_FLAGS = {
@@ -31,7 +39,39 @@ FIT_FLAGS = {
     "harmonics": "--harmonics",
     "lines": "--lines",
 }
+# parameter -> flag of `jaxdefl diagnose`
+DIAGNOSE_FLAGS = {
+    "sensor": "--sensor",
+    "frame_rate_hz": "--frame-rate",
+    "modulation_mhz": "--modulation-mhz",
+    "segment": "--segment",
+    "effects": "--effects",
+    "timestamps": "--timestamps",
+}
+# parameter -> flag of `jaxdefl reconcile`
+RECONCILE_FLAGS = {
+    "session": "--session",
+    "segment": "--segment",
+    "n_null": "--null-sims",
+    "seed": "--seed",
+    "timestamps": "--timestamps",
+}
 AXES = ("z", "x", "y")
+SENSORS = ("tof", "structured_light")
+
+
+def _names(v: tuple[str, ...] | str) -> tuple[str, ...]:
+    """A comma list (``"z,x"``) or a sequence of names as a tuple, blanks dropped."""
+    return tuple(a.strip() for a in (v.split(",") if isinstance(v, str) else v) if a.strip())
+
+
+def _check_axes(settings) -> None:
+    """``settings.axes`` as a tuple of z, x, y (None: the axes present), or a `ParameterError`."""
+    if settings.axes is not None:
+        axes = _names(settings.axes)
+        if not axes or any(a not in AXES for a in axes):
+            raise ParameterError("axes", f"expected a comma list of z, x, y; got {_got(settings.axes)}")
+        object.__setattr__(settings, "axes", axes)
 
 
 def _got(v) -> str:
@@ -94,13 +134,7 @@ class FitSettings:
             raise bad("posterior", "a number of windows >= 0")
         if self.posterior_noise not in ("ar1", "white"):
             raise bad("posterior_noise", "ar1 or white")
-        if self.axes is not None:
-            given = self.axes
-            axes = tuple(a.strip() for a in (given.split(",") if isinstance(given, str) else given))
-            axes = tuple(a for a in axes if a)
-            if not axes or any(a not in AXES for a in axes):
-                raise ParameterError("axes", f"expected a comma list of z, x, y; got {_got(given)}")
-            object.__setattr__(self, "axes", axes)
+        _check_axes(self)
         from .fit import signal_model
         from .io import check_timestamp_policy
 
@@ -113,3 +147,99 @@ class FitSettings:
                 "checks the σ's of the default model only; drop it, or drop {model}/{harmonics}/{lines}",
             )
         object.__setattr__(self, "spec", spec)
+
+
+def _check_positive(settings, names: tuple[str, ...], expected: str) -> None:
+    """Each of ``names`` None or a finite number > 0, or a `ParameterError` naming it."""
+    for name in names:
+        v = getattr(settings, name)
+        if v is not None and not (math.isfinite(v) and v > 0):
+            raise ParameterError(name, f"expected {expected}, got {_got(v)}")
+
+
+@dataclass(frozen=True)
+class DiagnoseSettings:
+    """What `jaxdefl diagnose` (`jaxdefl.diagnose.run_diagnosis`) knows of the camera and searches.
+
+    ``sensor``, ``frame_rate_hz``, ``modulation_mhz``, ``tap_offsets`` (four fractions of the
+    frame period): what the user knows of the camera (None: unknown; the frame rate then comes
+    from the timestamps). ``segment``: the segment to diagnose when the table has several.
+    ``effects``: restrict the library to these ids (a comma list or a tuple; None: all).
+    ``axes``: the axes diagnosed (None: z, x, y as present). ``timestamps``: the policy the
+    tables are read with (`jaxdefl.io.validate_trajectory`). ``open_world``: search what the
+    named effects leave with generic terms (`jaxdefl.diagnose.unnamed`).
+    """
+
+    sensor: str | None = None
+    frame_rate_hz: float | None = None
+    modulation_mhz: float | None = None
+    tap_offsets: tuple[float, ...] | None = None
+    segment: str | None = None
+    effects: tuple[str, ...] | str | None = None
+    axes: tuple[str, ...] | str | None = None
+    timestamps: str = "strict"
+    open_world: bool = True
+
+    def __post_init__(self):
+        from ._effect_ids import EFFECT_IDS
+
+        if self.sensor is not None and self.sensor not in SENSORS:
+            raise ParameterError("sensor", f"expected one of {', '.join(SENSORS)}, got {_got(self.sensor)}")
+        _check_positive(self, ("frame_rate_hz",), "a positive rate in Hz")
+        _check_positive(self, ("modulation_mhz",), "a positive frequency in MHz")
+        if self.tap_offsets is not None:
+            taps = tuple(float(o) for o in self.tap_offsets)
+            if len(taps) != 4 or not all(0.0 <= o < 1.0 for o in taps):
+                raise ParameterError(
+                    "tap_offsets", f"expected 4 fractions of the frame period in [0, 1), got {list(taps)}"
+                )
+            object.__setattr__(self, "tap_offsets", taps)
+        if self.effects is not None:
+            effects = _names(self.effects)
+            unknown = [e for e in effects if e not in EFFECT_IDS]
+            if unknown or not effects:
+                raise ParameterError(
+                    "effects",
+                    f"unknown effect {_got(unknown[0] if unknown else self.effects)} "
+                    f"(expected one of {', '.join(EFFECT_IDS)})",
+                )
+            object.__setattr__(self, "effects", effects)
+        _check_axes(self)
+        from .io import check_timestamp_policy
+
+        check_timestamp_policy(self.timestamps)
+
+    def with_camera(self, facts: dict) -> DiagnoseSettings:
+        """These settings with the camera ``facts`` (a simulation config's) where they say nothing."""
+        given = {k: v for k, v in facts.items() if getattr(self, k) is None}
+        return replace(self, **given) if given else self
+
+
+@dataclass(frozen=True)
+class ReconcileSettings:
+    """Everything `jaxdefl reconcile` (`jaxdefl.reconcile.reconcile`) does besides its paths.
+
+    ``session``, ``segment``: the config's session and the recording's segment (None: the
+    first). ``n_null`` simulations make the null band (at least 5 for a 95 % band), ``n_sims``
+    the before/after comparisons, from ``seed``. ``timestamps``: the policy the recording is
+    read with. ``diagnosis``: what the diagnosis of the recording knows of the camera.
+    """
+
+    session: str | None = None
+    segment: str | None = None
+    n_null: int = 20
+    n_sims: int = 4
+    seed: int = 0
+    timestamps: str = "strict"
+    diagnosis: DiagnoseSettings = field(default_factory=DiagnoseSettings)
+
+    def __post_init__(self):
+        if self.n_null < 5:
+            raise ParameterError("n_null", f"expected at least 5 simulations for a 95 % band, got {self.n_null}")
+        if self.n_sims < 1:
+            raise ParameterError("n_sims", f"expected at least 1 simulation, got {self.n_sims}")
+        if self.seed < 0:
+            raise ParameterError("seed", f"expected a seed >= 0, got {self.seed}")
+        from .io import check_timestamp_policy
+
+        check_timestamp_policy(self.timestamps)
