@@ -39,10 +39,10 @@ def main() -> None:
 
     from jaxdefl.diagnose import load_effects, run_diagnosis
     from jaxdefl.diagnose._context import build_context
-    from jaxdefl.settings import DiagnoseSettings
     from jaxdefl.fit import estimate_windows
     from jaxdefl.io import validate_trajectory
     from jaxdefl.series import make_windows
+    from jaxdefl.settings import DiagnoseSettings
     from jaxdefl.simulate.effects import CleanRecording, RecordingSpec, draw_effect, make_recording
 
     effects = () if args.effect == "none" else (args.effect,)

@@ -131,9 +131,9 @@ def test_cli_extract_device_flag(tmp_path, capsys):
     a, b = pd.read_csv(tmp_path / "a.csv"), pd.read_csv(tmp_path / "b.csv")
     assert len(a) == 36
     np.testing.assert_allclose(a[["x", "y", "z"]], b[["x", "y", "z"]], atol=0.01)
-    bad = [("gpu", "--device gpu: expected cpu, cuda or cuda:N")]
+    bad = [("gpu", "--device: expected cpu, cuda or cuda:N, got 'gpu'")]
     if not torch.cuda.is_available():
-        bad.append(("cuda", "--device cuda: CUDA is not available"))
+        bad.append(("cuda", "--device: cuda: CUDA is not available"))
     for dev, msg in bad:
         capsys.readouterr()
         code = main(["extract", str(tmp_path / "rec.npz"), "--out", str(tmp_path / "c.csv"), "--device", dev])

@@ -17,7 +17,6 @@ from ._configs import config_dir
 from ._errors import ConfigError, JaxdeflError, ParameterError
 from .fit import Estimates, compare_with_reference, estimate_windows, fit_reference
 from .io import (
-    check_timestamp_policy,
     load_table,
     read_reference,
     read_trajectory,
@@ -27,7 +26,7 @@ from .io import (
 from .io.output import TABLE_SUFFIXES, Outputs
 from .progress import console, progress_bar
 from .series import check_window_plan
-from .settings import DiagnoseSettings, FitSettings, ReconcileSettings
+from .settings import DiagnoseSettings, FitSettings, ReconcileSettings, RunSettings
 
 __all__ = ["demo", "diagnose_file", "fit_file", "run_file"]
 
@@ -223,20 +222,17 @@ def _plates(df: pd.DataFrame) -> str:
     return "plates " + ", ".join(map(str, p[:8].tolist())) + (" ..." if p.size > 8 else "")
 
 
-def run_file(config: Path, out: Path, scheduler: str = "none", timestamps: str | None = None) -> pd.DataFrame:
-    """`jaxdefl run`: a campaign config to ``out`` (see `jaxdefl.bulk`); ``timestamps``
-    overrides the campaign's ``processing.timestamps``."""
-    from dataclasses import replace
-
+def run_file(config: Path, out: Path, settings: RunSettings) -> pd.DataFrame:
+    """`jaxdefl run`: a campaign config to ``out`` (see `jaxdefl.bulk`); ``settings``
+    (`jaxdefl.settings.RunSettings`, validated when made): the scheduler, and the timestamp
+    policy that overrides the campaign's ``processing.timestamps``."""
     from .bulk import load_campaign, run_campaign
 
     t0 = time.perf_counter()
-    if timestamps is not None:
-        check_timestamp_policy(timestamps)
     campaign = load_campaign(config)
-    if timestamps is not None:
-        campaign = replace(campaign, processing=replace(campaign.processing, timestamps=timestamps))
-    units = run_campaign(campaign, out, scheduler=scheduler)
+    if settings.timestamps is not None:
+        campaign = replace(campaign, processing=replace(campaign.processing, timestamps=settings.timestamps))
+    units = run_campaign(campaign, out, scheduler=settings.scheduler)
     n_ok = int((units["status"] == "ok").sum())
     console.print(
         f"[bold]jaxdefl run[/]: {campaign.name}: {n_ok}/{len(units)} recordings estimated "
@@ -481,7 +477,7 @@ def reconcile_file(
 
     recording, out = Path(recording), Path(out)
     config = resolve_config(config)
-    session, segment, seed, timestamps = settings.session, settings.segment, settings.seed, settings.timestamps
+    session, seed, timestamps = settings.session, settings.seed, settings.timestamps
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out}: is a file; expected a directory")
     cfg = load_config(config, session)  # checked before anything is read or written
@@ -489,7 +485,7 @@ def reconcile_file(
     names = ("reconcile.json", "reconciled.toml", "report.md", "trajectories.png", "estimates.png")
     for name in names:
         outs.reserve(out / name, f"--out {out}: {name}")
-    df = _reconcile_input(recording, segment, timestamps)
+    df = _reconcile_input(recording, settings.segment, timestamps)
     ref = read_reference(reference, timestamps=timestamps) if reference is not None else None
     settings = replace(settings, diagnosis=settings.diagnosis.with_camera(_camera_facts(config)))
     with console.status("reconciling ...") as status:

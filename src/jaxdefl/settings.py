@@ -18,9 +18,17 @@ __all__ = [
     "DiagnoseSettings",
     "FIT_FLAGS",
     "FitSettings",
+    "EXTRACT_FLAGS",
+    "ExtractSettings",
+    "MONITOR_FLAGS",
+    "MonitorSettings",
     "RECONCILE_FLAGS",
     "ReconcileSettings",
+    "RUN_FLAGS",
+    "RunSettings",
     "SENSORS",
+    "SIMULATE_FLAGS",
+    "SimulateSettings",
 ]
 
 # parameter -> flag of `jaxdefl fit`
@@ -53,6 +61,37 @@ RECONCILE_FLAGS = {
     "session": "--session",
     "segment": "--segment",
     "n_null": "--null-sims",
+    "seed": "--seed",
+    "timestamps": "--timestamps",
+}
+# parameter -> flag of `jaxdefl extract`
+EXTRACT_FLAGS = {
+    "realtime": "--realtime",
+    "chunk_frames": "--chunk-frames",
+    "device": "--device",
+    "timestamps": "--timestamps",
+}
+# parameter -> flag of `jaxdefl simulate`
+SIMULATE_FLAGS = {
+    "duration_s": "--duration",
+    "seed": "--seed",
+    "session": "--session",
+    "live": "--live",
+    "speed": "--speed",
+}
+# parameter -> flag of `jaxdefl run`
+RUN_FLAGS = {"scheduler": "--scheduler", "timestamps": "--timestamps"}
+# parameter -> flag of `jaxdefl monitor`
+MONITOR_FLAGS = {
+    "replay": "--replay",
+    "speed": "--speed",
+    "until_s": "--until",
+    "duration_s": "--duration",
+    "method": "--method",
+    "alarms_per_day": "--alarms-per-day",
+    "block_s": "--block",
+    "snapshot_s": "--snapshot",
+    "idle_s": "--idle",
     "seed": "--seed",
     "timestamps": "--timestamps",
 }
@@ -235,7 +274,9 @@ class ReconcileSettings:
 
     def __post_init__(self):
         if self.n_null < 5:
-            raise ParameterError("n_null", f"expected at least 5 simulations for a 95 % band, got {self.n_null}")
+            raise ParameterError(
+                "n_null", f"expected at least 5 simulations for a 95 % band, got {self.n_null}"
+            )
         if self.n_sims < 1:
             raise ParameterError("n_sims", f"expected at least 1 simulation, got {self.n_sims}")
         if self.seed < 0:
@@ -243,3 +284,126 @@ class ReconcileSettings:
         from .io import check_timestamp_policy
 
         check_timestamp_policy(self.timestamps)
+
+
+def _check_seed(settings) -> None:
+    if settings.seed is not None and settings.seed < 0:
+        raise ParameterError("seed", f"expected a seed >= 0, got {settings.seed}")
+
+
+@dataclass(frozen=True)
+class ExtractSettings:
+    """Everything `jaxdefl extract` (`jaxdefl.frames.extract_to_table`) does besides its paths.
+
+    ``realtime``: track the plates detected once instead of detecting them in every frame.
+    ``chunk_frames``: frames per batch. ``device``: the torch device (cpu, cuda, cuda:N; None:
+    CUDA if there is one), resolved when the settings are made. ``timestamps``: strict or
+    reclock (frame recordings have no duplicate rows to merge).
+    """
+
+    realtime: bool = False
+    chunk_frames: int = 256
+    device: str | None = None
+    timestamps: str = "strict"
+
+    def __post_init__(self):
+        if self.chunk_frames < 1:
+            raise ParameterError("chunk_frames", f"expected an integer >= 1, got {self.chunk_frames}")
+        if self.timestamps not in ("strict", "reclock"):
+            raise ParameterError(
+                "timestamps", f"expected strict or reclock for frames, got {_got(self.timestamps)}"
+            )
+        from .frames import resolve_device
+
+        object.__setattr__(self, "device", resolve_device(self.device))
+
+
+@dataclass(frozen=True)
+class SimulateSettings:
+    """Everything `jaxdefl simulate` does besides its config and output directory.
+
+    ``duration_s`` and ``seed`` override the config's (None: the config's); ``session``: a
+    ``[[session]]`` of the config (None: the first); ``live`` appends measured centroids as
+    they come, ``speed`` times real time.
+    """
+
+    duration_s: float | None = None
+    seed: int | None = None
+    session: str | None = None
+    live: bool = False
+    speed: float = 1.0
+
+    def __post_init__(self):
+        d = self.duration_s
+        if d is not None and not (math.isfinite(d) and d >= 0):
+            raise ParameterError("duration_s", f"expected a duration >= 0 s, got {_got(d)}")
+        _check_seed(self)
+        _check_positive(self, ("speed",), "a factor > 0")
+
+
+@dataclass(frozen=True)
+class RunSettings:
+    """Everything `jaxdefl run` does besides its campaign config and output directory.
+
+    ``scheduler``: none (in-process), local or local:N (a dask LocalCluster of N workers) or a
+    scheduler's address. ``timestamps`` overrides the campaign's ``processing.timestamps``.
+    """
+
+    scheduler: str = "none"
+    timestamps: str | None = None
+
+    def __post_init__(self):
+        from .bulk.scheduling import check_scheduler
+
+        check_scheduler(self.scheduler)
+        if self.timestamps is not None:
+            from .io import check_timestamp_policy
+
+            check_timestamp_policy(self.timestamps)
+
+
+@dataclass(frozen=True)
+class MonitorSettings:
+    """Everything `jaxdefl monitor` (`jaxdefl.monitor.run.run_monitor`) does besides its paths.
+
+    ``replay``: replay the source as if live. ``speed``: times real time for a replayed or
+    simulated source (0: as fast as it goes). ``until_s`` s of data, ``duration_s`` s of wall
+    clock: when to stop (None: at the end). ``method``: the recursive estimator (ekf or rls).
+    ``alarms_per_day``: false alarms allowed per day of data, ``block_s`` the change-detection
+    block, ``snapshot_s`` s of data between estimate snapshots, ``idle_s`` s without data that
+    end a followed source. ``seed``: a simulated camera's seed. ``timestamps``: the policy of a
+    replayed table (a followed or simulated source is read strictly, as it arrives).
+    """
+
+    replay: bool = False
+    speed: float = 1.0
+    until_s: float | None = None
+    duration_s: float | None = None
+    method: str = "ekf"
+    alarms_per_day: float = 1.0
+    block_s: float = 5.0
+    snapshot_s: float = 10.0
+    idle_s: float = 10.0
+    seed: int | None = None
+    timestamps: str = "strict"
+
+    def __post_init__(self):
+        if not (math.isfinite(self.speed) and self.speed >= 0):
+            raise ParameterError(
+                "speed", f"expected a factor >= 0 (0: as fast as it goes), got {_got(self.speed)}"
+            )
+        _check_positive(self, ("until_s", "duration_s", "block_s", "snapshot_s", "idle_s"), "a time > 0 s")
+        _check_positive(self, ("alarms_per_day",), "a rate > 0 per day")
+        _check_seed(self)
+        from .io import check_timestamp_policy
+        from .monitor.estimator import METHODS
+
+        if self.method not in METHODS:
+            raise ParameterError("method", f"expected one of {', '.join(METHODS)}, got {_got(self.method)}")
+        check_timestamp_policy(self.timestamps)
+        if self.timestamps != "strict" and not self.replay:
+            raise ParameterError(
+                "timestamps",
+                f"{self.timestamps} applies to {{replay}} of a table; a followed or simulated source "
+                "is read as it arrives (strict)",
+            )

@@ -13,8 +13,8 @@ from ..fit import estimate_windows
 from ..fit.estimate import MAX_ABS_VALUE_MM
 from ..io import timestamp_note, validate_trajectory
 from ..series import make_windows
-from ..settings import DiagnoseSettings
 from ..series.windows import frame_clock, windows_like
+from ..settings import DiagnoseSettings
 from ..spectral import lomb_peaks
 from ..status import Status
 from ._base import Context, Harmonic, Series, State, lstsq
