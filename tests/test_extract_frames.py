@@ -11,6 +11,7 @@ import pytest
 from jaxdefl._errors import InputError
 from jaxdefl.frames import PlateGeometry, extract_frames, extract_to_table
 from jaxdefl.io.recording import open_recording
+from jaxdefl.settings import ExtractSettings
 
 H, W = 64, 128
 INTR = dict(fx=100.0, fy=100.0, cx=63.5, cy=31.5)
@@ -107,7 +108,7 @@ def test_npz_roundtrip_and_cli_entry(tmp_path):
         plate_x_mm=PLATE_X_MM,
         camera_x_mm=CAMERA_X_MM,
     )
-    extract_to_table(tmp_path / "rec.npz", tmp_path / "traj.csv", chunk_frames=7)
+    extract_to_table(tmp_path / "rec.npz", tmp_path / "traj.csv", ExtractSettings(chunk_frames=7))
     import pandas as pd
 
     df = pd.read_csv(tmp_path / "traj.csv")
