@@ -326,6 +326,7 @@ def run_diagnosis(
     traj: pd.DataFrame,
     reference: pd.DataFrame | None = None,
     settings: DiagnoseSettings | None = None,
+    *,
     source: str = "<table>",
     reference_source: str = "--reference",
     on_round=None,
