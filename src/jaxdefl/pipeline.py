@@ -27,6 +27,7 @@ from .io.output import TABLE_SUFFIXES, Outputs
 from .progress import console, progress_bar
 from .series import check_window_plan
 from .settings import DiagnoseSettings, FitSettings, ReconcileSettings, RunSettings
+from .status import UnitStatus
 
 __all__ = ["demo", "diagnose_file", "fit_file", "run_file"]
 
@@ -233,13 +234,13 @@ def run_file(config: Path, out: Path, settings: RunSettings) -> pd.DataFrame:
     if settings.timestamps is not None:
         campaign = replace(campaign, processing=replace(campaign.processing, timestamps=settings.timestamps))
     units = run_campaign(campaign, out, scheduler=settings.scheduler)
-    n_ok = int((units["status"] == "ok").sum())
+    n_ok = int((units["status"] == UnitStatus.OK).sum())
     console.print(
         f"[bold]jaxdefl run[/]: {campaign.name}: {n_ok}/{len(units)} recordings estimated "
         f"({int(units['skipped'].sum())} reused) in {time.perf_counter() - t0:.1f} s "
         f"-> {Path(out) / 'report.md'}"
     )
-    failed = units[units["status"] != "ok"]
+    failed = units[units["status"] != UnitStatus.OK]
     for r in failed.itertuples():
         console.print(f"  [red]failed[/] {r.unit}: {r.reason}")
     if len(failed):
