@@ -87,6 +87,12 @@ ratios are not measured):
     base (load 13.9 -> 16.8)       47.0, 28.4, 40.9x; 9.9-14.9 s  28.9, 29.4, 26.5x; 6.3-7.0 s
     new  (load 16.8 -> 14.8; 14.4 -> 13.1)
                                    38.8, 41.5, 41.2x; 5.7-7.4 s   31.0, 35.7, 31.2x; 4.8-6.2 s
+    15:45-15:49, the same pair again (load 9.8 -> 8.5; the loop 43-74 ms a window):
+    base                           50.6, 35.4, 37.9x; 3.4-4.4 s   23.4, 48.3, 26.0x; 3.0-4.5 s
+    new                            43.6, 37.9, 51.4x; 2.2-3.0 s   41.0, 29.0, 43.4x; 3.1-3.9 s
+
+Medians 40.9 -> 41.2x and 37.9 -> 43.6x (harmonics), 28.9 -> 31.2x and 26.0 -> 41.0x (damped);
+jaxdefl's time per round 25-45 % (harmonics) and 10-25 % (damped) lower in the same conditions.
 
 What changed: (1) optimistix solves the variable projection's Gauss-Newton on a residual of
 p + 1 numbers (f̃ = [L⁻¹Jᵀf, (|f|² - |L⁻¹Jᵀf|²)^½], J̃ = [Lᵀ; 0], JᵀJ = LLᵀ: the same steps and
