@@ -42,7 +42,11 @@ def clip_column(theta: np.ndarray, side: int, c: float) -> np.ndarray:
 class Clipping(Effect):
     id = "clipping"
     meaning = "a plate's reading saturating at the peaks of its motion (the depth band's bound)"
-    plausible, plausible_unit, gate_params = 0.01, "motion", 2  # a clip removing ~1 % RMS of the motion
+    plausible, plausible_unit, gate_params = 0.03, "motion", 2
+
+    def plausible_rms(self, ctx: Context, i: int) -> float:
+        """A clip at 85 % of the amplitude leaves an RMS of about 3 % of it, on z series only."""
+        return self.plausible * ctx.nominal[i].amplitude if ctx.series[i].axis == "z" else 0.0
 
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
         idx = [i for i in ctx.indices("z") if ctx.series[i].n >= 64]
@@ -60,8 +64,15 @@ class Clipping(Effect):
             k = int(np.argmax(stat))
             if stat[k] < 2.0 * math.log(s.n):  # cannot pay for its two parameters
                 continue
-            side, c = (1, -1)[k // len(LEVELS)], float(LEVELS[k % len(LEVELS)])
-            beta, cov, fitted = lstsq(np.concatenate([cols[:, k : k + 1], nu], axis=1), r, w)
+            side, kc = (1, -1)[k // len(LEVELS)], k % len(LEVELS)
+            c = float(LEVELS[kc])
+            if 0 < kc < len(LEVELS) - 1:  # between the grid's levels: a parabola through the three
+                a0, a1, a2 = stat[k - 1], stat[k], stat[k + 1]
+                den = a0 - 2 * a1 + a2
+                if den < 0:
+                    c += float(np.clip(0.5 * (a0 - a2) / den, -0.5, 0.5)) * (LEVELS[1] - LEVELS[0])
+            col = clip_column(theta, side, c)[:, None]
+            beta, cov, fitted = lstsq(np.concatenate([col, nu], axis=1), r, w)
             if not -side * beta[0] > 0:  # a clip flattens the peak; a sharper one is another shape
                 continue
             new = updated(st, self.id, 2, mean=st.mean + fitted)

@@ -76,6 +76,10 @@ class ModeShape(Effect):
     plausible, plausible_unit, gate_params = 0.05, "mm", 4  # 0.05 mm at the antinode
     min_plates = 3  # a shape across the plates
 
+    def plausible_rms(self, ctx: Context, i: int) -> float:
+        """0.05 mm at the antinode, on the z series (the bending plane) only."""
+        return self.plausible / 2 if ctx.series[i].axis == "z" else 0.0  # RMS over plates and time
+
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
         idx = ctx.indices("z")
         if len({ctx.series[i].plate for i in idx}) < self.min_plates:
@@ -100,11 +104,13 @@ class ModeShape(Effect):
             phi = mode_shapes(x, n)  # (gap, series)
             v = phi / np.asarray(sd)[None, :]  # matched weights φ/σ
             v = v / np.linalg.norm(v, axis=1, keepdims=True)
+            stats = np.abs(v @ coef) ** 2  # (gap, freq): Exp(1) under white noise
+            # the null's level (the noise's colour and its share common to the plates) varies little
+            # with the gap: one running median per mode, of the middle gap's statistic
+            level = local_median(np.where(allowed, stats[len(GAPS) // 2], np.nan)) / math.log(2.0)
             best = None
             for gi in range(len(GAPS)):
-                stat = np.abs(v[gi] @ coef) ** 2  # Exp(1) under white noise
-                level = local_median(np.where(allowed, stat, np.nan)) / math.log(2.0)
-                z = stat / level
+                z = stats[gi] / level
                 j = int(np.argmax(np.where(allowed, z, -np.inf)))
                 if best is None or z[j] > best[0]:
                     best = (float(z[j]), gi, j)
