@@ -73,12 +73,13 @@ def _term(theta, t, aux):
 class ModeShape(Effect):
     id = "mode_shape"
     meaning = "another bending mode of the beam: every plate moving in the mode's shape sin(n pi x/L)"
-    plausible, plausible_unit, gate_params = 0.05, "mm", 4  # 0.05 mm at the antinode
+    plausible, plausible_unit, gate_params = 0.1, "mm", 4  # 0.1 mm at the antinode
     min_plates = 3  # a shape across the plates
 
     def plausible_rms(self, ctx: Context, i: int) -> float:
-        """0.05 mm at the antinode, on the z series (the bending plane) only."""
-        return self.plausible / 2 if ctx.series[i].axis == "z" else 0.0  # RMS over plates and time
+        """The RMS of a plausible mode (0.1 mm at the antinode: a sin(nπξ) cos 2πft has an RMS of
+        about a/2 over the plates and time), on the z series (the bending plane) only."""
+        return self.plausible / 2 if ctx.series[i].axis == "z" else 0.0
 
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
         idx = ctx.indices("z")
