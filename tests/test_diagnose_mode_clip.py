@@ -145,3 +145,24 @@ def test_controls_with_ar1_and_frame_common_noise_raise_neither(seed):
     for eid in ("mode_shape", "clipping"):
         best = _best(eid, ctx, states, refine=False)
         assert not _passes(best), (eid, best[0], best[1].p_value if best[1] else None)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize(
+    "eid, neighbour", [("mode_shape", "extra_periodic"), ("clipping", "harmonic_distortion")]
+)
+def test_the_whole_search_names_the_effect_not_its_neighbour(eid, neighbour):
+    """End to end on a random concealed case (decoys, the user's hints only): the effect is named
+    on its plates with its primary parameters within 25 %, its neighbour is not."""
+    from jaxdefl.diagnose import diagnose
+    from jaxdefl.simulate.effects import make_case, primary_parameters
+
+    traj, lds, truth = make_case(5, [eid], minutes=4)
+    d = diagnose(traj, lds, sensor=truth["recording"]["sensor"])
+    ids = [e["id"] for e in d["effects"]]
+    assert eid in ids and neighbour not in ids
+    got = next(e for e in d["effects"] if e["id"] == eid)
+    want = truth["effects"][0]
+    assert len(set(got["plates"]) & set(want["plates"])) * 2 >= len(want["plates"])
+    for name, (value, _) in primary_parameters(want).items():
+        assert abs(abs(got["parameters"][name]["value"]) - abs(value)) <= 0.25 * abs(value), name
