@@ -254,6 +254,7 @@ class ModeShape(Effect):
                 "shape) leaves out."
             ),
             detail={"support_gap": gap, "shape": plates, "sign_changes": changes},
+            shape={i: float(shape[i]) for i in series},
         )
 
 
