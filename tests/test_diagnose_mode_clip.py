@@ -166,3 +166,25 @@ def test_the_whole_search_names_the_effect_not_its_neighbour(eid, neighbour):
     assert len(set(got["plates"]) & set(want["plates"])) * 2 >= len(want["plates"])
     for name, (value, _) in primary_parameters(want).items():
         assert abs(abs(got["parameters"][name]["value"]) - abs(value)) <= 0.25 * abs(value), name
+
+
+def test_frame_common_noise_discounts_a_term_by_its_pattern_across_the_plates():
+    """Kish's design effect of a term φ on equicorrelated plates (ρ): wᵀRw/wᵀw, i.e. 1 + (m − 1)ρ
+    for a term alike on every plate, 1 − ρ (kept at 1: never credited) for an antisymmetric one,
+    and for any pattern the variance of the φ-weighted sum of correlated noise over that of
+    independent noise (checked by sampling)."""
+    from jaxdefl.diagnose._correlation import FrameCorrelation
+
+    m, rho = 8, 0.6
+    r = np.full((m, m), rho) + (1 - rho) * np.eye(m)
+    corr = FrameCorrelation({i: ("z", i) for i in range(m)}, {"z": r})
+    series = list(range(m))
+    assert corr.design_effect(series)["z"] == pytest.approx(1 + (m - 1) * rho)
+    anti = {i: (1.0 if i < m // 2 else -1.0) for i in series}
+    assert corr.design_effect(series, anti)["z"] == 1.0
+    phi = 0.4 + np.sin(np.pi * (np.arange(m) + 0.5) / m)  # a first-mode-like hump on an offset
+    rng = np.random.default_rng(0)
+    noise = rng.multivariate_normal(np.zeros(m), r, size=200_000)
+    ratio = np.var(noise @ phi) / (phi @ phi)
+    d = corr.design_effect(series, dict(enumerate(phi)))["z"]
+    assert d > 2 and d == pytest.approx(ratio, rel=0.02)
