@@ -16,6 +16,7 @@ from jaxdefl.diagnose._context import build_context
 from jaxdefl.diagnose._correlation import frame_correlation
 from jaxdefl.diagnose._search import ALPHA, DELTA_BIC_MAX, _score
 from jaxdefl.diagnose.effects import EFFECT_IDS, load_effects
+from jaxdefl.settings import DiagnoseSettings
 from jaxdefl.simulate.effects import CleanRecording, RecordingSpec, make_recording
 
 SPEC = RecordingSpec(
@@ -34,7 +35,7 @@ def _context(effects, seed=3, spec=SPEC, rho=0.0):
             a = lfilter([1.0], [1.0, -rho], rng.standard_normal(k.max() + 1)) * math.sqrt(1 - rho * rho)
             rows = (traj.plate == p).to_numpy()
             traj.loc[rows, "z"] += 2.0 * base.sigma[p - 1, 2] * a[k[rows]]
-    ctx, states, _ = build_context(traj, None, spec.sensor)
+    ctx, states, _ = build_context(traj, None, DiagnoseSettings(sensor=spec.sensor))
     return ctx, states, truth
 
 

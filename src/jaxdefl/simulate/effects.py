@@ -38,7 +38,7 @@ quantization           z = q round((z_clean − o)/q) + o before the noise; ``st
 mode_shape             z_p += a sin(nπ x_p/L) cos(2π f t_rel + ψ), x_p the plate's position on the
                        span L; ``mode`` (n = 2 or 3: sign changes across the plates), ``freq_hz``,
                        ``amplitude_mm`` (a, at the antinode), ``phase_rad``.
-clipping               z_p = offset_p + min(s (z_p − offset_p), c A_p) s on 1-2 plates of the
+clipping               z_p = offset_p + min(s (z_p − offset_p), c A_p) s, c 0.3-0.99, on 1-2 plates of the
                        middle of the span (before the noise: the pixels read the bound each with
                        its own noise); ``level`` (c), ``side`` (s = +1 far, −1 near), ``level_mm``.
 =====================  ======================================================================
@@ -753,12 +753,13 @@ def draw_effect(
 
 
 def _clip_level(base: CleanRecording, e: dict, target: float, signal_min: float) -> dict:
-    """The clip level c (fraction of the amplitude, 0.05-0.99) giving the RMS ratio ``target``,
-    lowered until the likelihood signal reaches ``signal_min``; bisection (both fall as c rises)."""
+    """The clip level c (fraction of the amplitude, 0.3-0.99: the peaks of the motion) giving the
+    RMS ratio ``target``, lowered until the likelihood signal reaches ``signal_min``; bisection
+    (both fall as c rises)."""
     p = e["parameters"]
 
     def level_for(want: Callable[[float, float], bool]) -> float:
-        lo, hi = 0.05, 0.99  # want(lo) holds (the strongest clip), want(hi) may not
+        lo, hi = 0.3, 0.99  # want(lo) holds (the strongest clip), want(hi) may not
         for _ in range(30):
             p["level"] = 0.5 * (lo + hi)
             if want(*effect_strength(base, e)):

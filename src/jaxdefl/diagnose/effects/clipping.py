@@ -7,7 +7,7 @@ plates (the ones nearest the band's edge). Typical levels: 50-98 % of the plate'
 
 Signature: per z series, the residual regressed on the clip column g_c(θ) = max(s cos θ − c, 0)
 (θ the nominal motion's phase angle, s = ±1 the side, c the clip level as a fraction of the
-amplitude on a grid 0.3-0.98) with the free nuisance (offset, the harmonic's C and D); the
+amplitude on a grid 0.2-0.98) with the free nuisance (offset, the harmonic's C and D); the
 largest χ²_1 over the grid and sides, Bonferroni-corrected over the grid, sides and series (or
 the statistics summed over the kept series, whichever is smaller, doubled). A clip also puts
 power at 2f0, 3f0 ... (`harmonic_distortion`), but with the phases and ratios of a flat top: one
@@ -31,7 +31,7 @@ from .screening import chi2_sf, combined_p, gain, param, residual, screen_column
 
 __all__ = ["Clipping", "EFFECT", "LEVELS", "clip_column"]
 
-LEVELS = np.linspace(0.3, 0.98, 18)  # clip level c: fraction of the amplitude
+LEVELS = np.linspace(0.2, 0.98, 21)  # clip level c: fraction of the amplitude
 
 
 def clip_column(theta: np.ndarray, side: int, c: float) -> np.ndarray:
