@@ -256,3 +256,30 @@ def test_an_unnamed_lines_sigmas_agree_with_curve_fit():
     amp = math.hypot(p[1], p[2])
     g = np.array([p[1], p[2]]) / amp
     assert sig["amplitudes_mm"][i] == pytest.approx(math.sqrt(g @ cov[1:3, 1:3] @ g), rel=0.03)
+
+
+def test_a_held_out_jump_under_common_noise_is_modelled_unnamed_not_named_a_drift():
+    # a 0.25-mm step on all six plates at 70 s, noise 70 % common to the frame: with level_jump
+    # out of the registry, the step is an unnamed trend common to the plates, with its σ's, and
+    # drift (which can bend an exponential into a step) claims nothing; with level_jump in the
+    # registry the generic step (the same fit, the same parameters) does not take it first
+    from jaxdefl.diagnose.effects import EFFECT_IDS
+
+    rng = np.random.default_rng(21)
+    t = np.arange(0.0, 150.0, 1.0 / 20)
+    common = 0.1 * rng.standard_normal(t.size)
+    rows = []
+    for p in range(1, 7):
+        own = 0.065 * rng.standard_normal(t.size)
+        y = 30.0 + (1.0 + 0.3 * p) * np.cos(2 * np.pi * 2.1 * t + p) + 0.25 * (t > 70.0) + common + own
+        rows.append(pd.DataFrame({"t": T0 + t, "plate": p, "z": y}))
+    traj = pd.concat(rows, ignore_index=True)
+    full = diagnose(traj)  # with the whole registry the step is the named level jump
+    assert [e["id"] for e in full["effects"]] == ["level_jump"] and full["unnamed"] == []
+    d = diagnose(traj, effects=tuple(e for e in EFFECT_IDS if e != "level_jump"))
+    assert d["effects"] == [], d["effects"]
+    (u,) = d["unnamed"]
+    assert u["kind"] == "trend" and u["plates"] == [1, 2, 3, 4, 5, 6] and u["delta_bic"] < -10
+    par = u["parameters"]
+    assert par["form"] == "common" and par["step_at_s"]["value"] == pytest.approx(70.0, abs=1.0)
+    assert abs(par["swing_mm"]["value"] - 0.25) < 3 * par["swing_mm"]["sigma"] < 0.1
