@@ -10,7 +10,7 @@ artefact, range noise correlated across the pixels of a frame) rendered pixel by
 effects are `[[effect]]` tables of the simulator's registry (`jaxdefl.simulate.injection`),
 injected where the physics acts: ``drift`` and ``level_jump`` on every pixel's range (a camera
 warming up, a range offset), the modulations, ``extra_periodic`` and ``harmonic_distortion`` on
-the beam's motion. The recording is extracted (`extract_recording`, tracked mode) and diagnosed
+the beam's motion (``mode_shape``: the 2nd or 3rd bending mode across the plates). The recording is extracted (`extract_recording`, tracked mode) and diagnosed
 blind (the table and the user's hints: sensor and frame rate; no LDS, so the nominal ToF motion
 artefact is not a finding).
 
@@ -70,6 +70,7 @@ DEFAULT_EFFECTS = (
     "frequency_modulation",
     "extra_periodic",
     "harmonic_distortion",
+    "mode_shape",
 )
 F0 = 3.068  # day 1's loading frequency (Hz)
 
@@ -93,6 +94,12 @@ def draw_unit(eid: str, rng: np.random.Generator, seconds: float) -> dict:
             if min(abs(f - k * F0) for k in (1, 2, 3)) > 0.3:
                 break
         return {"freq_hz": f, "amplitude_mm": 0.2, "phase_rad": psi}
+    if eid == "mode_shape":
+        while True:
+            f = float(rng.uniform(0.5, 9.0))
+            if min(abs(f - k * F0) for k in (1, 2, 3)) > 0.3:
+                break
+        return {"mode": int(rng.choice([2, 3])), "freq_hz": f, "amplitude_mm": 0.3, "phase_rad": psi}
     if eid == "harmonic_distortion":
         return {"order": int(rng.choice([2, 3])), "amplitude_mm": 0.2, "phase_rad": psi}
     raise SystemExit(f"concealed_frames: no frame-level draw for effect '{eid}'")
@@ -105,6 +112,7 @@ SIZE = {
     "frequency_modulation": "depth_rad",
     "extra_periodic": "amplitude_mm",
     "harmonic_distortion": "amplitude_mm",
+    "mode_shape": "amplitude_mm",
 }
 
 

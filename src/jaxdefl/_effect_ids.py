@@ -13,4 +13,6 @@ EFFECT_IDS = (
     "outliers",
     "heteroscedastic_noise",
     "quantization",
+    "mode_shape",
+    "clipping",
 )

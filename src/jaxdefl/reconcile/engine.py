@@ -134,6 +134,9 @@ def specs_from_diagnosis(
                 "phase_rad": p.get("phase_rad") or 0.0,
             }
             plates = ()
+        elif eid == "mode_shape":  # the diagnosis fits the injection's parameters
+            params = {k: p[k] for k in ("mode", "freq_hz", "amplitude_mm", "phase_rad")}
+            plates = ()
         if any(v is None or not math.isfinite(float(v)) for v in params.values()):
             out.append((None, f"{eid}: a parameter was not estimated"))
             continue

@@ -35,6 +35,12 @@ heteroscedastic_noise  σ_i = σ0 (1 + m u_i), u = cos(ω t_rel − φ − ψ) (
                        (t − t_mid)/(duration/2) (kind "time"); ``modulation`` (m).
 quantization           z = q round((z_clean − o)/q) + o before the noise; ``step_mm``,
                        ``offset_mm`` (structured-light recordings only).
+mode_shape             z_p += a sin(nπ x_p/L) cos(2π f t_rel + ψ), x_p the plate's position on the
+                       span L; ``mode`` (n = 2 or 3: sign changes across the plates), ``freq_hz``,
+                       ``amplitude_mm`` (a, at the antinode), ``phase_rad``.
+clipping               z_p = offset_p + min(s (z_p − offset_p), c A_p) s, c 0.3-0.99, on 1-2 plates of the
+                       middle of the span (before the noise: the pixels read the bound each with
+                       its own noise); ``level`` (c), ``side`` (s = +1 far, −1 near), ``level_mm``.
 =====================  ======================================================================
 
 Magnitudes (`draw_effect`): "below the raw noise": the effect's RMS contribution, after removing
@@ -56,7 +62,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -368,6 +374,21 @@ def _camera_clean(base: CleanRecording, effects: Sequence[Mapping]) -> tuple[np.
             c = np.cos(2 * math.pi * float(p["freq_hz"]) * trel + float(p["phase_rad"]))
             for a, amps in _plate_amplitudes(e).items():
                 pos[:, idx, _AXES.index(a)] += c[:, None] * amps[None, :]
+    e = _by_id(effects, "mode_shape")
+    if e is not None:
+        p = e["parameters"]
+        idx = np.asarray(e["plates"], int) - 1
+        xi = np.asarray(base.cfg.plate_x_mm())[idx] / base.cfg.beam.span_mm
+        arg = 2 * math.pi * float(p["freq_hz"]) * trel + float(p["phase_rad"])
+        q = float(p["amplitude_mm"]) * np.cos(arg)
+        pos[:, idx, 2] += q[:, None] * np.sin(int(p["mode"]) * math.pi * xi)[None, :]
+    e = _by_id(effects, "clipping")  # last: the reading saturates, whatever moved the plate
+    if e is not None:
+        side, c = float(e["parameters"]["side"]), float(e["parameters"]["level"])
+        for j in np.asarray(e["plates"], int) - 1:
+            off = base.static[j, 2] + base.shape[j] * base.cfg.loading.mean_mm
+            bound = c * base.amp0 * abs(base.shape[j])
+            pos[:, j, 2] = off + side * np.minimum(side * (pos[:, j, 2] - off), bound)
     return t_tab, pos
 
 
@@ -692,6 +713,31 @@ def draw_effect(
             axes=["z"],
         )
         key = "step_mm"
+    elif effect_id == "mode_shape":
+        e = dict(
+            kind=f"mode_{int(rng.choice([2, 3], p=[0.7, 0.3]))}",
+            parameters={
+                "freq_hz": _extra_frequency(rng, base.f0, spec.frame_rate_hz),
+                "amplitude_mm": 0.1,
+                "phase_rad": psi,
+            },
+            plates=everyone,
+            axes=["z"],
+        )
+        e["parameters"]["mode"] = int(e["kind"][-1])
+        key = "amplitude_mm"
+    elif effect_id == "clipping":
+        mid = list(range(max(1, n_pl // 3), n_pl - n_pl // 3 + 1))  # the plates that move most
+        plates = _adjacent(rng, len(mid), int(rng.integers(1, 3)))
+        side = float(rng.choice([-1.0, 1.0]))
+        e = dict(
+            id=effect_id,
+            kind="far" if side > 0 else "near",
+            parameters={"level": 0.9, "side": side},
+            plates=[mid[k - 1] for k in plates],
+            axes=["z"],
+        )
+        return _clip_level(base, e, target, signal_min)
     e["id"] = effect_id
     bounds = (0.0, math.inf)
     if effect_id in ("drift", "level_jump"):  # a step or warm-up larger than σ would show by eye
@@ -703,6 +749,29 @@ def draw_effect(
     _fit_magnitude(base, e, key, target, signal_min, bounds)
     if effect_id == "quantization":
         e["parameters"]["offset_mm"] = float(rng.uniform(0, e["parameters"]["step_mm"]))
+    return e
+
+
+def _clip_level(base: CleanRecording, e: dict, target: float, signal_min: float) -> dict:
+    """The clip level c (fraction of the amplitude, 0.3-0.99: the peaks of the motion) giving the
+    RMS ratio ``target``, lowered until the likelihood signal reaches ``signal_min``; bisection
+    (both fall as c rises)."""
+    p = e["parameters"]
+
+    def level_for(want: Callable[[float, float], bool]) -> float:
+        lo, hi = 0.3, 0.99  # want(lo) holds (the strongest clip), want(hi) may not
+        for _ in range(30):
+            p["level"] = 0.5 * (lo + hi)
+            if want(*effect_strength(base, e)):
+                lo = p["level"]
+            else:
+                hi = p["level"]
+        return lo
+
+    c = min(level_for(lambda r, s: r >= target), level_for(lambda r, s: s >= signal_min))
+    p["level"] = round(c, 4)
+    j = e["plates"][0] - 1
+    p["level_mm"] = p["side"] * p["level"] * base.amp0 * abs(float(base.shape[j]))
     return e
 
 
@@ -744,6 +813,10 @@ def primary_parameters(effect: Mapping) -> dict[str, tuple[float, bool]]:
         names = {"modulation": kind == "time"}  # growing noise; with the motion phase, ψ holds the sign
     elif eid == "quantization":
         names = {"step_mm": True}
+    elif eid == "mode_shape":
+        names = {"mode": True, "freq_hz": True, "amplitude_mm": False}
+    elif eid == "clipping":
+        names = {"level_mm": True}
     else:
         raise ValueError(f"unknown effect id {eid!r}")
     return {k: (float(p[k]), sign) for k, sign in names.items()}

@@ -27,12 +27,19 @@ extra_periodic         motion       freq_hz, amplitude_mm (mid-span), phase_rad:
                                     motion of the beam in its deflection shape
 harmonic_distortion    motion       order (k), amplitude_mm (mid-span), phase_rad: the load's
                                     k-th harmonic, a cos(k θ(t) − ψ) with θ the load's phase
+mode_shape             motion       mode (n), freq_hz, amplitude_mm (at the antinode),
+                                    phase_rad: the beam's n-th bending mode of a simply
+                                    supported span, a sin(nπ x/L) cos(2π f t_rel + ψ) at a plate
+                                    at x (LDS, trajectories, the plates' pixels in frames)
 stiffness_change       motion       t_s, duration_s, stiffness_change (relative, −0.01 = 1 %
                                     lost), f0_change, amplitude_change (relative; default from
                                     stiffness_change: f0 × √(1 + s), amplitude × 1/(1 + s)):
                                     a crack; the load's phase stays continuous
 debond                 plate        t_s, duration_s, plate, amplitude_change (relative, default
                                     −0.5): the plate's motion about rest scales (trajectories)
+clipping               plate        plate, level_mm (signed: + far side, − near side): the
+                                    plate's reading saturates at level_mm from its rest
+                                    position (trajectories; one table per plate)
 sensor_fault           measurement  t_s, duration_s, plate, fault (lost, jump, noise), size (mm
                                     of the z jump, default 1; noise factor, default 3): the live
                                     camera's centroids of that plate (`jaxdefl.simulate.live`)
@@ -74,6 +81,7 @@ __all__ = [
     "stamp_times",
     "plate_motion",
     "measurement_faults",
+    "mode_displacement",
     "active",
     "elapsed",
 ]
@@ -143,6 +151,9 @@ class Motion:
     gain: Any = 1.0  # factor on the response (deflection and longitudinal)
     shift: Any = 0.0  # rad added to the response's phase (not counted in cycles)
     extra: list[Callable[[np.ndarray], np.ndarray]] = field(default_factory=list)  # mm at mid-span
+    # other bending modes: (shape φ(x / L), displacement q(τ) mm at the antinode), each plate at
+    # x moving by φ(x / L) q(τ) (`mode_displacement`)
+    modes: list[tuple[Callable[[np.ndarray], np.ndarray], np.ndarray]] = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -283,6 +294,15 @@ def _harmonic_distortion(e, m: Motion):
     m.extra.append(lambda theta: a * np.cos(k * theta - psi))
 
 
+def _mode_shape(e, m: Motion):
+    """The n-th bending mode of a simply supported span: shape sin(nπ x/L), antisymmetric for
+    even n (zero at mid-span, so the LDS at mid-span and the load's own shape do not see n = 2)."""
+    n, f, a, psi = int(e.p("mode")), e.p("freq_hz"), e.p("amplitude_mm"), e.p("phase_rad")
+    m.modes.append(
+        (lambda xi: np.sin(n * math.pi * np.asarray(xi, float)), a * np.cos(2 * math.pi * f * m.tau + psi))
+    )
+
+
 def _stiffness_change(e, m: Motion):
     """k ∝ f0² and, under load control, deflection ∝ 1/k: phase continuous at the change."""
     if e.p("f0_change"):
@@ -310,6 +330,14 @@ def _debond(e, trel, motion, dx, dy, rest):
     motion[:, j] = f * (motion[:, j] - rest[j]) + rest[j]
     dx[:, j] *= f
     dy[:, j] *= f
+
+
+def _clipping(e, trel, motion, dx, dy, rest):
+    """The camera's reading of the plate saturates (the plate leaves the depth band, the pixels
+    read the band's bound): its deflection from rest is clamped at ``level_mm`` on that side."""
+    j, lv = e.p("plate") - 1, e.p("level_mm")
+    d = motion[:, j] - rest[j]
+    motion[:, j] = rest[j] + (np.minimum(d, lv) if lv > 0 else np.maximum(d, lv))
 
 
 def _sensor_fault(e, trel, xyz, noise):
@@ -361,6 +389,17 @@ def _outlier_check(e, bad):
 def _order_check(e, bad):
     if not (e.p("order") >= 2 and e.p("order") == round(e.p("order"))):
         raise bad("order", "an integer >= 2")
+
+
+def _mode_check(e, bad):
+    if not (e.p("mode") >= 1 and e.p("mode") == round(e.p("mode"))):
+        raise bad("mode", "an integer >= 1")
+    _positive("freq_hz", "a frequency > 0 Hz")(e, bad)
+
+
+def _clip_check(e, bad):
+    if e.p("level_mm") == 0:
+        raise bad("level_mm", "a level != 0 mm (+ far side, − near side)")
 
 
 def _depth_check(e, bad):
@@ -459,6 +498,14 @@ _ENTRIES = (
         _order_check,
     ),
     Injection(
+        "mode_shape",
+        "motion",
+        (Param("mode", "n"), Param("freq_hz", "Hz"), Param("amplitude_mm", "mm at the antinode"), _PHASE),
+        "the beam's n-th bending mode a sin(nπ x/L) cos(2π f t + ψ)",
+        _mode_shape,
+        _mode_check,
+    ),
+    Injection(
         "stiffness_change",
         "motion",
         (
@@ -479,6 +526,14 @@ _ENTRIES = (
         "a plate no longer following the beam fully: its motion about rest scales",
         _debond,
         _checks(_check_when, lambda e, bad: _relative(e, bad, "amplitude_change")),
+    ),
+    Injection(
+        "clipping",
+        "plate",
+        (Param("plate", "plate number", plate=True), Param("level_mm", "mm from rest, signed")),
+        "a plate's reading saturating at level_mm from its rest position (the depth band's bound)",
+        _clipping,
+        _clip_check,
     ),
     Injection(
         "sensor_fault",
@@ -649,6 +704,18 @@ def motion_modulations(
 
     extra = [additive(e) for e in motion if motion_terms((e,), np.zeros(1), f0_hz).extra]
     return gain, shift, extra
+
+
+def mode_displacement(effects, tau_s: np.ndarray, xi: np.ndarray) -> np.ndarray | None:
+    """(frame, plate) mm the bending modes (`mode_shape`) move plates at ``xi`` = x / span, at
+    ``tau_s`` (s since the first frame); None when no mode acts."""
+    m = Motion(np.asarray(tau_s, np.float64), 0.0)
+    for e in _of(effects, "motion"):
+        if e.id == "mode_shape":
+            REGISTRY[e.id].inject(e, m)
+    if not m.modes:
+        return None
+    return sum(q[:, None] * shape(xi)[None, :] for shape, q in m.modes)
 
 
 def range_offset(effects, t_s: np.ndarray, t0_s: float, n_plates: int, seed: int) -> np.ndarray:
