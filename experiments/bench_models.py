@@ -90,9 +90,17 @@ ratios are not measured):
     15:45-15:49, the same pair again (load 9.8 -> 8.5; the loop 43-74 ms a window):
     base                           50.6, 35.4, 37.9x; 3.4-4.4 s   23.4, 48.3, 26.0x; 3.0-4.5 s
     new                            43.6, 37.9, 51.4x; 2.2-3.0 s   41.0, 29.0, 43.4x; 3.1-3.9 s
+    15:50-15:52, again (load 4.6 -> 4.4; the loop 33-49 and 21-43 ms a window, 3x its quiet):
+    base                           46.0, 43.6, 47.5x; 1.8-2.0 s   41.8, 26.1, 33.7x; 1.7-2.4 s
+    new                            55.2, 41.0, 52.2x; 1.7-2.2 s   42.3, 33.1, 40.2x; 1.4-1.5 s
 
-Medians 40.9 -> 41.2x and 37.9 -> 43.6x (harmonics), 28.9 -> 31.2x and 26.0 -> 41.0x (damped);
-jaxdefl's time per round 25-45 % (harmonics) and 10-25 % (damped) lower in the same conditions.
+Medians (harmonics) 40.9 -> 41.2x, 37.9 -> 43.6x, 46.0 -> 52.2x; (damped) 28.9 -> 31.2x,
+26.0 -> 41.0x, 33.7 -> 40.2x. jaxdefl's time per round: damped 10-35 % lower in each pair;
+harmonics 25-45 % lower in the two loaded pairs but about the same at load 4.5 (1.7-2.2 against
+1.8-2.0 s), where its steady time is the periodogram, the projection evaluations (p = 1: the
+solver's own work was small) and the residual statistics. From the quiet 13:36 figures (18.1x
+and 17.5x) the damped model should now clear 20x (~22-24x); the harmonics' margin is not
+shown. Not yet measured on a quiet machine.
 
 What changed: (1) optimistix solves the variable projection's Gauss-Newton on a residual of
 p + 1 numbers (f̃ = [L⁻¹Jᵀf, (|f|² - |L⁻¹Jᵀf|²)^½], J̃ = [Lᵀ; 0], JᵀJ = LLᵀ: the same steps and
