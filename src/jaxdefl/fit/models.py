@@ -70,8 +70,12 @@ _ENVELOPE_SEGMENTS = 8
 # model, whose windows all take 2 evaluations, these take 2 to 6, and a vmapped loop runs as
 # many steps as its slowest window: small groups waste fewer steps (K = 3 on workload W: 1.5-1.8x
 # less time than the default's 64-window groups, `experiments/bench_models.py`; with windows in
-# periodogram-power order, 8k samples stay faster than 16k or 32k for K = 3 and damped).
-GROUP_CELLS = 1 << 13
+# periodogram-power order, 8k samples stay faster than 16k or 32k for K = 3 and damped). Since
+# the solver works on the compressed residual (`fit_model_window`), a step's fixed cost weighs
+# more than the steps a larger group wastes: 16k samples (8 windows of W) take 0.31-0.36 ms a
+# window against 0.38-0.41 for 8k (K = 3), 0.35-0.36 against 0.37-0.38 (damped, its weakest
+# windows; CPU time, load 3-4).
+GROUP_CELLS = 1 << 14
 
 
 @dataclass(frozen=True)
