@@ -93,9 +93,15 @@ ratios are not measured):
     15:50-15:52, again (load 4.6 -> 4.4; the loop 33-49 and 21-43 ms a window, 3x its quiet):
     base                           46.0, 43.6, 47.5x; 1.8-2.0 s   41.8, 26.1, 33.7x; 1.7-2.4 s
     new                            55.2, 41.0, 52.2x; 1.7-2.2 s   42.3, 33.1, 40.2x; 1.4-1.5 s
+    15:56-15:58, new with the solver's groups at 16k samples (load 4.9 -> 4.6; others' jobs
+    starting and stopping: the loop 22-53 ms a window):
+    base                           42.4, 35.0, 30.5x; 2.9-3.4 s   32.3, 18.6, 41.1x; 1.9-3.6 s
+    new                            45.2, 35.2, 38.1x; 2.6-3.0 s   33.1, 19.8, 28.6x; 2.5-2.6 s
 
-Medians (harmonics) 40.9 -> 41.2x, 37.9 -> 43.6x, 46.0 -> 52.2x; (damped) 28.9 -> 31.2x,
-26.0 -> 41.0x, 33.7 -> 40.2x. jaxdefl's time per round: damped 10-35 % lower in each pair;
+Medians (harmonics) 40.9 -> 41.2x, 37.9 -> 43.6x, 46.0 -> 52.2x, 35.0 -> 38.1x; (damped)
+28.9 -> 31.2x, 26.0 -> 41.0x, 33.7 -> 40.2x, 32.3 -> 28.6x (the last pair's loop ran 20 % faster
+in the new run). jaxdefl's time per round: damped 10-35 % lower in each pair (median round 2.9 -> 2.6 s in the
+last);
 harmonics 25-45 % lower in the two loaded pairs but about the same at load 4.5 (1.7-2.2 against
 1.8-2.0 s), where its steady time is the periodogram, the projection evaluations (p = 1: the
 solver's own work was small) and the residual statistics. From the quiet 13:36 figures (18.1x
