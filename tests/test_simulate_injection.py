@@ -22,7 +22,7 @@ def _cfg(*effects):
 @pytest.mark.parametrize(
     "table, message",
     [
-        ({"id": "camera_shake"}, "key 'effect[1].id': expected one of drift,"),
+        ({"id": "no_such_effect"}, "key 'effect[1].id': expected one of drift,"),
         ({"id": "drift", "amplitude_mm": 1.0}, "key 'effect[1].tau_s': drift needs tau_s"),
         ({"id": "drift", "amplitude_mm": 1.0, "tau_s": 5.0, "size": 2}, "not a parameter of drift"),
         ({"id": "drift", "amplitude_mm": 1.0, "tau_s": -5.0}, "'effect[1].tau_s': expected a time constant"),

@@ -13,4 +13,7 @@ EFFECT_IDS = (
     "outliers",
     "heteroscedastic_noise",
     "quantization",
+    # issue 12's vocabulary (camera shake, crack)
+    "camera_shake",
+    "stiffness_change",
 )
