@@ -39,7 +39,7 @@ camera_shake           z += u(t) on every plate alike, u the camera's random low
                        (`injection.shake_displacement`); ``rms_mm``, ``corner_hz`` (3-30 mHz).
 stiffness_change       a crack at ``t_s``: amplitude × 1/(1 + s), frequency × √(1 + s), phase
                        continuous (`injection`'s motion term; the LDS sees it); ``stiffness_change``
-                       (s < 0); z and x.
+                       (s < 0); every axis.
 =====================  ======================================================================
 
 Magnitudes (`draw_effect`): "below the raw noise": the effect's RMS contribution, after removing
@@ -713,7 +713,7 @@ def draw_effect(
                 "stiffness_change": -1e-4,
             },
             plates=everyone,
-            axes=["z", "x"],
+            axes=list(_AXES),
         )
         key = "stiffness_change"
     elif effect_id == "quantization":

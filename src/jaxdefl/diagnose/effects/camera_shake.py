@@ -14,12 +14,12 @@ beam's shape (`extra_periodic`).
 Signature test: per axis, the residuals (after each series' free nuisance) are averaged across
 the series on the frame clock (weights 1/σ̂_s²), and the per-frame mean ū(t) is regressed on a
 cubic B-spline basis in time (its constant direction left out: the offsets hold it), the knot
-spacing on a grid from half the record down to four loading periods (2 to 128 intervals). At each spacing the statistic is the explained weighted sum of squares of
-ū over the *long-run* variance of ū's remainder (its variance × (1 + ρ)/(1 − ρ), ρ its lag-one
-autocorrelation on the frame clock): χ²_K under noise, white or AR(1)-like, independent across
-plates or shared by them within a frame (frame-common noise is in ū's own variance). The spacing
-with the largest statistic − K log N is kept; its p-value is Bonferroni over the spacings and the
-axes.
+spacing on a grid from half the record down to four loading periods (2 to 128 intervals). At
+each spacing the statistic is the explained weighted sum of squares of ū over the *long-run*
+variance of ū's remainder (its variance × (1 + ρ)/(1 − ρ), ρ its lag-one autocorrelation on
+the frame clock): χ²_K under noise, white or AR(1)-like, independent across plates or shared by
+them within a frame (frame-common noise is in ū's own variance). The spacing with the largest
+statistic − K log N is kept; its p-value is Bonferroni over the spacings and the axes.
 
 Model term: y_s += u(t) on every series s of the axis, u = B(t) c the common spline, shared
 coefficients (K parameters, counted once; none per series), each series' free nuisance refitted.

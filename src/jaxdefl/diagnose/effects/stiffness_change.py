@@ -54,6 +54,7 @@ EDGE = 0.05
 WIDTH_S = 0.05  # width of the smooth step (s): sharp on the loading period, smooth for the solver
 P_MAX = 1e-3
 VARIANTS = ("amplitude", "stiffness", "free")
+N_PARAMS = {"amplitude": 2, "stiffness": 2, "free": 3}
 
 
 def _step(t, tc):
@@ -99,11 +100,16 @@ def _long_run(g: np.ndarray) -> float:
 class StiffnessChange(Effect):
     id = "stiffness_change"
     meaning = "a crack: the motion's amplitude steps (its frequency shifts) at one instant on every plate"
-    plausible, plausible_unit, gate_params = 0.02, "motion", 2  # a 2 % amplitude step at mid-record
+    plausible, plausible_unit, gate_params = 1e-3, "motion", 2  # 0.1 % of the stiffness at mid-record
 
     def plausible_rms(self, ctx: Context, i: int) -> float:
-        """A step of ``plausible`` of the amplitude at mid-record: RMS ½ of the step's."""
-        return 0.5 * self.plausible * ctx.nominal[i].amplitude / math.sqrt(2)
+        """A loss of ``plausible`` of the stiffness at mid-record: the amplitude step (RMS half
+        the step's) or the phase of the new frequency, a hinge less its line (RMS 0.072 ωφT,
+        at most 1 rad), whichever is larger, on the series' motion."""
+        a = ctx.nominal[i].amplitude / math.sqrt(2)
+        step = 0.5 * self.plausible
+        phase = min(1.0, 0.072 * ctx.nominal[i].omega * 0.5 * self.plausible * ctx.duration_s)
+        return a * max(step, phase)
 
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
         if self.cannot_tell(ctx) is not None:
@@ -116,8 +122,12 @@ class StiffnessChange(Effect):
         scan = self._scan(ctx, car)
         if scan is None:
             return []
+        # the full fit (the costly part) only for the variants whose screening BIC is near the best
+        n_total = sum(s.n for s in ctx.series)
+        crit = {v: float(np.max(scan["stat"][v])) - N_PARAMS[v] * math.log(n_total) for v in VARIANTS}
+        best = max(crit.values())
         out = []
-        for variant in VARIANTS:
+        for variant in (v for v in VARIANTS if crit[v] >= best - 10.0):
             prop = self._variant(ctx, states, car, scan, variant)
             if prop is not None:
                 out.append(prop)
@@ -165,8 +175,19 @@ class StiffnessChange(Effect):
         den_f = np.maximum(
             uu - (minv[0, 0] * b0 * b0 + 2 * minv[0, 1] * b0 * b1 + minv[1, 1] * b1 * b1), 1e-300
         )
+        # the line the nominal frequency and phase took from the hinge: its slope per unit φω
+        slope = minv[1, 0] * b0 + minv[1, 1] * b1
         sl = slice(lo, hi)
+        na, da, nq, dq = num_a[sl], den_a[sl], num_f[sl], den_f[sl]
+        w0 = 2 * math.pi * ctx.f0_hz
+        sa, sf = na * na / da / kap_a, nq * nq / dq / kap_f
+        # the stiffness: coefficients (a, ωφ) = s (−1, ω/2), linearised
+        num_s = -na / kap_a + 0.5 * w0 * nq / kap_f
+        den_s = da / kap_a + (0.5 * w0) ** 2 * dq / kap_f
         return {
+            "stat": {"amplitude": sa, "free": sa + sf, "stiffness": num_s * num_s / den_s},
+            "s0": num_s / den_s,
+            "slope": slope[sl],
             "tc": tc[sl],
             "a": (num_a[sl], den_a[sl], kap_a),
             "f": (num_f[sl], den_f[sl], kap_f),
@@ -174,17 +195,10 @@ class StiffnessChange(Effect):
         }
 
     def _variant(self, ctx, states, car, scan, variant) -> Proposal | None:
-        (na, da, ka), (nq, dq, kq) = scan["a"], scan["f"]
+        (na, da, _), (nq, dq, _) = scan["a"], scan["f"]
         w0 = 2 * math.pi * ctx.f0_hz
-        sa, sf = na * na / da / ka, nq * nq / dq / kq
-        if variant == "amplitude":
-            stat, dof = sa, 1
-        elif variant == "free":
-            stat, dof = sa + sf, 2
-        else:  # s: coefficients (a, ωφ) = s (−1, ω/2), linearised
-            num = -na / ka + 0.5 * w0 * nq / kq
-            den = da / ka + (0.5 * w0) ** 2 * dq / kq
-            stat, dof = num * num / den, 1
+        stat = scan["stat"][variant]
+        dof = 2 if variant == "free" else 1
         j = int(np.argmax(stat))
         p_value = bonferroni(float(chi2_sf(stat[j], dof)), scan["n_scan"] * len(VARIANTS))
         if p_value >= P_MAX:
@@ -192,15 +206,20 @@ class StiffnessChange(Effect):
         tc = float(scan["tc"][j])
         a0 = float(na[j] / da[j])  # the amplitude step's relative size (columns carry a)
         phi0 = float(nq[j] / dq[j]) / w0
+        # δω starts where the nominal frequency would be without the hinge's line
+        dw0 = -w0 * phi0 * float(scan["slope"][j])
         dt10 = 10 * ctx.dt_s
         if variant == "amplitude":
             term, theta0, scale = _amplitude_term, [a0, tc], [max(abs(a0), 1e-4), dt10]
         elif variant == "stiffness":
-            s0 = float(num[j] / den[j])
-            term, theta0, scale = _stiffness_term, [s0, tc, 0.0], [max(abs(s0), 1e-6), dt10, 1e-5]
+            s0 = float(scan["s0"][j])
+            dw0 = -w0 * 0.5 * s0 * float(scan["slope"][j])
+            term, theta0 = _stiffness_term, [s0, tc, dw0]
+            scale = [max(abs(s0), 1e-6), dt10, max(abs(dw0), 1e-6)]
         else:
             term = _free_term
-            theta0, scale = [a0, phi0, tc, 0.0], [max(abs(a0), 1e-4), max(abs(phi0), 1e-6), dt10, 1e-5]
+            theta0 = [a0, phi0, tc, dw0]
+            scale = [max(abs(a0), 1e-4), max(abs(phi0), 1e-6), dt10, max(abs(dw0), 1e-6)]
         res = car.fit(term, np.array(theta0), np.array(scale))
         if not res.converged or not np.all(np.isfinite(res.theta)):
             return None
@@ -209,7 +228,7 @@ class StiffnessChange(Effect):
         t_c = float(th[k_tc])
         if not (0.0 < t_c < ctx.duration_s):
             return None
-        n_params = {"amplitude": 2, "stiffness": 2, "free": 3}[variant]
+        n_params = N_PARAMS[variant]
         kept, new, gains = car.proposal_states(states, res, self.id, n_params)
         if not kept:
             return None
