@@ -48,10 +48,11 @@ MIN_PERIODS = 4.0  # the shortest knot spacing, in loading periods (the spline s
 
 
 def spline_basis(t: np.ndarray, duration: float, intervals: int) -> np.ndarray:
-    """(sample, intervals + 3) cubic B-splines with equally spaced knots over [0, duration]."""
+    """(sample, intervals + 3) cubic B-splines with equally spaced knots over [0, duration], as a
+    sparse matrix (four nonzeros a row)."""
     inner = np.linspace(0.0, duration, intervals + 1)
     knots = np.concatenate([[0.0] * 3, inner, [duration] * 3])
-    return BSpline.design_matrix(np.clip(t, 0.0, duration), knots, 3).toarray()
+    return BSpline.design_matrix(np.clip(t, 0.0, duration), knots, 3).tocsr()
 
 
 def _long_run(e: np.ndarray, ok: np.ndarray) -> float:
@@ -110,19 +111,19 @@ class CameraShake(Effect):
         if not grid:
             return None
         n_total = sum(s.n for s in ctx.series)
+        wk = den[ok]
+        uc = u[ok] - np.average(u[ok], weights=wk)
         fits = {}
         for k in grid:
+            # B-splines sum to one: the fit about the weighted mean has k + 2 free directions
             b = spline_basis(t[ok], dur, k)
-            wk = den[ok]
-            b = project_out(np.ones((b.shape[0], 1)), wk, b)[:, :-1]  # the offsets hold the constant
-            coef = np.linalg.lstsq(b * np.sqrt(wk)[:, None], u[ok] * np.sqrt(wk), rcond=None)[0]
-            fits[k] = (b @ coef, coef.size)
+            g = (b.T @ b.multiply(wk[:, None])).toarray()
+            coef = np.linalg.solve(g + 1e-10 * np.trace(g) / g.shape[0] * np.eye(g.shape[0]), b.T @ (wk * uc))
+            fits[k] = (b @ coef, k + 2)
         # the noise of ū: its remainder after the finest spline, with its long-run variance
         fine, _ = fits[grid[-1]]
         e = np.zeros(nf)
-        uc = u[ok] - np.average(u[ok], weights=den[ok])
         e[ok] = uc - fine
-        wk = den[ok]
         var = float(np.sum(wk * e[ok] ** 2)) / max(int(ok.sum()) - fits[grid[-1]][1] - 1, 1)
         var *= _long_run(np.where(ok, e * np.sqrt(np.where(ok, den, 0.0)), 0.0), ok)
         best = None
