@@ -102,6 +102,10 @@ def draw_unit(eid: str, rng: np.random.Generator, seconds: float) -> dict:
         return {"mode": int(rng.choice([2, 3])), "freq_hz": f, "amplitude_mm": 0.3, "phase_rad": psi}
     if eid == "harmonic_distortion":
         return {"order": int(rng.choice([2, 3])), "amplitude_mm": 0.2, "phase_rad": psi}
+    if eid == "camera_shake":  # the camera's slow random motion along its optical axis
+        return {"rms_mm": 0.2, "corner_hz": slow}
+    if eid == "stiffness_change":  # a crack: amplitude × 1/(1 + s), frequency × √(1 + s)
+        return {"t_s": float(rng.uniform(0.25, 0.75) * seconds), "stiffness_change": -2e-4}
     raise SystemExit(f"concealed_frames: no frame-level draw for effect '{eid}'")
 
 
@@ -113,6 +117,8 @@ SIZE = {
     "extra_periodic": "amplitude_mm",
     "harmonic_distortion": "amplitude_mm",
     "mode_shape": "amplitude_mm",
+    "camera_shake": "rms_mm",
+    "stiffness_change": "stiffness_change",
 }
 
 

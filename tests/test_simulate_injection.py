@@ -22,7 +22,7 @@ def _cfg(*effects):
 @pytest.mark.parametrize(
     "table, message",
     [
-        ({"id": "camera_shake"}, "key 'effect[1].id': expected one of drift,"),
+        ({"id": "no_such_effect"}, "key 'effect[1].id': expected one of drift,"),
         ({"id": "drift", "amplitude_mm": 1.0}, "key 'effect[1].tau_s': drift needs tau_s"),
         ({"id": "drift", "amplitude_mm": 1.0, "tau_s": 5.0, "size": 2}, "not a parameter of drift"),
         ({"id": "drift", "amplitude_mm": 1.0, "tau_s": -5.0}, "'effect[1].tau_s': expected a time constant"),
@@ -160,6 +160,7 @@ def test_effects_round_trip_through_the_effective_config():
 EXAMPLES = {
     "drift": {"amplitude_mm": 1.5, "tau_s": 2.0},
     "level_jump": {"t_jump_s": 3.0, "size_mm": -0.8, "plates": [7]},
+    "camera_shake": {"rms_mm": 0.5, "corner_hz": 0.2, "amplitude_mm": 0.3, "freq_hz": 1.3},
     "outliers": {"fraction": 0.3, "scale_mm": 5.0, "plates": [6, 7]},
     "timing_error": {"offset_s": 0.004, "rate_ppm": 100.0},
     "amplitude_modulation": {"depth": 0.2, "freq_hz": 0.5, "phase_rad": 0.3},

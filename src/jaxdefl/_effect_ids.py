@@ -15,4 +15,7 @@ EFFECT_IDS = (
     "quantization",
     "mode_shape",
     "clipping",
+    # issue 12's vocabulary (camera shake, crack)
+    "camera_shake",
+    "stiffness_change",
 )

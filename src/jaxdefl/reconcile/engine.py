@@ -127,6 +127,12 @@ def specs_from_diagnosis(
         elif eid == "extra_periodic":
             params = {"freq_hz": p["freq_hz"], "amplitude_mm": p["amplitude_mm"]}
             plates = ()
+        elif eid == "camera_shake":  # the camera moved: the whole image, a motion alike in law
+            params = {"rms_mm": p["rms_mm"], "corner_hz": p["corner_hz"]}
+            plates = ()
+        elif eid == "stiffness_change":
+            params = {k: p[k] for k in ("t_s", "f0_change", "amplitude_change")}
+            plates = ()
         elif eid == "harmonic_distortion":
             params = {
                 "order": p["order"],

@@ -16,6 +16,11 @@ drift                  range        amplitude_mm (at t_rel = 0, signed), tau_s: 
                                     (or the listed plates' pixels) reads a·exp(−t_rel/τ)
                                     farther: a camera warming up
 level_jump             range        t_jump_s, size_mm: a range offset from t_jump_s on
+camera_shake           range        rms_mm, corner_hz (a random low-pass motion, seeded by the
+                                    simulation's seed) and/or amplitude_mm, freq_hz, phase_rad
+                                    (a sway): the camera moves along its optical axis, so every
+                                    pixel (plates, floor targets, beam top) reads the same
+                                    displacement
 outliers               range        fraction, scale_mm: that fraction of the frames read the
                                     listed plates (default: all) N(0, scale²) off
 timing_error           timestamps   offset_s, rate_ppm: stamps = t + offset + rate·t_rel
@@ -76,6 +81,7 @@ __all__ = [
     "parse_effects",
     "parse_table",
     "motion_terms",
+    "shake_displacement",
     "motion_modulations",
     "range_offset",
     "stamp_times",
@@ -232,6 +238,36 @@ def _level_jump(e, trel, n_plates, seed):
     return _columns(e, n_plates, off_plates=True), (e.p("size_mm") * (trel >= e.p("t_jump_s")))[:, None]
 
 
+# the camera's random low-pass motion: a sum of sinusoids (spectral representation of a
+# first-order low-pass process, S(f) ∝ 1/(1 + (f/f_c)²) on [f_c/20, 10 f_c]), so that its value at
+# a time does not depend on how the frames are chunked
+_SHAKE_LINES = 64
+
+
+def shake_displacement(e: EffectSpec, t_rel: np.ndarray, seed: int) -> np.ndarray:
+    """(frame,) mm the camera moved along its optical axis at ``t_rel`` (`camera_shake`): the random
+    low-pass motion of RMS ``rms_mm`` and corner ``corner_hz`` (deterministic for a seed) plus
+    the sway ``amplitude_mm`` cos(2π ``freq_hz`` t_rel + ``phase_rad``)."""
+    t_rel = np.asarray(t_rel, np.float64)
+    out = e.p("amplitude_mm") * np.cos(2 * math.pi * e.p("freq_hz") * t_rel + e.p("phase_rad"))
+    rms, fc = e.p("rms_mm"), e.p("corner_hz")
+    if rms > 0 and fc > 0:
+        rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, 0x5A4B])
+        edges = np.geomspace(fc / 20.0, 10.0 * fc, _SHAKE_LINES + 1)
+        f = edges[:-1] * np.exp(rng.uniform(0, 1, _SHAKE_LINES) * np.log(edges[1:] / edges[:-1]))
+        power = np.diff(np.arctan(edges / fc))  # ∫ S df over each band
+        amp = np.sqrt(2.0 * power / power.sum()) * rng.rayleigh(1.0 / math.sqrt(2.0), _SHAKE_LINES)
+        amp *= rms / math.sqrt(0.5 * float(np.sum(amp**2)))  # the realised RMS is rms_mm
+        ph = rng.uniform(0, 2 * math.pi, _SHAKE_LINES)
+        out = out + np.cos(2 * math.pi * t_rel[:, None] * f[None, :] + ph[None, :]) @ amp
+    return out
+
+
+def _camera_shake(e, trel, n_plates, seed):
+    """Every pixel: the camera moves, so the plates and the static scene move together."""
+    return np.arange(0, n_plates + 1), shake_displacement(e, trel, seed)[:, None]
+
+
 def _outliers(e, trel, n_plates, seed):
     """Each (frame, plate) drawn from a hash of its time: chunking moves nothing."""
     cols = _columns(e, n_plates, off_plates=False)
@@ -386,6 +422,14 @@ def _outlier_check(e, bad):
     _positive("scale_mm", "a scale > 0 mm")(e, bad)
 
 
+def _shake_check(e, bad):
+    for name in ("rms_mm", "corner_hz", "freq_hz"):
+        if not e.p(name) >= 0:
+            raise bad(name, "a value >= 0")
+    if e.p("rms_mm") > 0 and not e.p("corner_hz") > 0:
+        raise bad("corner_hz", "a corner frequency > 0 Hz for a random motion (rms_mm > 0)")
+
+
 def _order_check(e, bad):
     if not (e.p("order") >= 2 and e.p("order") == round(e.p("order"))):
         raise bad("order", "an integer >= 2")
@@ -450,6 +494,20 @@ _ENTRIES = (
         "a range offset from t_jump_s on",
         _level_jump,
         _non_negative("t_jump_s", "a time >= 0 s"),
+    ),
+    Injection(
+        "camera_shake",
+        "range",
+        (
+            Param("rms_mm", "mm (random low-pass motion)", 0.0),
+            Param("corner_hz", "Hz (its corner frequency)", 0.0),
+            Param("amplitude_mm", "mm (sway)", 0.0),
+            Param("freq_hz", "Hz (sway)", 0.0),
+            _PHASE,
+        ),
+        "the camera moves along its optical axis: every pixel reads the same displacement",
+        _camera_shake,
+        _shake_check,
     ),
     Injection(
         "outliers",
