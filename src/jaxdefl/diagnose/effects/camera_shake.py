@@ -48,7 +48,8 @@ from .screening import bonferroni, chi2_sf, open_series, param, project_out, sha
 __all__ = ["CameraShake", "EFFECT", "spline_basis"]
 
 GRID = (2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64, 96, 128)  # knot intervals over the record
-ONE_WAY = 0.9  # monotone or a single step: a drift or a jump, not a shake (`one_way`)
+ONE_WAY = 0.9  # a single step explaining this share: a jump, not a shake (`one_way`)
+MONOTONE = 0.98  # steps adding up to this share of their absolute sum: a drift
 MIN_PERIODS = 4.0  # the shortest knot spacing, in loading periods (the spline stays below f0)
 
 
@@ -183,13 +184,13 @@ class CameraShake(Effect):
 
 def one_way(u: np.ndarray, w: np.ndarray) -> bool:
     """Whether the common motion ``u`` (weighted mean removed) only goes one way: monotone (its
-    steps add up to at least `ONE_WAY` of their absolute sum) or a single step (two levels explain
+    steps add up to at least `MONOTONE` of their absolute sum) or a single step (two levels explain
     `ONE_WAY` of its weighted variance). On the trajectories such a motion is a camera warm-up or a
     range offset (`drift`, `level_jump`), which the shake leaves to them."""
     if u.size < 4:
         return False
     d = np.diff(u)
-    if abs(float(d.sum())) >= ONE_WAY * float(np.abs(d).sum()):
+    if abs(float(d.sum())) >= MONOTONE * float(np.abs(d).sum()):
         return True
     ss = float(np.sum(w * u * u))
     cw, cu = np.cumsum(w)[:-1], np.cumsum(w * u)[:-1]
