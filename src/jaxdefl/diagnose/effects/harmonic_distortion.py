@@ -24,6 +24,11 @@ parameters (a_k cos ψ_k, a_k sin ψ_k) each; in common mode two per order in al
 Plausible magnitudes: a few per cent of the motion amplitude (0.01–0.2 mm for a 4-mm motion) for
 support contact; cyclic ToF range errors of 1–10 mm peak over a wavelength of c/(8 f_mod) (about
 1.3 m at 29 MHz) give far less on a few-mm motion; mixed pixels up to 0.1–0.5 mm on small plates.
+The information gate takes 0.1 mm (`plausible`): an absolute size, since mixed pixels do not scale
+with the motion (1 % of a 1-mm motion gated a 0.24-mm distortion out of a 4-minute record).
+
+Acceptance (`_search.Calibration`): the common mode's statistic against χ²_2 per order kept,
+the look-elsewhere over orders × axes; the per-series mode's also over the series picked.
 """
 
 from __future__ import annotations
@@ -34,6 +39,7 @@ import numpy as np
 
 from .._base import Context, Effect, Proposal, State, keep_series, lstsq
 from .screening import (
+    P_SCREEN,
     bonferroni,
     chi2_sf,
     combined_p,
@@ -41,6 +47,7 @@ from .screening import (
     param,
     residual,
     shared_amplitude,
+    subset_trials,
     updated,
     weights,
 )
@@ -70,7 +77,7 @@ def _columns(ctx: Context, i: int, omega: float | None = None, t_ref: float | No
 class HarmonicDistortion(Effect):
     id = "harmonic_distortion"
     meaning = "motion not purely sinusoidal: components at 2-5 x f0 (support contact, cyclic range error)"
-    plausible, plausible_unit, gate_params = 0.01, "motion", 2  # a 2nd harmonic of 1 % of A
+    plausible, plausible_unit, gate_params = 0.1, "mm", 2  # a 0.1-mm 2nd harmonic (mixed pixels)
     min_plates = 1
 
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
@@ -191,6 +198,7 @@ class HarmonicDistortion(Effect):
             t_end=float(ctx.duration_s),
             band_hz=[all_orders[0] * f0, all_orders[-1] * f0],
             explanation=explanation,
+            trials=n_ord * subset_trials(len(series), n_screened),  # orders × series picked
             detail={
                 "mode": "per_series",
                 "orders": {ctx.series[i].key: kept_orders[i] for i in series},
@@ -211,11 +219,11 @@ class HarmonicDistortion(Effect):
         b = common_b[idx].sum(axis=0)
         m = float(common_m[idx].sum())
         stat = (b[0::2] ** 2 + b[1::2] ** 2) / m  # χ²_2 per order
-        n_tot = sum(ctx.series[i].n for i in idx)
-        orders = [ORDERS[j] for j in range(n_ord) if stat[j] > 2 * math.log(n_tot)]
+        p_order = np.array([bonferroni(float(chi2_sf(x, 2)), 3 * n_ord) for x in stat])  # orders × axes
+        orders = [ORDERS[j] for j in range(n_ord) if p_order[j] < P_SCREEN]
         if not orders:
             return None
-        p = bonferroni(float(chi2_sf(stat.max(), 2)), 3 * n_ord)  # orders × axes
+        p = float(p_order.min())
         js = [ORDERS.index(k) for k in orders]
         pick = [c for j in js for c in (2 * j, 2 * j + 1)]
         fit = shared_amplitude(ctx, states, idx, lambda i: _columns(ctx, i, om0, tr0)[:, pick], None, self.id)
@@ -250,6 +258,7 @@ class HarmonicDistortion(Effect):
                 "the camera's cyclic range error or a structural harmonic of the loading."
             ),
             detail={"mode": "common", "orders": orders, "t_ref_s": tr0},
+            trials=3 * n_ord,  # orders × axes
         )
 
 
