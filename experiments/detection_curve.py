@@ -14,8 +14,9 @@ the user's hints only (`concealed_effects.run_case`'s blind call); a case counts
 the injected id is reported on at least half of its plates (`concealed_effects.score_effect`).
 Controls: the same recordings without an effect; a control is flagged when anything is reported.
 They cycle through three noise kinds (`CONTROL_KINDS`): as drawn (white, half of the ToF records
-with frame-common noise), AR(1) in time with ρ drawn in 0.3-0.8, and frame-common noise forced
-(a ToF record, 40-85 % of the variance shared by the plates of a frame).
+with frame-common noise), AR(1) noise added with ρ drawn in 0.3-0.8 (`concealed_effects.add_ar1_noise`:
+its marginal σ twice the white one), and frame-common noise forced (a ToF record, 40-85 % of the
+variance shared by the plates of a frame).
 
 The best possible detector of an effect knows its form up to its size: its log-likelihood ratio
 is then χ²₁ with noncentrality S under white Gaussian noise, so at a false-alarm rate α it
@@ -46,7 +47,7 @@ import numpy as np
 import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from concealed_effects import _blind_call, _jsonable, _resolve, score_effect  # noqa: E402
+from concealed_effects import _blind_call, _jsonable, _resolve, add_ar1_noise, score_effect  # noqa: E402
 
 from jaxdefl.simulate.effects import (  # noqa: E402
     EFFECT_IDS,
@@ -89,9 +90,7 @@ def make_case_at(seed: int, effect_id: str | None, signal: float, minutes: float
         reference = True
     spec = random_spec(rng, minutes=minutes, sensor=sensor, reference=reference)
     own = np.random.default_rng([int(seed), 7101])  # the noise kind's own draws
-    if noise == "ar1":
-        spec = dataclasses.replace(spec, ar1_rho=round(float(own.uniform(0.3, 0.8)), 3))
-    elif noise == "frame_common":
+    if noise == "frame_common":
         spec = dataclasses.replace(spec, frame_common=round(float(own.uniform(0.4, 0.85)), 3))
     base = CleanRecording(spec, seed)
     effects = []
@@ -100,6 +99,10 @@ def make_case_at(seed: int, effect_id: str | None, signal: float, minutes: float
         e = draw_effect(effect_id, base, rng, target_ratio=1e-6, signal_min=signal)
         effects.append(e)
     traj, lds, truth = make_recording(spec, effects, seed, base=base)
+    if noise == "ar1":
+        rho = round(float(own.uniform(0.3, 0.8)), 3)
+        traj = add_ar1_noise(traj, truth, rho, seed)
+        truth["recording"]["ar1_rho"] = rho
     for e, t in zip(effects, truth["effects"], strict=True):
         t["signal"] = float(effect_strength(base, e)[1])
     return traj, lds, truth

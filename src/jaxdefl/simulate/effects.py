@@ -141,8 +141,6 @@ class RecordingSpec:
         frame_common: share of each plate's noise variance common to all plates of a frame (a
             ToF camera's frame-wide range error: the simulator's per-frame error, thesis Tables
             6.2/6.17); 0: independent plates.
-        ar1_rho: lag-one correlation of each plate's noise from frame to frame (AR(1), variance
-            kept); 0: white.
     """
 
     sensor: Literal["tof", "structured_light"] = "tof"
@@ -157,7 +155,6 @@ class RecordingSpec:
     noisy_plate: int = 0
     noisy_factor: float = 1.8
     frame_common: float = 0.0
-    ar1_rho: float = 0.0
 
     def sigma_mm(self) -> dict[str, float]:
         if self.noise_mm is not None:
@@ -293,13 +290,6 @@ class CleanRecording:
             common = np.random.default_rng([self.seed, 7002]).standard_normal((t.size, 1, 3))
             c = spec.frame_common
             self.eps = math.sqrt(1.0 - c) * self.eps + math.sqrt(c) * common
-        if spec.ar1_rho > 0:  # coloured in time, unit variance kept: e_k = ρ e_k−1 + √(1−ρ²) w_k
-            from scipy.signal import lfilter
-
-            r = spec.ar1_rho
-            w = self.eps.copy()
-            w[1:] *= math.sqrt(1.0 - r * r)
-            self.eps = lfilter([1.0], [1.0, -r], w, axis=0)
 
     def motion(self, t: np.ndarray, am=None, fm=None) -> np.ndarray:
         """(frame, plate, axis) clean positions at true epoch times t, with the load's AM / FM."""
@@ -835,7 +825,6 @@ def make_recording(
             "n_plates": spec.n_plates,
             "dropout_prob": spec.dropout_prob,
             "frame_common": spec.frame_common,
-            "ar1_rho": spec.ar1_rho,
             "reference": spec.reference,
             "lds_plates": list(spec.lds_plates),
             "session": spec.session,

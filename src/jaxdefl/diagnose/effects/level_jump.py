@@ -14,11 +14,12 @@ statistic Bonferroni-corrected over series × candidate splits, or the summed st
 over the candidate splits, whichever is smaller (doubled); the splits are counted as the scan's
 effective number of independent ones (`screening.changepoint_trials`, Siegmund's approximation:
 neighbouring splits are nearly the same test: thousands of splits count as ~100). The jump time
-is refined to the frame on the series that keep it. σ̂² is the long-run variance (`screening.long_run_factor`): AR(1)-like noise wanders like steps.
+is refined to the frame on the series that keep it. σ̂² is the long-run variance
+(`screening.long_run_factor`): AR(1)-like noise wanders like steps.
 
 Common mode: the same scan with one size shared by the series of an axis (Σ_s b_s/σ_s² over
-Σ_s M_s/σ_s² of the CUSUM pieces: χ²_1 at a fixed split, corrected over the effective splits × axes): the
-camera shifting every plate alike, too little on each plate alone. Both proposals go to the
+Σ_s M_s/σ_s² of the CUSUM pieces: χ²_1 at a fixed split, corrected over the effective splits ×
+axes): the camera shifting every plate alike, too little on each plate alone. Both proposals go to the
 search; BIC decides.
 
 Model term: y += δ_s H(t − t_j), t_j shared by the series it touches, δ_s per series: 1 + S
