@@ -229,16 +229,16 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--out", type=Path, default=Path("detection_curve_out"))
     args = ap.parse_args(argv)
-    jobs = []
+    jobs = []  # the controls first: a false-alarm rate needs them all, a curve can be partial
+    for r in range(args.controls):
+        seed = args.seed * 1_000_000 + 900_000 + r
+        kind = CONTROL_KINDS[r % len(CONTROL_KINDS)]
+        jobs.append({"effect": None, "signal": 0.0, "seed": seed, "minutes": args.minutes, "noise": kind})
     for k, eid in enumerate(args.effects):
         for j, s in enumerate(args.signals):
             for r in range(args.reps):
                 seed = args.seed * 1_000_000 + k * 10_000 + j * 100 + r
                 jobs.append({"effect": eid, "signal": float(s), "seed": seed, "minutes": args.minutes})
-    for r in range(args.controls):
-        seed = args.seed * 1_000_000 + 900_000 + r
-        kind = CONTROL_KINDS[r % len(CONTROL_KINDS)]
-        jobs.append({"effect": None, "signal": 0.0, "seed": seed, "minutes": args.minutes, "noise": kind})
     res_dir = args.out / "results"
     res_dir.mkdir(parents=True, exist_ok=True)
 
