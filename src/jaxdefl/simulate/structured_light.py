@@ -99,19 +99,31 @@ def render_kinect(
     cam = cfg.camera
     n, p = len(frame_index), km.bg_w.shape[0]
     out = np.empty((n, p), np.float32)
-    ii = np.maximum(km.plate_idx, 0)
-    ok = km.plate_idx >= 0
-    fp, e = km.plate_foot, km.plate_edges
+    # The background is linear in the deflection: z_bg = Σ_k w_k (depth_k + gain_k d) = a + b d.
+    bg_a = (km.bg_w * km.bg_depth).sum(axis=1)
+    bg_b = (km.bg_w * km.bg_gain).sum(axis=1)
+    # Only pixels a plate's footprint can cover mix plate and background depth.
+    on = np.flatnonzero((km.plate_idx >= 0) & (km.plate_occ < 1))
+    ii = km.plate_idx[on]
+    fp, e = km.plate_foot[on], km.plate_edges[ii]
+    area = (fp[:, 1] - fp[:, 0]) * (fp[:, 3] - fp[:, 2])
+    keep = 1 - km.plate_occ[on]
+    p_depth, p_gain = km.plate_depth[on], km.plate_gain[on]
+    sigma_px = cam.disparity_noise_px * cam.noise_scale
+    z = np.empty(p)
     for j, fi in enumerate(frame_index):
         rng = np.random.default_rng([seed, 29, int(fi)])
         d = defl[j]
-        ox = np.clip(np.minimum(fp[:, 1], e[ii, 1] + dx[j]) - np.maximum(fp[:, 0], e[ii, 0] + dx[j]), 0, None)
-        oy = np.clip(np.minimum(fp[:, 3], e[ii, 3] + dy[j]) - np.maximum(fp[:, 2], e[ii, 2] + dy[j]), 0, None)
-        f = np.where(ok, ox / (fp[:, 1] - fp[:, 0]) * oy / (fp[:, 3] - fp[:, 2]), 0.0) * (1 - km.plate_occ)
-        z_bg = (km.bg_w * (km.bg_depth + km.bg_gain * d)).sum(axis=1)
-        z = (1 - f) * z_bg + f * (km.plate_depth + km.plate_gain * d)
-        disp = km.bf / z + cam.disparity_noise_px * cam.noise_scale * rng.standard_normal(p)
-        disp = np.round(disp / km.q_px) * km.q_px
+        ox = np.clip(np.minimum(fp[:, 1], e[:, 1] + dx[j]) - np.maximum(fp[:, 0], e[:, 0] + dx[j]), 0, None)
+        oy = np.clip(np.minimum(fp[:, 3], e[:, 3] + dy[j]) - np.maximum(fp[:, 2], e[:, 2] + dy[j]), 0, None)
+        f = ox * oy / area * keep
+        np.multiply(bg_b, d, out=z)
+        z += bg_a
+        z[on] = (1 - f) * z[on] + f * (p_depth + p_gain * d)
+        disp = km.bf / z
+        disp += sigma_px * rng.standard_normal(p)
+        np.round(disp / km.q_px, out=disp)
+        disp *= km.q_px
         common = cam.frame_noise_mm * cam.noise_scale * rng.standard_normal()
         with np.errstate(divide="ignore"):
             out[j] = np.where(disp > 0, km.bf / disp + common + offsets_mm[j], np.nan)
