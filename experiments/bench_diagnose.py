@@ -42,6 +42,7 @@ def main() -> None:
     from jaxdefl.fit import estimate_windows
     from jaxdefl.io import validate_trajectory
     from jaxdefl.series import make_windows
+    from jaxdefl.settings import DiagnoseSettings
     from jaxdefl.simulate.effects import CleanRecording, RecordingSpec, draw_effect, make_recording
 
     effects = () if args.effect == "none" else (args.effect,)
@@ -61,13 +62,14 @@ def main() -> None:
         f"{len(traj)} rows, effect {args.effect} ({time.perf_counter() - t:.1f} s to simulate)"
     )
 
+    settings = DiagnoseSettings(sensor="tof", frame_rate_hz=args.rate)
     for run in ("first (with compile)", "steady"):
         t = time.perf_counter()
         df = validate_trajectory(traj)
         est = estimate_windows(make_windows(df, window_s=None))
         t_fit = time.perf_counter() - t
         t = time.perf_counter()
-        diag = run_diagnosis(traj, lds, sensor="tof", frame_rate_hz=args.rate)
+        diag = run_diagnosis(traj, lds, settings)
         t_diag = time.perf_counter() - t
         found = ", ".join(a.proposal.effect for a in diag.accepted) or "none"
         print(
@@ -79,7 +81,7 @@ def main() -> None:
     # stages of the steady state, under run_diagnosis' BLAS limit
     with threadpool_limits(limits=1, user_api="blas"):
         t = time.perf_counter()
-        ctx, states, _ = build_context(traj, lds, "tof", args.rate)
+        ctx, states, _ = build_context(traj, lds, settings)
         print(f"  context (validation, nominal and reference fits): {time.perf_counter() - t:.2f} s")
         for eid, eff in load_effects().items():
             if eff.cannot_tell(ctx):

@@ -18,6 +18,7 @@ import time
 
 from jaxdefl.io import validate_trajectory
 from jaxdefl.reconcile import reconcile
+from jaxdefl.settings import DiagnoseSettings, ReconcileSettings
 from jaxdefl.simulate.effects import make_case
 
 CARRIER = {
@@ -42,7 +43,8 @@ def main():
         flagged: dict[str, int] = {}
         for seed in args.seeds:
             traj, lds, truth = make_case(seed, [eid] if eid else [], minutes=args.minutes, sensor="tof")
-            rec = reconcile(validate_trajectory(traj), lds, facts={"sensor": "tof"}, n_null=20, seed=seed)
+            settings = ReconcileSettings(seed=seed, diagnosis=DiagnoseSettings(sensor="tof"))
+            rec = reconcile(validate_trajectory(traj), lds, settings)
             if eid is None:
                 for r in rec.levels:
                     if r["before"] > r["null_95"]:

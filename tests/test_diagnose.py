@@ -10,12 +10,13 @@ import pandas as pd
 import pytest
 from scipy import optimize, signal, stats
 
-from jaxdefl._errors import ConfigError, InputError
+from jaxdefl._errors import InputError, ParameterError
 from jaxdefl.cli import main
 from jaxdefl.diagnose import EFFECT_IDS, diagnose, run_diagnosis
 from jaxdefl.diagnose._base import State, loglik, rms_equivalent
 from jaxdefl.diagnose._varpro import fit_shared
 from jaxdefl.diagnose.effects.extra_periodic import _columns as line_columns
+from jaxdefl.settings import DiagnoseSettings
 
 F0 = 3.0672
 
@@ -324,21 +325,26 @@ def test_only_named_effects_are_searched():
 # --- errors and the CLI ---------------------------------------------------------------------
 
 
-def test_errors_name_the_argument():
+def test_errors_name_the_parameter():
+    """Settings out of their domain fail when made, before any table is looked at; a segment
+    the table lacks fails in the stage; both name the parameter (the CLI maps it to its flag)."""
     traj = record(minutes=1, plates=2)
-    with pytest.raises(ConfigError, match="--sensor: expected one of tof, structured_light"):
-        run_diagnosis(traj, sensor="lidar")
-    with pytest.raises(ConfigError, match="--frame-rate: expected a positive rate"):
-        run_diagnosis(traj, frame_rate_hz=-1)
-    with pytest.raises(ConfigError, match="--modulation-mhz: expected a positive"):
-        run_diagnosis(traj, modulation_mhz=0)
+    for kw, match in (
+        (dict(sensor="lidar"), "sensor: expected one of tof, structured_light, got 'lidar'"),
+        (dict(frame_rate_hz=-1.0), "frame_rate_hz: expected a positive rate in Hz, got -1"),
+        (dict(modulation_mhz=0.0), "modulation_mhz: expected a positive frequency"),
+        (dict(effects=("wobble",)), "effects: unknown effect 'wobble'"),
+        (dict(effects="drift,wobble"), "effects: unknown effect 'wobble'"),
+        (dict(tap_offsets=(0.0, 0.5)), "tap_offsets: expected 4 fractions"),
+    ):
+        with pytest.raises(ParameterError, match=match):
+            DiagnoseSettings(**kw)
+    assert DiagnoseSettings(effects=" drift, outliers ").effects == ("drift", "outliers")
     two = pd.concat([traj.assign(segment="day1"), traj.assign(segment="day2", t=traj.t + 1e4)])
-    with pytest.raises(ConfigError, match="2 segments .*choose one with --segment"):
+    with pytest.raises(ParameterError, match="segment: <table> has 2 segments .*choose one"):
         run_diagnosis(two)
-    with pytest.raises(ConfigError, match="--segment: 'day3' is not in"):
-        run_diagnosis(two, segment="day3")
-    with pytest.raises(ConfigError, match="--effects: unknown effect 'wobble'"):
-        run_diagnosis(traj, effects=("wobble",))
+    with pytest.raises(ParameterError, match="segment: 'day3' is not in"):
+        run_diagnosis(two, settings=DiagnoseSettings(segment="day3"))
     with pytest.raises(InputError, match="timestamps, the diagnosis needs at least 64"):
         run_diagnosis(traj.groupby("plate").head(10))
     flat = traj.assign(z=1900.0 + np.random.default_rng(0).standard_normal(len(traj)), x=0.0)

@@ -11,6 +11,7 @@ import pytest
 from jaxdefl._errors import InputError
 from jaxdefl.frames import PlateGeometry, extract_frames, extract_to_table
 from jaxdefl.io.recording import open_recording
+from jaxdefl.settings import ExtractSettings
 
 H, W = 64, 128
 INTR = dict(fx=100.0, fy=100.0, cx=63.5, cy=31.5)
@@ -107,7 +108,7 @@ def test_npz_roundtrip_and_cli_entry(tmp_path):
         plate_x_mm=PLATE_X_MM,
         camera_x_mm=CAMERA_X_MM,
     )
-    extract_to_table(tmp_path / "rec.npz", tmp_path / "traj.csv", chunk_frames=7)
+    extract_to_table(tmp_path / "rec.npz", tmp_path / "traj.csv", ExtractSettings(chunk_frames=7))
     import pandas as pd
 
     df = pd.read_csv(tmp_path / "traj.csv")
@@ -131,9 +132,9 @@ def test_cli_extract_device_flag(tmp_path, capsys):
     a, b = pd.read_csv(tmp_path / "a.csv"), pd.read_csv(tmp_path / "b.csv")
     assert len(a) == 36
     np.testing.assert_allclose(a[["x", "y", "z"]], b[["x", "y", "z"]], atol=0.01)
-    bad = [("gpu", "--device gpu: expected cpu, cuda or cuda:N")]
+    bad = [("gpu", "--device: expected cpu, cuda or cuda:N, got 'gpu'")]
     if not torch.cuda.is_available():
-        bad.append(("cuda", "--device cuda: CUDA is not available"))
+        bad.append(("cuda", "--device: cuda: CUDA is not available"))
     for dev, msg in bad:
         capsys.readouterr()
         code = main(["extract", str(tmp_path / "rec.npz"), "--out", str(tmp_path / "c.csv"), "--device", dev])

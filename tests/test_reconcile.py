@@ -14,6 +14,7 @@ import pytest
 
 from jaxdefl.io import validate_trajectory
 from jaxdefl.reconcile import Twin, distance, reconcile, specs_from_diagnosis, table_stats
+from jaxdefl.settings import DiagnoseSettings, ReconcileSettings
 from jaxdefl.simulate import config_from_dict
 from jaxdefl.simulate.effects import make_case
 from jaxdefl.simulate.injection import make_spec
@@ -100,7 +101,7 @@ def test_diagnosed_effects_become_effect_tables_the_simulator_accepts():
 )
 def test_concealed_effect_is_named_and_its_simulation_comes_back_inside_the_null_band(eid, seed, metric):
     df, lds, _ = _table(seed, [eid])
-    rec = reconcile(df, lds, facts={"sensor": "tof"}, n_null=20)
+    rec = reconcile(df, lds, ReconcileSettings(diagnosis=DiagnoseSettings(sensor="tof")))
     assert eid in [e["id"] for e in rec.effects]
     row = next(r for r in rec.levels if r["metric"] == metric)
     assert row["before"] > row["null_95"], row
@@ -115,7 +116,7 @@ def test_control_recording_agrees_with_its_simulation_but_for_frame_common_noise
     except frame-common noise, which the white-noise simulation lacks and no effect id names:
     it is located as a difference at the trajectory level."""
     df, lds, truth = _table(seed)
-    rec = reconcile(df, lds, facts={"sensor": "tof"}, n_null=20)
+    rec = reconcile(df, lds, ReconcileSettings(diagnosis=DiagnoseSettings(sensor="tof")))
     apart = [r["metric"] for r in rec.levels if r["before"] > r["null_95"]]
     fc = next(r for r in rec.levels if r["metric"] == "frame_common")
     if truth["recording"]["frame_common"] > 0:  # far outside: located

@@ -1,5 +1,8 @@
 """Command settings: frozen, validated whole before any input is read, errors in parameter names
-for a library caller and in flags on the command line."""
+for a library caller and in flags on the command line.
+
+For every command a bad flag value fails with one line naming the flag even when the input does
+not exist (so the error cannot have come from reading it)."""
 
 from __future__ import annotations
 
@@ -10,7 +13,22 @@ import pytest
 from jaxdefl import ConfigError
 from jaxdefl._errors import ParameterError
 from jaxdefl.cli import main
-from jaxdefl.settings import FIT_FLAGS, FitSettings
+from jaxdefl.settings import (
+    DIAGNOSE_FLAGS,
+    EXTRACT_FLAGS,
+    FIT_FLAGS,
+    MONITOR_FLAGS,
+    RECONCILE_FLAGS,
+    RUN_FLAGS,
+    SIMULATE_FLAGS,
+    DiagnoseSettings,
+    ExtractSettings,
+    FitSettings,
+    MonitorSettings,
+    ReconcileSettings,
+    RunSettings,
+    SimulateSettings,
+)
 
 
 @pytest.mark.parametrize(
@@ -68,3 +86,103 @@ def test_fit_refuses_bad_settings_before_reading_the_input(tmp_path, capsys):
         err = capsys.readouterr().err.strip().splitlines()
         assert err == [f"jaxdefl: error: {message}"]
     assert list(tmp_path.iterdir()) == []
+
+
+# each command with a MISSING input (and output beside it)
+COMMANDS = {
+    "fit": ["fit", "{missing}.csv", "--out", "{out}.csv"],
+    "diagnose": ["diagnose", "{missing}.csv", "--out", "{out}.json"],
+    "reconcile": ["reconcile", "{missing}.csv", "--config", "{missing}.toml", "--out", "{out}"],
+    "extract": ["extract", "{missing}.zarr", "--out", "{out}.csv"],
+    "simulate": ["simulate", "{missing}.toml", "--out", "{out}"],
+    "run": ["run", "{missing}.toml", "--out", "{out}"],
+    "monitor": ["monitor", "--replay", "{missing}.csv", "--out", "{out}"],
+    "follow": ["monitor", "{missing}.csv", "--out", "{out}"],
+}
+# (command, bad flags, the start of the one-line error)
+BAD_FLAGS = [
+    ("fit", "--window -5", "--window: expected a positive length"),
+    ("fit", "--fmin 3 --fmax 2", "--fmin/--fmax: expected fmin < fmax"),
+    ("diagnose", "--sensor sonar", "--sensor: expected one of tof, structured_light"),
+    ("diagnose", "--frame-rate -20", "--frame-rate: expected a positive rate"),
+    ("diagnose", "--modulation-mhz 0", "--modulation-mhz: expected a positive"),
+    ("diagnose", "--effects drift,wobble", "--effects: unknown effect 'wobble'"),
+    ("diagnose", "--timestamps later", "--timestamps: expected one of"),
+    ("reconcile", "--null-sims 3", "--null-sims: expected at least 5"),
+    ("reconcile", "--seed -1", "--seed: expected a seed >= 0"),
+    ("extract", "--chunk-frames 0", "--chunk-frames: expected an integer >= 1"),
+    ("extract", "--device gpu", "--device: expected cpu, cuda or cuda:N"),
+    ("extract", "--timestamps merge", "--timestamps: expected strict or reclock"),
+    ("simulate", "--duration -1", "--duration: expected a duration >= 0 s"),
+    ("simulate", "--live --speed 0", "--speed: expected a factor > 0"),
+    ("run", "--scheduler local:0", "--scheduler: expected none, local"),
+    ("run", "--timestamps later", "--timestamps: expected one of"),
+    ("monitor", "--method kalman", "--method: expected one of ekf, rls"),
+    ("monitor", "--block -5", "--block: expected a time > 0 s"),
+    ("monitor", "--speed -1", "--speed: expected a factor >= 0"),
+    ("monitor", "--alarms-per-day 0", "--alarms-per-day: expected a rate > 0"),
+    ("follow", "--timestamps reclock", "--timestamps: reclock applies to --replay"),
+]
+
+
+@pytest.mark.parametrize("command, flags, message", BAD_FLAGS, ids=[f"{c} {f}" for c, f, _ in BAD_FLAGS])
+def test_a_bad_flag_fails_on_the_flag_before_any_input_is_read(tmp_path, capsys, command, flags, message):
+    missing, out = tmp_path / "missing", tmp_path / "out"
+    argv = [a.format(missing=missing, out=out) for a in COMMANDS[command]] + flags.split()
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(f"jaxdefl: error: {message}"), err
+    assert "missing" not in err, err  # the input was not opened
+    assert not any(tmp_path.glob("out*")), "nothing is written"
+
+
+def test_every_flag_names_an_option_of_its_command():
+    """The maps from parameters to flags stay in step with the commands' options."""
+    import typer.main
+
+    from jaxdefl.cli import app
+
+    group = typer.main.get_command(app)
+    for name, flags, settings in (
+        ("fit", FIT_FLAGS, FitSettings),
+        ("diagnose", DIAGNOSE_FLAGS, DiagnoseSettings),
+        ("reconcile", RECONCILE_FLAGS, ReconcileSettings),
+        ("extract", EXTRACT_FLAGS, ExtractSettings),
+        ("simulate", SIMULATE_FLAGS, SimulateSettings),
+        ("run", RUN_FLAGS, RunSettings),
+        ("monitor", MONITOR_FLAGS, MonitorSettings),
+    ):
+        options = {o for p in group.commands[name].params for o in p.opts}
+        assert set(flags.values()) <= options, (name, set(flags.values()) - options)
+        fields = {f.name for f in dataclasses.fields(settings)}
+        assert set(flags) <= fields, (name, set(flags) - fields)
+
+
+def test_other_settings_are_frozen_and_normalised():
+    s = DiagnoseSettings(effects=" drift, outliers", tap_offsets=[0, 0.25, 0.5, 0.75], axes="z")
+    assert s.effects == ("drift", "outliers") and s.tap_offsets == (0.0, 0.25, 0.5, 0.75) and s.axes == ("z",)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        s.sensor = "tof"
+    assert ExtractSettings(device="CPU").device == "cpu"
+    # the camera facts of a config fill only what the settings leave unsaid, and are checked too
+    t = DiagnoseSettings(frame_rate_hz=10.0).with_camera({"sensor": "tof", "frame_rate_hz": 20.0})
+    assert (t.sensor, t.frame_rate_hz) == ("tof", 10.0)
+    with pytest.raises(ParameterError, match="sensor: expected one of"):
+        DiagnoseSettings().with_camera({"sensor": "lidar"})
+
+
+@pytest.mark.parametrize(
+    "make, message",
+    [
+        (lambda: ReconcileSettings(n_null=4), "n_null: expected at least 5"),
+        (lambda: ReconcileSettings(n_sims=0), "n_sims: expected at least 1"),
+        (lambda: SimulateSettings(duration_s=float("nan")), "duration_s: expected a duration >= 0 s"),
+        (lambda: MonitorSettings(until_s=0.0), "until_s: expected a time > 0 s, got 0"),
+        (lambda: MonitorSettings(timestamps="merge"), "timestamps: merge applies to replay"),
+        (lambda: RunSettings(scheduler=" "), "scheduler: expected none, local"),
+        (lambda: DiagnoseSettings(tap_offsets=(0.0, 0.25, 0.5, 1.0)), "tap_offsets: expected 4 fractions"),
+    ],
+)
+def test_library_errors_name_the_parameter(make, message):
+    with pytest.raises(ParameterError, match=message):
+        make()

@@ -4,7 +4,7 @@ from pathlib import Path
 
 import pytest
 
-from jaxdefl._errors import ConfigError
+from jaxdefl._errors import ConfigError, ParameterError
 from jaxdefl.cli import main
 from jaxdefl.simulate import config_from_dict, load_config, simulate_trajectories
 
@@ -89,7 +89,7 @@ def test_negative_duration_in_config(tmp_path):
 
 
 def test_negative_duration_argument():
-    with pytest.raises(ConfigError, match=r"key '--duration': expected a duration >= 0 s, got -1"):
+    with pytest.raises(ParameterError, match=r"duration_s: expected a duration >= 0 s, got -1"):
         simulate_trajectories(CONFIGS / "exp2_tof_3hz.toml", duration_s=-1)
 
 

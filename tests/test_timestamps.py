@@ -243,12 +243,13 @@ def test_diagnosis_grids_follow_the_recovered_clock_and_the_frame_rate():
     """5 ms of jitter at 20 Hz: the diagnosis' frame grid is the 20 Hz clock (the smallest
     spacing would be ~30 ms), every sample on its own frame; --frame-rate starts the fit."""
     from jaxdefl.diagnose._context import build_context
+    from jaxdefl.settings import DiagnoseSettings
 
     df, _ = _jittered_table(seed=12, duration_s=40.0, n_plates=2)
     t = np.unique(df["t"].to_numpy())
     true_k = df.attrs["frames"] - df.attrs["frames"][0]
     for rate in (None, 20.0):
-        ctx, _, notes = build_context(df, frame_rate_hz=rate, axes=("z",))
+        ctx, _, notes = build_context(df, settings=DiagnoseSettings(frame_rate_hz=rate, axes=("z",)))
         assert abs(ctx.dt_s - 0.05) < 1e-5 and ctx.frame_rate_hz == pytest.approx(20.0, rel=1e-4)
         s = ctx.series[0]
         np.testing.assert_array_equal(s.k, true_k[np.searchsorted(t - t[0], s.t)])

@@ -11,7 +11,7 @@ from typing import Annotated
 
 import typer
 
-from ._errors import ConfigError, Interrupted, JaxdeflError, ParameterError
+from ._errors import Interrupted, JaxdeflError, ParameterError
 from ._signals import check_interrupt, committed_under_signal, handle_signals
 
 app = typer.Typer(
@@ -99,14 +99,18 @@ def simulate(
     speed: Annotated[float, typer.Option(help="With --live: times real time.")] = 1.0,
 ) -> None:
     """Simulate a recording: DIR/recording.zarr, DIR/truth.csv, DIR/lds.csv (or --live)."""
-    if live:
-        from .simulate import write_live
+    from .settings import SIMULATE_FLAGS, SimulateSettings
 
-        write_live(config, out, duration_s=duration, seed=seed, speed=speed, session=session)
-        return
-    from .simulate import simulate_to_dir
+    with _flag_names(SIMULATE_FLAGS):
+        s = SimulateSettings(**_flag_values(locals(), SIMULATE_FLAGS))  # before any input is read
+        if s.live:
+            from .simulate import write_live
 
-    simulate_to_dir(config, out, duration_s=duration, seed=seed, session=session)
+            write_live(config, out, duration_s=s.duration_s, seed=s.seed, speed=s.speed, session=s.session)
+            return
+        from .simulate import simulate_to_dir
+
+        simulate_to_dir(config, out, duration_s=s.duration_s, seed=s.seed, session=s.session)
 
 
 @app.command()
@@ -135,11 +139,13 @@ def extract(
     ] = "strict",
 ) -> None:
     """Extract the plates from every frame: 3D centroid trajectories (t, plate, x, y, z)."""
-    from .frames import extract_to_table
+    from .settings import EXTRACT_FLAGS, ExtractSettings
 
-    extract_to_table(
-        recording, out, realtime=realtime, chunk_frames=chunk_frames, device=device, timestamps=timestamps
-    )
+    with _flag_names(EXTRACT_FLAGS):
+        settings = ExtractSettings(**_flag_values(locals(), EXTRACT_FLAGS))  # before any input is read
+        from .frames import extract_to_table
+
+        extract_to_table(recording, out, settings)
 
 
 @app.command()
@@ -158,9 +164,13 @@ def run(
     ] = None,
 ) -> None:
     """Reprocess a campaign (days x cameras) to tables, a Zarr dataset, figures and a report."""
-    from . import pipeline
+    from .settings import RUN_FLAGS, RunSettings
 
-    pipeline.run_file(config, out, scheduler=scheduler, timestamps=timestamps)
+    with _flag_names(RUN_FLAGS):
+        settings = RunSettings(**_flag_values(locals(), RUN_FLAGS))  # before any input is read
+        from . import pipeline
+
+        pipeline.run_file(config, out, settings)
 
 
 @app.command()
@@ -190,21 +200,13 @@ def diagnose(
     timestamps: Annotated[str, typer.Option("--timestamps", help=_TIMESTAMPS_HELP)] = "strict",
 ) -> None:
     """Locate where a recording departs from the nominal model and name the missing physics."""
-    from . import pipeline
+    from .settings import DIAGNOSE_FLAGS, DiagnoseSettings
 
-    pipeline.diagnose_file(
-        traj,
-        out,
-        reference=reference,
-        sensor=sensor,
-        frame_rate_hz=frame_rate,
-        modulation_mhz=modulation_mhz,
-        config=config,
-        segment=segment,
-        effects=None if effects is None else tuple(e.strip() for e in effects.split(",") if e.strip()),
-        figures=figures,
-        timestamps=timestamps,
-    )
+    with _flag_names(DIAGNOSE_FLAGS):
+        settings = DiagnoseSettings(**_flag_values(locals(), DIAGNOSE_FLAGS))  # before any input is read
+        from . import pipeline
+
+        pipeline.diagnose_file(traj, out, settings, reference=reference, config=config, figures=figures)
 
 
 @app.command()
@@ -224,19 +226,13 @@ def reconcile(
     timestamps: Annotated[str, typer.Option("--timestamps", help=_TIMESTAMPS_HELP)] = "strict",
 ) -> None:
     """Compare a recording with its simulation, name the missing physics, simulate it, compare again."""
-    from . import pipeline
+    from .settings import RECONCILE_FLAGS, ReconcileSettings
 
-    pipeline.reconcile_file(
-        recording,
-        config,
-        out,
-        reference=reference,
-        session=session,
-        segment=segment,
-        n_null=null_sims,
-        seed=seed,
-        timestamps=timestamps,
-    )
+    with _flag_names(RECONCILE_FLAGS):
+        settings = ReconcileSettings(**_flag_values(locals(), RECONCILE_FLAGS))  # before any input is read
+        from . import pipeline
+
+        pipeline.reconcile_file(recording, config, out, settings, reference=reference)
 
 
 @app.command()
@@ -275,36 +271,25 @@ def monitor(
     ] = "strict",
 ) -> None:
     """Follow a live camera: f0 and A per plate with σ's, alarms when the structure or a sensor changes."""
-    from .monitor.run import run_monitor
-    from .monitor.sources import open_source, simulated_source
+    from .settings import MONITOR_FLAGS, MonitorSettings
 
-    if config is not None and source is None:
-        if timestamps != "strict":
-            raise ConfigError(
-                f"--timestamps {timestamps}: applies to --replay of a table, not to a simulated camera"
+    with _flag_names(MONITOR_FLAGS):
+        s = MonitorSettings(**_flag_values(locals(), MONITOR_FLAGS))  # before any input is read
+        from .monitor.run import run_monitor
+        from .monitor.sources import open_source, simulated_source
+
+        if config is not None and source is None:
+            src = simulated_source(config, duration_s=s.until_s, seed=s.seed)
+        else:
+            src = open_source(
+                source if not s.replay else None,
+                source if s.replay else None,
+                config,
+                idle_s=s.idle_s,
+                timestamps=s.timestamps,
             )
-        src = simulated_source(config, duration_s=until, seed=seed)
-    else:
-        src = open_source(
-            source if not replay else None,
-            source if replay else None,
-            config,
-            idle_s=idle,
-            timestamps=timestamps,
-        )
-    run_monitor(
-        src,
-        out,
-        speed=speed,
-        until_s=until,
-        duration_s=duration,
-        method=method,
-        alarms_per_day=alarms_per_day,
-        block_s=block,
-        snapshot_s=snapshot,
-        inputs=tuple(p for p in (source, config, reference) if p is not None),
-        reference=reference,
-    )
+        inputs = tuple(p for p in (source, config, reference) if p is not None)
+        run_monitor(src, out, s, inputs=inputs, reference=reference)
 
 
 @app.command()

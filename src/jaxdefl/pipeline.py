@@ -6,6 +6,7 @@ import shutil
 import tempfile
 import time
 from contextlib import contextmanager
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -13,10 +14,9 @@ import pandas as pd
 
 from . import __version__
 from ._configs import config_dir
-from ._errors import ConfigError, JaxdeflError
+from ._errors import ConfigError, JaxdeflError, ParameterError
 from .fit import Estimates, compare_with_reference, estimate_windows, fit_reference
 from .io import (
-    check_timestamp_policy,
     load_table,
     read_reference,
     read_trajectory,
@@ -26,7 +26,8 @@ from .io import (
 from .io.output import TABLE_SUFFIXES, Outputs
 from .progress import console, progress_bar
 from .series import check_window_plan
-from .settings import FitSettings
+from .settings import DiagnoseSettings, FitSettings, ReconcileSettings, RunSettings
+from .status import UnitStatus
 
 __all__ = ["demo", "diagnose_file", "fit_file", "run_file"]
 
@@ -222,27 +223,24 @@ def _plates(df: pd.DataFrame) -> str:
     return "plates " + ", ".join(map(str, p[:8].tolist())) + (" ..." if p.size > 8 else "")
 
 
-def run_file(config: Path, out: Path, scheduler: str = "none", timestamps: str | None = None) -> pd.DataFrame:
-    """`jaxdefl run`: a campaign config to ``out`` (see `jaxdefl.bulk`); ``timestamps``
-    overrides the campaign's ``processing.timestamps``."""
-    from dataclasses import replace
-
+def run_file(config: Path, out: Path, settings: RunSettings) -> pd.DataFrame:
+    """`jaxdefl run`: a campaign config to ``out`` (see `jaxdefl.bulk`); ``settings``
+    (`jaxdefl.settings.RunSettings`, validated when made): the scheduler, and the timestamp
+    policy that overrides the campaign's ``processing.timestamps``."""
     from .bulk import load_campaign, run_campaign
 
     t0 = time.perf_counter()
-    if timestamps is not None:
-        check_timestamp_policy(timestamps)
     campaign = load_campaign(config)
-    if timestamps is not None:
-        campaign = replace(campaign, processing=replace(campaign.processing, timestamps=timestamps))
-    units = run_campaign(campaign, out, scheduler=scheduler)
-    n_ok = int((units["status"] == "ok").sum())
+    if settings.timestamps is not None:
+        campaign = replace(campaign, processing=replace(campaign.processing, timestamps=settings.timestamps))
+    units = run_campaign(campaign, out, scheduler=settings.scheduler)
+    n_ok = int((units["status"] == UnitStatus.OK).sum())
     console.print(
         f"[bold]jaxdefl run[/]: {campaign.name}: {n_ok}/{len(units)} recordings estimated "
         f"({int(units['skipped'].sum())} reused) in {time.perf_counter() - t0:.1f} s "
         f"-> {Path(out) / 'report.md'}"
     )
-    failed = units[units["status"] != "ok"]
+    failed = units[units["status"] != UnitStatus.OK]
     for r in failed.itertuples():
         console.print(f"  [red]failed[/] {r.unit}: {r.reason}")
     if len(failed):
@@ -350,6 +348,9 @@ def _demo_into(out: Path, duration_s: float, seed: int) -> Path:
     return report
 
 
+_CAMERA_FACTS = ("sensor", "frame_rate_hz", "modulation_mhz", "tap_offsets")
+
+
 def _camera_facts(config: Path | None) -> dict:
     """Sensor, frame rate, modulation and tap offsets from a simulation config (TOML)."""
     if config is None:
@@ -370,44 +371,24 @@ def _camera_facts(config: Path | None) -> dict:
 def diagnose_file(
     traj: Path,
     out: Path,
+    settings: DiagnoseSettings,
     reference: Path | None = None,
-    sensor: str | None = None,
-    frame_rate_hz: float | None = None,
-    modulation_mhz: float | None = None,
     config: Path | None = None,
-    segment: str | None = None,
-    effects: tuple[str, ...] | None = None,
     figures: bool = True,
-    timestamps: str = "strict",
 ) -> dict:
     """`jaxdefl diagnose`: read, diagnose, write OUT.json, OUT.md and a figure per effect.
 
-    Flags override what a simulation ``config`` says of the camera.
+    ``settings`` were validated whole when they were made (`jaxdefl.settings.DiagnoseSettings`);
+    what they do not say of the camera comes from the simulation ``config``, when given.
     """
     from .diagnose import run_diagnosis
     from .report.diagnosis import write_diagnosis_report
 
     traj, out = Path(traj), Path(out)
-    check_timestamp_policy(timestamps)
     outs = Outputs(inputs=[traj, reference, config])
     outs.reserve(out, "--out", suffixes=(".json",))
     outs.reserve(out.with_suffix(".md"), "the diagnosis report")
-    facts = _camera_facts(config)
-    for key, val in (
-        ("sensor", sensor),
-        ("frame_rate_hz", frame_rate_hz),
-        ("modulation_mhz", modulation_mhz),
-    ):
-        if val is not None:
-            facts[key] = val
-    if facts.get("frame_rate_hz") is not None and not (
-        np.isfinite(facts["frame_rate_hz"]) and facts["frame_rate_hz"] > 0
-    ):
-        raise ConfigError(f"--frame-rate: expected a positive rate in Hz, got {facts['frame_rate_hz']:g}")
-    if facts.get("modulation_mhz") is not None and not (
-        np.isfinite(facts["modulation_mhz"]) and facts["modulation_mhz"] > 0
-    ):
-        raise ConfigError(f"--modulation-mhz: expected a positive frequency, got {facts['modulation_mhz']:g}")
+    settings = settings.with_camera(_camera_facts(config))
     # the tables as read: `run_diagnosis` validates them (once; validation sorts every row)
     df = load_table(traj)
     ref = load_table(reference) if reference is not None else None
@@ -417,15 +398,7 @@ def diagnose_file(
 
     with console.status("diagnosing ..."):
         diag = run_diagnosis(
-            df,
-            ref,
-            segment=segment,
-            effects=effects,
-            source=str(traj),
-            reference_source=str(reference),
-            on_round=on_round,
-            timestamps=timestamps,
-            **facts,
+            df, ref, settings, source=str(traj), reference_source=str(reference), on_round=on_round
         )
     for note in diag.notes:
         if "timestamps reclocked" in note or "timestamps merged" in note:
@@ -436,10 +409,10 @@ def diagnose_file(
         "trajectory": str(traj),
         "reference": str(reference) if reference else None,
         "config": str(config) if config else None,
-        **{k: v for k, v in facts.items()},
-        "segment": segment,
-        "effects": list(effects) if effects else None,
-        "timestamps": timestamps,
+        **{k: v for k in _CAMERA_FACTS if (v := getattr(settings, k)) is not None},
+        "segment": settings.segment,
+        "effects": list(settings.effects) if settings.effects else None,
+        "timestamps": settings.timestamps,
     }
     with outs:
         outs.json(out, d)
@@ -475,8 +448,8 @@ def _reconcile_input(recording: Path, segment: str | None, timestamps: str = "st
             console.print(f"reconcile: {recording} holds segments {', '.join(segments)}; using {segments[0]}")
         segment = segments[0]
     elif segment not in segments:
-        raise ConfigError(
-            f"--segment: {recording} has no segment {segment!r}; expected one of {', '.join(segments)}"
+        raise ParameterError(
+            "segment", f"{recording} has no segment {segment!r}; expected one of {', '.join(segments)}"
         )
     return df[df["segment"] == segment].reset_index(drop=True)
 
@@ -485,14 +458,14 @@ def reconcile_file(
     recording: Path,
     config: Path,
     out: Path,
+    settings: ReconcileSettings,
     reference: Path | None = None,
-    session: str | None = None,
-    segment: str | None = None,
-    n_null: int = 20,
-    seed: int = 0,
-    timestamps: str = "strict",
 ) -> dict:
-    """`jaxdefl reconcile`: DIR/reconcile.json, DIR/reconciled.toml, DIR/report.md and figures."""
+    """`jaxdefl reconcile`: DIR/reconcile.json, DIR/reconciled.toml, DIR/report.md and figures.
+
+    ``settings`` were validated whole when they were made (`jaxdefl.settings.ReconcileSettings`);
+    what they do not say of the camera comes from ``config``.
+    """
     import json
     import tomllib
 
@@ -505,28 +478,24 @@ def reconcile_file(
 
     recording, out = Path(recording), Path(out)
     config = resolve_config(config)
-    if n_null < 5:
-        raise ConfigError(f"--null-sims: expected at least 5 simulations for a 95 % band, got {n_null}")
+    session, seed, timestamps = settings.session, settings.seed, settings.timestamps
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out}: is a file; expected a directory")
-    check_timestamp_policy(timestamps)
     cfg = load_config(config, session)  # checked before anything is read or written
     outs = Outputs(inputs=[recording, config, reference])
     names = ("reconcile.json", "reconciled.toml", "report.md", "trajectories.png", "estimates.png")
     for name in names:
         outs.reserve(out / name, f"--out {out}: {name}")
-    df = _reconcile_input(recording, segment, timestamps)
+    df = _reconcile_input(recording, settings.segment, timestamps)
     ref = read_reference(reference, timestamps=timestamps) if reference is not None else None
-    facts = _camera_facts(config)
+    settings = replace(settings, diagnosis=settings.diagnosis.with_camera(_camera_facts(config)))
     with console.status("reconciling ...") as status:
         status.update("reconcile: simulating and extracting a calibration clip ...")
         calibration = calibrate(cfg, seconds=10.0, seed=seed)
         rec = reconcile(
             df,
             ref,
-            facts=facts,
-            n_null=n_null,
-            seed=seed,
+            settings,
             source=str(recording),
             on_step=lambda msg: status.update(f"reconcile: {msg} ..."),
             calibration=calibration,
@@ -552,7 +521,7 @@ def reconcile_file(
             "reference": str(reference) if reference else None,
             "session": session,
             "segment": str(df["segment"].iat[0]),
-            "null_sims": n_null,
+            "null_sims": settings.n_null,
             "seed": seed,
             "sensor": cfg.camera.sensor,
         },

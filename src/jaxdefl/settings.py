@@ -8,12 +8,28 @@ names to its flags (`FIT_FLAGS`: ``--window: ...``).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from ._errors import ParameterError
 
-__all__ = ["FIT_FLAGS", "FitSettings"]
+__all__ = [
+    "DIAGNOSE_FLAGS",
+    "DiagnoseSettings",
+    "FIT_FLAGS",
+    "FitSettings",
+    "EXTRACT_FLAGS",
+    "ExtractSettings",
+    "MONITOR_FLAGS",
+    "MonitorSettings",
+    "RECONCILE_FLAGS",
+    "ReconcileSettings",
+    "RUN_FLAGS",
+    "RunSettings",
+    "SENSORS",
+    "SIMULATE_FLAGS",
+    "SimulateSettings",
+]
 
 # parameter -> flag of `jaxdefl fit`
 FIT_FLAGS = {
@@ -31,7 +47,70 @@ FIT_FLAGS = {
     "harmonics": "--harmonics",
     "lines": "--lines",
 }
+# parameter -> flag of `jaxdefl diagnose`
+DIAGNOSE_FLAGS = {
+    "sensor": "--sensor",
+    "frame_rate_hz": "--frame-rate",
+    "modulation_mhz": "--modulation-mhz",
+    "segment": "--segment",
+    "effects": "--effects",
+    "timestamps": "--timestamps",
+}
+# parameter -> flag of `jaxdefl reconcile`
+RECONCILE_FLAGS = {
+    "session": "--session",
+    "segment": "--segment",
+    "n_null": "--null-sims",
+    "seed": "--seed",
+    "timestamps": "--timestamps",
+}
+# parameter -> flag of `jaxdefl extract`
+EXTRACT_FLAGS = {
+    "realtime": "--realtime",
+    "chunk_frames": "--chunk-frames",
+    "device": "--device",
+    "timestamps": "--timestamps",
+}
+# parameter -> flag of `jaxdefl simulate`
+SIMULATE_FLAGS = {
+    "duration_s": "--duration",
+    "seed": "--seed",
+    "session": "--session",
+    "live": "--live",
+    "speed": "--speed",
+}
+# parameter -> flag of `jaxdefl run`
+RUN_FLAGS = {"scheduler": "--scheduler", "timestamps": "--timestamps"}
+# parameter -> flag of `jaxdefl monitor`
+MONITOR_FLAGS = {
+    "replay": "--replay",
+    "speed": "--speed",
+    "until_s": "--until",
+    "duration_s": "--duration",
+    "method": "--method",
+    "alarms_per_day": "--alarms-per-day",
+    "block_s": "--block",
+    "snapshot_s": "--snapshot",
+    "idle_s": "--idle",
+    "seed": "--seed",
+    "timestamps": "--timestamps",
+}
 AXES = ("z", "x", "y")
+SENSORS = ("tof", "structured_light")
+
+
+def _names(v: tuple[str, ...] | str) -> tuple[str, ...]:
+    """A comma list (``"z,x"``) or a sequence of names as a tuple, blanks dropped."""
+    return tuple(a.strip() for a in (v.split(",") if isinstance(v, str) else v) if a.strip())
+
+
+def _check_axes(settings) -> None:
+    """``settings.axes`` as a tuple of z, x, y (None: the axes present), or a `ParameterError`."""
+    if settings.axes is not None:
+        axes = _names(settings.axes)
+        if not axes or any(a not in AXES for a in axes):
+            raise ParameterError("axes", f"expected a comma list of z, x, y; got {_got(settings.axes)}")
+        object.__setattr__(settings, "axes", axes)
 
 
 def _got(v) -> str:
@@ -94,13 +173,7 @@ class FitSettings:
             raise bad("posterior", "a number of windows >= 0")
         if self.posterior_noise not in ("ar1", "white"):
             raise bad("posterior_noise", "ar1 or white")
-        if self.axes is not None:
-            given = self.axes
-            axes = tuple(a.strip() for a in (given.split(",") if isinstance(given, str) else given))
-            axes = tuple(a for a in axes if a)
-            if not axes or any(a not in AXES for a in axes):
-                raise ParameterError("axes", f"expected a comma list of z, x, y; got {_got(given)}")
-            object.__setattr__(self, "axes", axes)
+        _check_axes(self)
         from .fit import signal_model
         from .io import check_timestamp_policy
 
@@ -113,3 +186,224 @@ class FitSettings:
                 "checks the σ's of the default model only; drop it, or drop {model}/{harmonics}/{lines}",
             )
         object.__setattr__(self, "spec", spec)
+
+
+def _check_positive(settings, names: tuple[str, ...], expected: str) -> None:
+    """Each of ``names`` None or a finite number > 0, or a `ParameterError` naming it."""
+    for name in names:
+        v = getattr(settings, name)
+        if v is not None and not (math.isfinite(v) and v > 0):
+            raise ParameterError(name, f"expected {expected}, got {_got(v)}")
+
+
+@dataclass(frozen=True)
+class DiagnoseSettings:
+    """What `jaxdefl diagnose` (`jaxdefl.diagnose.run_diagnosis`) knows of the camera and searches.
+
+    ``sensor``, ``frame_rate_hz``, ``modulation_mhz``, ``tap_offsets`` (four fractions of the
+    frame period): what the user knows of the camera (None: unknown; the frame rate then comes
+    from the timestamps). ``segment``: the segment to diagnose when the table has several.
+    ``effects``: restrict the library to these ids (a comma list or a tuple; None: all).
+    ``axes``: the axes diagnosed (None: z, x, y as present). ``timestamps``: the policy the
+    tables are read with (`jaxdefl.io.validate_trajectory`). ``open_world``: search what the
+    named effects leave with generic terms (`jaxdefl.diagnose.unnamed`).
+    """
+
+    sensor: str | None = None
+    frame_rate_hz: float | None = None
+    modulation_mhz: float | None = None
+    tap_offsets: tuple[float, ...] | None = None
+    segment: str | None = None
+    effects: tuple[str, ...] | str | None = None
+    axes: tuple[str, ...] | str | None = None
+    timestamps: str = "strict"
+    open_world: bool = True
+
+    def __post_init__(self):
+        from ._effect_ids import EFFECT_IDS
+
+        if self.sensor is not None and self.sensor not in SENSORS:
+            raise ParameterError("sensor", f"expected one of {', '.join(SENSORS)}, got {_got(self.sensor)}")
+        _check_positive(self, ("frame_rate_hz",), "a positive rate in Hz")
+        _check_positive(self, ("modulation_mhz",), "a positive frequency in MHz")
+        if self.tap_offsets is not None:
+            taps = tuple(float(o) for o in self.tap_offsets)
+            if len(taps) != 4 or not all(0.0 <= o < 1.0 for o in taps):
+                raise ParameterError(
+                    "tap_offsets", f"expected 4 fractions of the frame period in [0, 1), got {list(taps)}"
+                )
+            object.__setattr__(self, "tap_offsets", taps)
+        if self.effects is not None:
+            effects = _names(self.effects)
+            unknown = [e for e in effects if e not in EFFECT_IDS]
+            if unknown or not effects:
+                raise ParameterError(
+                    "effects",
+                    f"unknown effect {_got(unknown[0] if unknown else self.effects)} "
+                    f"(expected one of {', '.join(EFFECT_IDS)})",
+                )
+            object.__setattr__(self, "effects", effects)
+        _check_axes(self)
+        from .io import check_timestamp_policy
+
+        check_timestamp_policy(self.timestamps)
+
+    def with_camera(self, facts: dict) -> DiagnoseSettings:
+        """These settings with the camera ``facts`` (a simulation config's) where they say nothing."""
+        given = {k: v for k, v in facts.items() if getattr(self, k) is None}
+        return replace(self, **given) if given else self
+
+
+@dataclass(frozen=True)
+class ReconcileSettings:
+    """Everything `jaxdefl reconcile` (`jaxdefl.reconcile.reconcile`) does besides its paths.
+
+    ``session``, ``segment``: the config's session and the recording's segment (None: the
+    first). ``n_null`` simulations make the null band (at least 5 for a 95 % band), ``n_sims``
+    the before/after comparisons, from ``seed``. ``timestamps``: the policy the recording is
+    read with. ``diagnosis``: what the diagnosis of the recording knows of the camera.
+    """
+
+    session: str | None = None
+    segment: str | None = None
+    n_null: int = 20
+    n_sims: int = 4
+    seed: int = 0
+    timestamps: str = "strict"
+    diagnosis: DiagnoseSettings = field(default_factory=DiagnoseSettings)
+
+    def __post_init__(self):
+        if self.n_null < 5:
+            raise ParameterError(
+                "n_null", f"expected at least 5 simulations for a 95 % band, got {self.n_null}"
+            )
+        if self.n_sims < 1:
+            raise ParameterError("n_sims", f"expected at least 1 simulation, got {self.n_sims}")
+        if self.seed < 0:
+            raise ParameterError("seed", f"expected a seed >= 0, got {self.seed}")
+        from .io import check_timestamp_policy
+
+        check_timestamp_policy(self.timestamps)
+
+
+def _check_seed(settings) -> None:
+    if settings.seed is not None and settings.seed < 0:
+        raise ParameterError("seed", f"expected a seed >= 0, got {settings.seed}")
+
+
+@dataclass(frozen=True)
+class ExtractSettings:
+    """Everything `jaxdefl extract` (`jaxdefl.frames.extract_to_table`) does besides its paths.
+
+    ``realtime``: track the plates detected once instead of detecting them in every frame.
+    ``chunk_frames``: frames per batch. ``device``: the torch device (cpu, cuda, cuda:N; None:
+    CUDA if there is one), resolved when the settings are made. ``timestamps``: strict or
+    reclock (frame recordings have no duplicate rows to merge).
+    """
+
+    realtime: bool = False
+    chunk_frames: int = 256
+    device: str | None = None
+    timestamps: str = "strict"
+
+    def __post_init__(self):
+        if self.chunk_frames < 1:
+            raise ParameterError("chunk_frames", f"expected an integer >= 1, got {self.chunk_frames}")
+        if self.timestamps not in ("strict", "reclock"):
+            raise ParameterError(
+                "timestamps", f"expected strict or reclock for frames, got {_got(self.timestamps)}"
+            )
+        from .frames import resolve_device
+
+        object.__setattr__(self, "device", resolve_device(self.device))
+
+
+@dataclass(frozen=True)
+class SimulateSettings:
+    """Everything `jaxdefl simulate` does besides its config and output directory.
+
+    ``duration_s`` and ``seed`` override the config's (None: the config's); ``session``: a
+    ``[[session]]`` of the config (None: the first); ``live`` appends measured centroids as
+    they come, ``speed`` times real time.
+    """
+
+    duration_s: float | None = None
+    seed: int | None = None
+    session: str | None = None
+    live: bool = False
+    speed: float = 1.0
+
+    def __post_init__(self):
+        d = self.duration_s
+        if d is not None and not (math.isfinite(d) and d >= 0):
+            raise ParameterError("duration_s", f"expected a duration >= 0 s, got {_got(d)}")
+        _check_seed(self)
+        _check_positive(self, ("speed",), "a factor > 0")
+
+
+@dataclass(frozen=True)
+class RunSettings:
+    """Everything `jaxdefl run` does besides its campaign config and output directory.
+
+    ``scheduler``: none (in-process), local or local:N (a dask LocalCluster of N workers) or a
+    scheduler's address. ``timestamps`` overrides the campaign's ``processing.timestamps``.
+    """
+
+    scheduler: str = "none"
+    timestamps: str | None = None
+
+    def __post_init__(self):
+        from .bulk.scheduling import check_scheduler
+
+        check_scheduler(self.scheduler)
+        if self.timestamps is not None:
+            from .io import check_timestamp_policy
+
+            check_timestamp_policy(self.timestamps)
+
+
+@dataclass(frozen=True)
+class MonitorSettings:
+    """Everything `jaxdefl monitor` (`jaxdefl.monitor.run.run_monitor`) does besides its paths.
+
+    ``replay``: replay the source as if live. ``speed``: times real time for a replayed or
+    simulated source (0: as fast as it goes). ``until_s`` s of data, ``duration_s`` s of wall
+    clock: when to stop (None: at the end). ``method``: the recursive estimator (ekf or rls).
+    ``alarms_per_day``: false alarms allowed per day of data, ``block_s`` the change-detection
+    block, ``snapshot_s`` s of data between estimate snapshots, ``idle_s`` s without data that
+    end a followed source. ``seed``: a simulated camera's seed. ``timestamps``: the policy of a
+    replayed table (a followed or simulated source is read strictly, as it arrives).
+    """
+
+    replay: bool = False
+    speed: float = 1.0
+    until_s: float | None = None
+    duration_s: float | None = None
+    method: str = "ekf"
+    alarms_per_day: float = 1.0
+    block_s: float = 5.0
+    snapshot_s: float = 10.0
+    idle_s: float = 10.0
+    seed: int | None = None
+    timestamps: str = "strict"
+
+    def __post_init__(self):
+        if not (math.isfinite(self.speed) and self.speed >= 0):
+            raise ParameterError(
+                "speed", f"expected a factor >= 0 (0: as fast as it goes), got {_got(self.speed)}"
+            )
+        _check_positive(self, ("until_s", "duration_s", "block_s", "snapshot_s", "idle_s"), "a time > 0 s")
+        _check_positive(self, ("alarms_per_day",), "a rate > 0 per day")
+        _check_seed(self)
+        from .io import check_timestamp_policy
+        from .monitor.estimator import METHODS
+
+        if self.method not in METHODS:
+            raise ParameterError("method", f"expected one of {', '.join(METHODS)}, got {_got(self.method)}")
+        check_timestamp_policy(self.timestamps)
+        if self.timestamps != "strict" and not self.replay:
+            raise ParameterError(
+                "timestamps",
+                f"{self.timestamps} applies to {{replay}} of a table; a followed or simulated source "
+                "is read as it arrives (strict)",
+            )

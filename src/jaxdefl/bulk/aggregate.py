@@ -10,7 +10,7 @@ import pandas as pd
 
 from ..columns import ESTIMATE_CORE
 from ..fit import ESTIMATE_COLUMNS
-from ..status import Status
+from ..status import Status, UnitStatus
 from ..synthetic import beam_shape
 from .campaign import Campaign
 from .store import atomic_write_text
@@ -29,7 +29,7 @@ def to_dataset(est: pd.DataFrame):
     """Estimates as an xarray Dataset with dims (day, camera, window, plate, axis)."""
     ds = est.set_index(["day", "camera", "window", "plate", "axis"])[_VARS + ["cycles", "t_start", "t_end"]]
     ds = ds.to_xarray()
-    ds["status"] = ds["status"].fillna("absent").astype(str)
+    ds["status"] = ds["status"].fillna(Status.ABSENT).astype(str)
     ds["cycles"] = ds["cycles"].max(dim=["window", "plate", "axis"])
     ds.attrs["description"] = "jaxdefl campaign estimates (thesis harmonic model, eq. 5.29-5.46)"
     return ds
@@ -128,7 +128,7 @@ def gather(
     from ..report.campaign import write_campaign_report
 
     out = Path(out)
-    ok = [m for m in manifests if m.get("status") == "ok"]
+    ok = [m for m in manifests if m.get("status") == UnitStatus.OK]
     whole = read_unit_tables(out, ok, "whole.csv")
     windows = read_unit_tables(out, ok, "windows.csv")
     lds = read_unit_tables(out, ok, "lds.csv")

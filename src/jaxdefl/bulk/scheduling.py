@@ -6,10 +6,10 @@ from __future__ import annotations
 import ctypes
 import gc
 
-from .._errors import ConfigError
+from .._errors import ConfigError, ParameterError
 from ..progress import progress_bar
 
-__all__ = ["NoBar", "connect", "progress_bar", "release_memory"]
+__all__ = ["NoBar", "check_scheduler", "connect", "progress_bar", "release_memory"]
 
 
 def release_memory() -> None:
@@ -22,18 +22,25 @@ def release_memory() -> None:
         pass
 
 
+def check_scheduler(scheduler: str) -> str:
+    """The scheduler: none, local, local:N (N >= 1 workers) or an address; else a `ParameterError`."""
+    kind, colon, n = scheduler.strip().partition(":")
+    if not kind or (kind == "local" and colon and not (n.isdigit() and int(n) >= 1)):
+        raise ParameterError(
+            "scheduler",
+            f"expected none, local, local:N with N >= 1 workers or an address, got {scheduler!r}",
+        )
+    return scheduler
+
+
 def connect(scheduler: str):
     """A dask.distributed client for "local[:N]" (a LocalCluster of N = 2 workers) or an address."""
     try:
         from dask.distributed import Client, LocalCluster
     except ImportError as err:  # pragma: no cover - distributed is a dependency
         raise ConfigError(f"--scheduler {scheduler}: dask.distributed is not installed ({err})") from None
-    if scheduler == "local" or scheduler.startswith("local:"):
+    if check_scheduler(scheduler) == "local" or scheduler.startswith("local:"):
         n = scheduler.partition(":")[2] or "2"
-        if not n.isdigit() or int(n) < 1:
-            raise ConfigError(
-                f"--scheduler: expected local or local:N with N >= 1 workers, got {scheduler!r}"
-            )
         cluster = LocalCluster(
             n_workers=int(n),
             threads_per_worker=1,

@@ -24,6 +24,7 @@ from pathlib import Path
 import pandas as pd
 
 from .._errors import ConfigError
+from ..status import UnitStatus
 from .campaign import Recording
 from .store import atomic_write_text, digest_path, digest_text, run_unit
 
@@ -194,7 +195,7 @@ def ensure_simulated(campaign, out: Path, scheduler: str = "none", progress: boo
         sims = _run_all([(simulate_unit, r, out) for r in recs], scheduler, bar, task)
         calls, owner = [], []
         for r, sm in zip(recs, sims, strict=True):
-            if sm["status"] != "ok":
+            if sm["status"] != UnitStatus.OK:
                 continue
             n = open_recording(out / "units" / f"sim-{r.unit_id}" / "recording.zarr").n_frames
             step = r.simulate["unit_frames"]
@@ -208,7 +209,7 @@ def ensure_simulated(campaign, out: Path, scheduler: str = "none", progress: boo
         sim_dir = out / "units" / f"sim-{r.unit_id}"
         mine = [m for m, o in zip(exts, owner, strict=True) if o == r.unit_id]
         traj = sim_dir / "trajectories.csv"
-        if sm["status"] == "ok" and mine and all(m["status"] == "ok" for m in mine):
+        if sm["status"] == UnitStatus.OK and mine and all(m["status"] == UnitStatus.OK for m in mine):
             merged = pd.concat(
                 [pd.read_csv(out / "units" / m["unit"] / "part.csv") for m in mine], ignore_index=True
             )
@@ -229,7 +230,7 @@ def ensure_simulated(campaign, out: Path, scheduler: str = "none", progress: boo
                 )
             )
         else:
-            bad = next((m for m in [sm, *mine] if m["status"] != "ok"), sm)
+            bad = next((m for m in [sm, *mine] if m["status"] != UnitStatus.OK), sm)
             reason = bad.get("reason") or f"{r.unit_id}: no frames to extract"
             resolved.append(replace(r, trajectories=traj, lds=None, failed=reason))
     return resolved

@@ -22,6 +22,7 @@ from pathlib import Path
 from .. import __version__
 from .._errors import JaxdeflError
 from ..io.output import atomic_write_bytes
+from ..status import UnitStatus
 
 __all__ = [
     "atomic_write_bytes",
@@ -143,12 +144,12 @@ def run_unit(
     unit_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     try:
-        status, reason, names = "ok", "", list(work(unit_dir))
+        status, reason, names = UnitStatus.OK, "", list(work(unit_dir))
     except JaxdeflError as err:
-        status, reason, names = "failed", str(err), []
+        status, reason, names = UnitStatus.FAILED, str(err), []
     except Exception as err:
         last = traceback.format_exception_only(type(err), err)[-1].strip()
-        status, reason, names = "failed", f"{unit_id}: {last}", []
+        status, reason, names = UnitStatus.FAILED, f"{unit_id}: {last}", []
     seconds = time.perf_counter() - t0
     extra = {**(extra or {}), "computed_at": time.time()}
     return write_manifest(unit_dir, unit_id, inputs, config_hash, names, status, reason, seconds, extra)

@@ -3,9 +3,10 @@ was left out, its model and how much the fit improves (``jaxdefl diagnose``).
 
 Public surface:
 
-- `diagnose(traj, reference=None, sensor=None, frame_rate_hz=None, modulation_mhz=None)` -> the
-  DIAG.json dict (DESIGN.md contract).
-- `run_diagnosis(...)` -> `Diagnosis` (states before and after, for figures and reports).
+- `run_diagnosis(traj, reference=None, settings=None)` -> `Diagnosis` (states before and after,
+  for figures and reports); ``settings`` a `jaxdefl.settings.DiagnoseSettings`.
+- `diagnose(traj, reference=None, **settings)` -> the DIAG.json dict (DESIGN.md contract), with
+  the settings' fields as keywords (``sensor="tof", frame_rate_hz=20.0``).
 - `EFFECT_IDS`, `load_effects()`: the library of candidate effects.
 """
 

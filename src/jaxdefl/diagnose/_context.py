@@ -8,19 +8,19 @@ import math
 import numpy as np
 import pandas as pd
 
-from .._errors import ConfigError, InputError
+from .._errors import ConfigError, InputError, ParameterError
 from ..fit import estimate_windows
 from ..fit.estimate import MAX_ABS_VALUE_MM
 from ..io import timestamp_note, validate_trajectory
 from ..series import make_windows
 from ..series.windows import frame_clock, windows_like
+from ..settings import DiagnoseSettings
 from ..spectral import lomb_peaks
 from ..status import Status
 from ._base import Context, Harmonic, Series, State, lstsq
 
-__all__ = ["build_context", "SENSORS"]
+__all__ = ["build_context"]
 
-SENSORS = ("tof", "structured_light")
 MIN_SAMPLES = 64
 
 
@@ -56,44 +56,36 @@ def _tied_offset(s: Series, h: Harmonic) -> Harmonic:
 def build_context(
     traj: pd.DataFrame,
     reference: pd.DataFrame | None = None,
-    sensor: str | None = None,
-    frame_rate_hz: float | None = None,
-    modulation_mhz: float | None = None,
-    tap_offsets: tuple[float, ...] | None = None,
-    segment: str | None = None,
-    axes: tuple[str, ...] | None = None,
+    settings: DiagnoseSettings | None = None,
     source: str = "<table>",
     reference_source: str = "--reference",
-    timestamps: str = "strict",
 ) -> tuple[Context, list[State], list[str]]:
     """Validate the tables, fit the nominal model and return (context, nominal states, notes).
 
-    ``source`` and ``reference_source`` name the tables in error messages (their files, for the
-    CLI, which hands the tables over unvalidated: validation sorts millions of rows, once is
-    enough).
+    ``settings`` (validated when made; default: none known) say what is known of the camera,
+    the segment and the axes. ``source`` and ``reference_source`` name the tables in error
+    messages (their files, for the CLI, which hands the tables over unvalidated: validation
+    sorts millions of rows, once is enough).
 
     Raises:
-        ConfigError: an unknown sensor, a non-positive frame rate, several segments without
-            ``segment`` or an unknown one.
+        ParameterError: several segments without ``segment`` or an unknown one.
         InputError: a table that breaks the trajectory contract (see `validate_trajectory`).
     """
-    if sensor is not None and sensor not in SENSORS:
-        raise ConfigError(f"--sensor: expected one of {', '.join(SENSORS)}, got {sensor!r}")
-    if frame_rate_hz is not None and not frame_rate_hz > 0:
-        raise ConfigError(f"--frame-rate: expected a positive rate in Hz, got {frame_rate_hz}")
-    if modulation_mhz is not None and not modulation_mhz > 0:
-        raise ConfigError(f"--modulation-mhz: expected a positive frequency in MHz, got {modulation_mhz}")
+    settings = settings if settings is not None else DiagnoseSettings()
+    segment, axes, timestamps = settings.segment, settings.axes, settings.timestamps
+    frame_rate_hz = settings.frame_rate_hz
     df = validate_trajectory(traj.reset_index(drop=True), source, timestamps=timestamps)
     segs = [str(s) for s in df["segment"].unique()]
     if segment is None and len(segs) > 1:
-        raise ConfigError(
-            f"{source}: the table has {len(segs)} segments ({', '.join(map(str, segs[:5]))}"
-            f"{', ...' if len(segs) > 5 else ''}); choose one with --segment"
+        raise ParameterError(
+            "segment",
+            f"{source} has {len(segs)} segments ({', '.join(map(str, segs[:5]))}"
+            f"{', ...' if len(segs) > 5 else ''}); choose one",
         )
     if segment is not None:
         if segment not in segs:
-            raise ConfigError(
-                f"--segment: {segment!r} is not in {source} (it has {', '.join(map(str, segs))})"
+            raise ParameterError(
+                "segment", f"{segment!r} is not in {source} (it has {', '.join(map(str, segs))})"
             )
         df = df[df["segment"] == segment]
     axes = tuple(a for a in ("z", "x", "y") if a in df.columns) if axes is None else axes
@@ -258,10 +250,10 @@ def build_context(
         dt_s=float(dt),
         n_frames=n_frames,
         f0_hz=f0,
-        sensor=sensor,
+        sensor=settings.sensor,
         frame_rate_hz=float(frame_rate_hz) if frame_rate_hz else 1.0 / float(dt),
-        modulation_mhz=modulation_mhz,
-        tap_offsets=tuple(tap_offsets) if tap_offsets is not None else (0.0, 0.25, 0.5, 0.75),
+        modulation_mhz=settings.modulation_mhz,
+        tap_offsets=settings.tap_offsets if settings.tap_offsets is not None else (0.0, 0.25, 0.5, 0.75),
         left_out=tuple(left_out),
     )
     return ctx, states, notes

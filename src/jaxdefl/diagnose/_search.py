@@ -31,13 +31,13 @@ import pandas as pd
 from scipy import stats
 from threadpoolctl import threadpool_limits
 
-from .._errors import ConfigError
 from .._signals import check_interrupt
+from ..settings import DiagnoseSettings
 from ._base import Context, Proposal, State, loglik, rms_equivalent
 from ._context import build_context
 from ._correlation import FrameCorrelation, frame_correlation
 from ._whiteness import combined_p, residual_tests
-from .effects import EFFECT_IDS, load_effects
+from .effects import load_effects
 from .unnamed import MAX_TERMS, UnnamedTerm, apply_term, best_term, colored_gain, search_unnamed
 
 GENERIC_FIRST_RATIO = 2.0  # see the open world's competition in `run_diagnosis`
@@ -382,51 +382,28 @@ def _rebase(p: Proposal, base: list[State], states: list[State]) -> Proposal:
 def run_diagnosis(
     traj: pd.DataFrame,
     reference: pd.DataFrame | None = None,
-    sensor: str | None = None,
-    frame_rate_hz: float | None = None,
-    modulation_mhz: float | None = None,
-    tap_offsets: tuple[float, ...] | None = None,
-    segment: str | None = None,
-    effects: tuple[str, ...] | None = None,
+    settings: DiagnoseSettings | None = None,
+    *,
     source: str = "<table>",
-    on_round=None,
     reference_source: str = "--reference",
-    timestamps: str = "strict",
-    open_world: bool = True,
+    on_round=None,
 ) -> Diagnosis:
     """Diagnose a trajectory table (DESIGN.md contract) against the nominal model.
 
     Args:
         traj: the camera's trajectory table; reference: an LDS table (t, plate, z) or None.
-        sensor, frame_rate_hz, modulation_mhz, tap_offsets: what the user knows of the camera.
-        segment: the segment to diagnose when the table has several.
-        effects: restrict the library to these ids (default: all).
+        settings: what is known of the camera, the segment, the effects searched, the timestamp
+            policy and the open world (`jaxdefl.settings.DiagnoseSettings`; default: nothing
+            known, every effect).
         source, reference_source: the tables' names in error messages.
-        timestamps: the timestamp policy the tables are read with (`jaxdefl.io.validate_trajectory`).
         on_round: optional callback(round number, accepted effect id or None).
-        open_world: search what the named effects leave with generic terms (`unnamed`).
     """
     start = time.perf_counter()
+    settings = settings if settings is not None else DiagnoseSettings()
     library = load_effects()
-    if effects is not None:
-        unknown = [e for e in effects if e not in EFFECT_IDS]
-        if unknown:
-            raise ConfigError(
-                f"--effects: unknown effect {unknown[0]!r} (expected one of {', '.join(EFFECT_IDS)})"
-            )
-        library = {k: v for k, v in library.items() if k in effects}
-    ctx, nominal, notes = build_context(
-        traj,
-        reference,
-        sensor,
-        frame_rate_hz,
-        modulation_mhz,
-        tap_offsets,
-        segment,
-        source=source,
-        reference_source=reference_source,
-        timestamps=timestamps,
-    )
+    if settings.effects is not None:
+        library = {k: v for k, v in library.items() if k in settings.effects}
+    ctx, nominal, notes = build_context(traj, reference, settings, source, reference_source)
     cannot_tell = []
     usable = {}
     rms = [float(np.sqrt(np.mean((s.y - st.mean) ** 2))) for s, st in zip(ctx.series, nominal, strict=True)]
@@ -461,7 +438,7 @@ def run_diagnosis(
     states = list(nominal)
     accepted: list[Accepted] = []
     terms: list[UnnamedTerm] = []
-    open_world = open_world and not noise_free
+    open_world = settings.open_world and not noise_free
     bases: dict = {}  # the open world's spline bases, for this search
     rounds: list[list[dict]] = []
     calib = Calibration(max(len(usable), 1))
@@ -597,13 +574,7 @@ def run_diagnosis(
     )
 
 
-def diagnose(
-    traj: pd.DataFrame,
-    reference: pd.DataFrame | None = None,
-    sensor: str | None = None,
-    frame_rate_hz: float | None = None,
-    modulation_mhz: float | None = None,
-    **kw,
-) -> dict:
-    """`run_diagnosis` returning the DIAG.json dict (DESIGN.md contract)."""
-    return run_diagnosis(traj, reference, sensor, frame_rate_hz, modulation_mhz, **kw).to_json()
+def diagnose(traj: pd.DataFrame, reference: pd.DataFrame | None = None, **settings) -> dict:
+    """`run_diagnosis` returning the DIAG.json dict (DESIGN.md contract); ``settings`` are the
+    fields of `DiagnoseSettings` (``sensor="tof", frame_rate_hz=20.0``, ...)."""
+    return run_diagnosis(traj, reference, DiagnoseSettings(**settings)).to_json()

@@ -13,8 +13,9 @@ import numpy as np
 import pandas as pd
 import torch
 
-from .._errors import ConfigError, InputError
+from .._errors import ConfigError, InputError, ParameterError
 from .._signals import check_interrupt
+from ..settings import ExtractSettings
 from .pipeline import PlateGeometry, Scene, SceneError, calibrate_scene, detect_chunk
 from .track import Tracker
 
@@ -34,7 +35,7 @@ def resolve_device(device: str | None) -> str:
     """The torch device of the extraction: ``cpu``, ``cuda`` or ``cuda:N``; None: CUDA if available.
 
     Raises:
-        ConfigError: an unknown device, or CUDA asked for where there is none.
+        ParameterError: an unknown device, or CUDA asked for where there is none.
     """
     if device is None or device == "auto":
         return "cuda" if torch.cuda.is_available() else "cpu"
@@ -43,16 +44,16 @@ def resolve_device(device: str | None) -> str:
         return name
     if name == "cuda" or (name.startswith("cuda:") and name[5:].isdigit()):
         if not torch.cuda.is_available():
-            raise ConfigError(
-                f"--device {device}: CUDA is not available (torch {torch.__version__}); use --device cpu"
+            raise ParameterError(
+                "device", f"{device}: CUDA is not available (torch {torch.__version__}); use cpu"
             )
         index = int(name[5:]) if ":" in name else 0
         if index >= torch.cuda.device_count():
-            raise ConfigError(
-                f"--device {device}: this machine has {torch.cuda.device_count()} CUDA device(s)"
+            raise ParameterError(
+                "device", f"{device}: this machine has {torch.cuda.device_count()} CUDA device(s)"
             )
         return name
-    raise ConfigError(f"--device {device}: expected cpu, cuda or cuda:N")
+    raise ParameterError("device", f"expected cpu, cuda or cuda:N, got {device!r}")
 
 
 class Extractor:
@@ -225,35 +226,32 @@ def extract_recording(
 def extract_to_table(
     recording: Path,
     out: Path,
-    realtime: bool = False,
-    chunk_frames: int = 256,
-    device: str | None = None,
-    timestamps: str = "strict",
+    settings: ExtractSettings | None = None,
 ) -> None:
     """Extract every frame of ``recording`` and write the trajectory table ``out`` (CSV/Parquet).
 
-    ``timestamps``: ``strict`` (frame times must increase) or ``reclock`` (rounded or jittered
-    frame times replaced by the recovered clock, `jaxdefl.io.recording.open_recording`; one line
-    on stderr says what was recovered).
+    ``settings`` (`jaxdefl.settings.ExtractSettings`, validated when made; default: its
+    defaults): full or tracked mode, frames per batch, device, and the timestamp policy:
+    ``strict`` (frame times must increase) or ``reclock`` (rounded or jittered frame times
+    replaced by the recovered clock, `jaxdefl.io.recording.open_recording`; one line on stderr
+    says what was recovered).
 
     Raises:
-        ConfigError: bad ``chunk_frames`` or ``device``, or ``out`` clashing with the input.
+        ConfigError: ``out`` clashing with the input.
         InputError: a missing, corrupt, truncated or inconsistent recording, or no plates found.
     """
     from ..io.output import TABLE_SUFFIXES, Outputs
     from ..io.recording import open_recording
     from ..io.trajectory import timestamp_note, write_trajectory
 
-    if chunk_frames < 1:
-        raise ConfigError(f"--chunk-frames: expected an integer >= 1, got {chunk_frames}")
-    device = resolve_device(device)
+    s = settings if settings is not None else ExtractSettings()
     outs = Outputs(inputs=[recording])
     outs.reserve(out, "--out", suffixes=TABLE_SUFFIXES)
     if Path(out).resolve().is_relative_to(Path(recording).resolve()):
         raise ConfigError(f"--out {out}: lies inside the recording {recording}; choose another place")
-    rec = open_recording(recording, timestamps=timestamps)
+    rec = open_recording(recording, timestamps=s.timestamps)
     if (note := timestamp_note(rec.clock)) is not None:
         print(f"jaxdefl extract: {rec.path}: {note}", file=sys.stderr)
-    df = extract_recording(rec, realtime=realtime, chunk_frames=chunk_frames, device=device)
+    df = extract_recording(rec, realtime=s.realtime, chunk_frames=s.chunk_frames, device=s.device)
     with outs:
         write_trajectory(df, out, outs)

@@ -35,9 +35,10 @@ import numpy as np
 from .._errors import ConfigError, InputError, Interrupted
 from .._signals import check_interrupt
 from ..io.output import Outputs, format_table
+from ..settings import MonitorSettings
 from .detect import DetectorSettings
 from .engine import SNAPSHOT_COLUMNS, Monitor
-from .estimator import METHODS, TrackerSettings
+from .estimator import TrackerSettings
 from .sources import Source
 
 __all__ = ["run_monitor", "OUTPUT_NAMES"]
@@ -217,39 +218,27 @@ def _figure(history: list, alarms: list[dict], layout, t0: float):
 def run_monitor(
     source: Source,
     out_dir: Path,
+    settings: MonitorSettings | None = None,
     *,
-    speed: float = 1.0,
-    until_s: float | None = None,
-    duration_s: float | None = None,
-    method: str = "ekf",
-    alarms_per_day: float = 1.0,
-    block_s: float = 5.0,
-    snapshot_s: float = 10.0,
     figure_s: float = 60.0,
     dashboard: bool | None = None,
     inputs: tuple[Path, ...] = (),
     reference: Path | None = None,
 ) -> dict:
     """Run the monitor on ``source`` until it ends, ``until_s`` s of data, ``duration_s`` s of
-    wall-clock time or a signal. ``speed`` paces a replayed or simulated source (× real time;
-    0: as fast as it goes). Returns a summary (frames, alarms, per-frame update time).
+    wall-clock time or a signal (``settings``: `jaxdefl.settings.MonitorSettings`, validated
+    when made; default: its defaults). ``speed`` paces a replayed or simulated source (× real
+    time; 0: as fast as it goes). Returns a summary (frames, alarms, per-frame update time).
 
     Raises:
-        ConfigError: bad settings or an output that is an input.
+        ConfigError: an output that is an input.
         Interrupted: SIGINT/SIGTERM (after the logs are flushed and a stopped event written).
     """
     from threadpoolctl import threadpool_limits
 
-    for name, v, lo in (("--speed", speed, 0.0), ("--alarms-per-day", alarms_per_day, 1e-9)):
-        if not (math.isfinite(v) and v >= lo):
-            raise ConfigError(f"{name}: expected a number >= {lo:g}, got {v:g}")
-    for name, v in (("--until", until_s), ("--duration", duration_s)):
-        if v is not None and not (math.isfinite(v) and v > 0):
-            raise ConfigError(f"{name}: expected a time > 0 s, got {v:g}")
-    if method not in METHODS:
-        raise ConfigError(f"--method: expected one of {', '.join(METHODS)}, got {method!r}")
-    if not block_s > 0:
-        raise ConfigError(f"--block: expected a block length > 0 s, got {block_s:g}")
+    s = settings if settings is not None else MonitorSettings()
+    speed, until_s, duration_s, method = s.speed, s.until_s, s.duration_s, s.method
+    alarms_per_day, block_s, snapshot_s = s.alarms_per_day, s.block_s, s.snapshot_s
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out}: is a file; expected a directory")

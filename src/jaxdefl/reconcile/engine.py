@@ -25,6 +25,7 @@ import pandas as pd
 
 from .._errors import ConfigError
 from .._signals import check_interrupt
+from ..settings import ReconcileSettings
 from ..simulate.injection import INJECTABLE, EffectSpec, make_spec
 from .metrics import METRICS, TableStats, distance, table_stats
 from .twin import Twin
@@ -212,22 +213,23 @@ def _median_distance(r: TableStats, sims: list[TableStats], metric: str) -> floa
 def reconcile(
     df: pd.DataFrame,
     reference: pd.DataFrame | None = None,
-    facts: dict | None = None,
-    n_sims: int = 4,
-    n_null: int = 20,
-    seed: int = 0,
+    settings: ReconcileSettings | None = None,
     source: str = "<table>",
     on_step: Callable[[str], None] | None = None,
     calibration=None,
 ) -> Reconciliation:
     """Compare a validated one-segment trajectory table with its simulation, before and after the
-    diagnosed effects are added to the simulation. ``calibration`` (`calibrate`): what the frame
-    simulator and the extraction make of the sensor (frame-common noise, range gains)."""
+    diagnosed effects are added to the simulation. ``settings`` (`ReconcileSettings`; default:
+    its defaults): the simulations' counts and seed, what the diagnosis knows of the camera.
+    ``calibration`` (`calibrate`): what the frame simulator and the extraction make of the sensor
+    (frame-common noise, range gains)."""
     from ..diagnose import run_diagnosis
 
     say = on_step or (lambda _msg: None)
     say("diagnosing the recording")
-    diag = run_diagnosis(df, reference, source=source, **(facts or {})).to_json()
+    settings = settings if settings is not None else ReconcileSettings()
+    n_sims, n_null, seed = settings.n_sims, settings.n_null, settings.seed
+    diag = run_diagnosis(df, reference, settings.diagnosis, source=source).to_json()
     f0s = [s["f0_hz"] for s in diag["nominal"]["series"] if s["axis"] == "z" and np.isfinite(s["f0_hz"])]
     f0 = float(np.median(f0s)) if f0s else float(np.median([s["f0_hz"] for s in diag["nominal"]["series"]]))
     duration = float(df["t"].max() - df["t"].min())

@@ -11,7 +11,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from ..status import Status
+from ..status import Status, UnitStatus
 from ..synthetic import beam_shape  # noqa: E402
 from .summary import md_table  # noqa: E402
 
@@ -136,7 +136,7 @@ def write_campaign_report(out: Path, campaign, units, whole, day_tab, profile, e
             "",
             "![profiles](profile.png)\n",
         ]
-    failed = units[units["status"] != "ok"]
+    failed = units[units["status"] != UnitStatus.OK]
     if len(failed):
         parts += ["## Failed units\n"] + [f"- `{r.unit}`: {r.reason}" for r in failed.itertuples()]
     path = out / "report.md"

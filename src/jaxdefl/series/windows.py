@@ -25,12 +25,7 @@ __all__ = [
     "windows_like",
     "frame_clock",
     "check_window_plan",
-    "STATUS_OK",
-    "STATUS_FEW_SAMPLES",
 ]
-
-STATUS_OK = Status.CONVERGED
-STATUS_FEW_SAMPLES = Status.TOO_FEW_SAMPLES
 
 MAX_GRID_FILL = 64
 
@@ -137,7 +132,9 @@ def _pack(series: list[tuple], min_samples: int) -> Windows:
             dt[i], K[i, :n], on[i] = clock[0][0], clock[0][1] - clock[0][1][0], True
         elif n:
             dt[i], K[i, :n], on[i] = frame_clock(t_abs - t_abs[0])
-        rows.append({**meta, "n": n, "status": STATUS_OK if n >= min_samples else STATUS_FEW_SAMPLES})
+        rows.append(
+            {**meta, "n": n, "status": Status.CONVERGED if n >= min_samples else Status.TOO_FEW_SAMPLES}
+        )
     cols = ["segment", "window", "t_start", "t_end", "t_mid", "plate", "axis", "n", "status"]
     table = pd.DataFrame(rows, columns=cols)
     table.insert(5, "t_centre", centre)

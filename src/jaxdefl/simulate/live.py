@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .._errors import ConfigError
+from .._errors import ConfigError, ParameterError
 from .._signals import check_interrupt
 from .config import SimConfig, load_config
 from .injection import measurement_faults
@@ -89,9 +89,9 @@ def write_live(
     cfg = load_config(config, session)
     duration = cfg.recording.duration_s if duration_s is None else float(duration_s)
     if not np.isfinite(duration) or duration < 0:
-        raise ConfigError(f"{cfg.source}: key '--duration': expected a duration >= 0 s, got {duration:g}")
+        raise ParameterError("duration_s", f"expected a duration >= 0 s, got {duration:g}")
     if not np.isfinite(speed) or speed <= 0:
-        raise ConfigError(f"--speed: expected a factor > 0, got {speed:g}")
+        raise ParameterError("speed", f"expected a factor > 0, got {speed:g}")
     seed = cfg.recording.seed if seed is None else int(seed)
     out = Path(out_dir)
     if out.exists() and not out.is_dir():

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .._errors import ConfigError
+from .._errors import ConfigError, ParameterError
 from .._signals import check_interrupt
 from ..io.output import Outputs
 from .config import SimConfig, load_config
@@ -34,7 +34,7 @@ def _check_duration(cfg: SimConfig, duration_s: float | None) -> float:
     if duration_s is None:
         return cfg.recording.duration_s
     if not np.isfinite(duration_s) or duration_s < 0:
-        raise ConfigError(f"{cfg.source}: key '--duration': expected a duration >= 0 s, got {duration_s:g}")
+        raise ParameterError("duration_s", f"expected a duration >= 0 s, got {duration_s:g}")
     return float(duration_s)
 
 
