@@ -2,7 +2,7 @@
 detection curve against the evidence that reaches the trajectories.
 
     python experiments/concealed_frames.py [--effects ID ...] [--signals 20 40 80 160]
-        [--reps 2] [--seconds 60] [--seed 71] [--held-out ID] [--out DIR]
+        [--reps 2] [--controls 0] [--seconds 60] [--seed 71] [--held-out ID] [--out DIR]
 
 Each rep is one ToF recording of the thesis' Experiment II day 1 (`configs/exp2_tof_3hz.toml`,
 SR4000-class at 20 Hz, 3 % drop-outs, plates 4-9 in view, four-phase sampling with its motion
@@ -10,7 +10,7 @@ artefact, range noise correlated across the pixels of a frame) rendered pixel by
 effects are `[[effect]]` tables of the simulator's registry (`jaxdefl.simulate.injection`),
 injected where the physics acts: ``drift`` and ``level_jump`` on every pixel's range (a camera
 warming up, a range offset), the modulations, ``extra_periodic`` and ``harmonic_distortion`` on
-the beam's motion. The recording is extracted (`extract_recording`, tracked mode) and diagnosed
+the beam's motion (``mode_shape``: the 2nd or 3rd bending mode across the plates). The recording is extracted (`extract_recording`, tracked mode) and diagnosed
 blind (the table and the user's hints: sensor and frame rate; no LDS, so the nominal ToF motion
 artefact is not a finding).
 
@@ -26,7 +26,8 @@ independent, is printed next to it. One pilot recording per effect and rep (a un
 S₁; the grid's sizes scale it (S ∝ size² for these effects), and the S reported is the one
 measured on the recording itself.
 
-Scoring: detected = the injected id is reported on at least half of the plates in view; a
+Controls: each rep's own recording without an effect, plus ``--controls N`` recordings of their
+own seeds. Scoring: detected = the injected id is reported on at least half of the plates in view; a
 control is flagged when it gets any effect or unnamed term. With ``--held-out ID`` the diagnosis
 runs without ID in its vocabulary, and a case counts when it is modelled as unnamed (ΔBIC < −10,
 on at least half of the plates) with no vocabulary name claimed. The oracle column is the
@@ -69,6 +70,7 @@ DEFAULT_EFFECTS = (
     "frequency_modulation",
     "extra_periodic",
     "harmonic_distortion",
+    "mode_shape",
 )
 F0 = 3.068  # day 1's loading frequency (Hz)
 
@@ -92,8 +94,18 @@ def draw_unit(eid: str, rng: np.random.Generator, seconds: float) -> dict:
             if min(abs(f - k * F0) for k in (1, 2, 3)) > 0.3:
                 break
         return {"freq_hz": f, "amplitude_mm": 0.2, "phase_rad": psi}
+    if eid == "mode_shape":
+        while True:
+            f = float(rng.uniform(0.5, 9.0))
+            if min(abs(f - k * F0) for k in (1, 2, 3)) > 0.3:
+                break
+        return {"mode": int(rng.choice([2, 3])), "freq_hz": f, "amplitude_mm": 0.3, "phase_rad": psi}
     if eid == "harmonic_distortion":
         return {"order": int(rng.choice([2, 3])), "amplitude_mm": 0.2, "phase_rad": psi}
+    if eid == "camera_shake":  # the camera's slow random motion along its optical axis
+        return {"rms_mm": 0.2, "corner_hz": slow}
+    if eid == "stiffness_change":  # a crack: amplitude × 1/(1 + s), frequency × √(1 + s)
+        return {"t_s": float(rng.uniform(0.25, 0.75) * seconds), "stiffness_change": -2e-4}
     raise SystemExit(f"concealed_frames: no frame-level draw for effect '{eid}'")
 
 
@@ -104,6 +116,9 @@ SIZE = {
     "frequency_modulation": "depth_rad",
     "extra_periodic": "amplitude_mm",
     "harmonic_distortion": "amplitude_mm",
+    "mode_shape": "amplitude_mm",
+    "camera_shake": "rms_mm",
+    "stiffness_change": "stiffness_change",
 }
 
 
@@ -190,6 +205,7 @@ def main(argv=None):
     ap.add_argument("--reps", type=int, default=2)
     ap.add_argument("--seconds", type=float, default=60.0)
     ap.add_argument("--seed", type=int, default=71)
+    ap.add_argument("--controls", type=int, default=0, help="extra controls (own seeds) besides each rep's")
     ap.add_argument("--held-out", default=None, help="diagnose without this id; score unnamed modelling")
     ap.add_argument("--out", type=Path, default=Path("concealed_frames_out"))
     args = ap.parse_args(argv)
@@ -202,7 +218,7 @@ def main(argv=None):
     path = args.out / "cases.csv"
     done = pd.read_csv(path) if path.exists() else pd.DataFrame()
     rows = done.to_dict("records")
-    seen = {(r["rep"], r["effect"], r["target_s"]) for r in rows}
+    seen = {(str(r["rep"]), r["effect"], float(r["target_s"])) for r in rows}
     t_start = time.perf_counter()
 
     def record(row):
@@ -218,18 +234,21 @@ def main(argv=None):
     for rep in range(args.reps):
         seed = args.seed * 1000 + rep
         rng = np.random.default_rng([args.seed, rep])
+        keys = [(str(rep), e, float(x)) for e in args.effects for x in args.signals]
+        if all(k in seen for k in keys) and (args.held_out or (str(rep), "control", 0.0) in seen):
+            continue
         with tempfile.TemporaryDirectory(prefix="concealed_frames_") as tmp:
             work = Path(tmp)
             t0 = time.perf_counter()
             control = simulate_extract(work, "control", seed, args.seconds, None)
             plates = sorted(int(p) for p in control.plate.unique())
-            if (rep, "control", 0.0) not in seen and not args.held_out:
+            if (str(rep), "control", 0.0) not in seen and not args.held_out:
                 sc = score(diagnose_blind(control, None), None, plates, None)
                 record(dict(rep=rep, effect="control", target_s=0.0, signal=0.0, signal_indep=0.0, size=0.0,
                             seconds=time.perf_counter() - t0, **sc))
             for eid in args.effects:
                 unit = draw_unit(eid, rng, args.seconds)
-                todo = [s for s in args.signals if (rep, eid, float(s)) not in seen]
+                todo = [s for s in args.signals if (str(rep), eid, float(s)) not in seen]
                 if not todo:
                     continue
                 pilot = simulate_extract(work, f"{eid}_pilot", seed, args.seconds, {"id": eid, **unit})
@@ -246,6 +265,16 @@ def main(argv=None):
                         sc = {"flagged": False, "names": f"error: {type(err).__name__}", "detected": False}
                     record(dict(rep=rep, effect=eid, target_s=float(target), signal=sig, signal_indep=s_ind, size=size,
                                 seconds=time.perf_counter() - t0, **sc))
+    for k in range(args.controls):
+        if (f"c{k}", "control", 0.0) in seen:
+            continue
+        with tempfile.TemporaryDirectory(prefix="concealed_frames_") as tmp:
+            t0 = time.perf_counter()
+            control = simulate_extract(Path(tmp), "control", args.seed * 1000 + 500 + k, args.seconds, None)
+            plates = sorted(int(p) for p in control.plate.unique())
+            sc = score(diagnose_blind(control, None), None, plates, None)
+            record(dict(rep=f"c{k}", effect="control", target_s=0.0, signal=0.0, signal_indep=0.0, size=0.0,
+                        seconds=time.perf_counter() - t0, **sc))
     cases = pd.DataFrame(rows)
     alpha = 0.05 / len(EFFECT_IDS)
     s95 = oracle_signal(0.95, alpha)

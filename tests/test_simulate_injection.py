@@ -22,7 +22,7 @@ def _cfg(*effects):
 @pytest.mark.parametrize(
     "table, message",
     [
-        ({"id": "camera_shake"}, "key 'effect[1].id': expected one of drift,"),
+        ({"id": "no_such_effect"}, "key 'effect[1].id': expected one of drift,"),
         ({"id": "drift", "amplitude_mm": 1.0}, "key 'effect[1].tau_s': drift needs tau_s"),
         ({"id": "drift", "amplitude_mm": 1.0, "tau_s": 5.0, "size": 2}, "not a parameter of drift"),
         ({"id": "drift", "amplitude_mm": 1.0, "tau_s": -5.0}, "'effect[1].tau_s': expected a time constant"),
@@ -86,6 +86,51 @@ def test_motion_effects_move_the_beam_as_the_diagnosis_models_them():
     assert np.allclose(ratio, ratio[0], rtol=1e-6) and ratio[0, 6] > ratio[0, 0] > 0
 
 
+def test_a_bending_mode_moves_each_plate_in_its_shape_in_the_truth_the_lds_and_the_frames():
+    """mode_shape: plate p at x_p moves by a sin(nπ x_p/L) cos(2π f τ + ψ) (antisymmetric for n = 2:
+    the plates either side of mid-span in opposite directions), the LDS alike, and the frames'
+    plate pixels by the plate's displacement along their rays (the mid-span plate, a node, not)."""
+    from jaxdefl.simulate.lds import lds_block
+
+    mode = {"id": "mode_shape", "mode": 2, "freq_hz": 4.1, "amplitude_mm": 0.5, "phase_rad": 0.3}
+    cfg = _cfg(mode)
+    nominal = dataclasses.replace(cfg, effects=())
+    t = cfg.t0_s + np.linspace(0.0, 6.0, 601)
+    tau = t - cfg.t0_s
+    z = truth_table(cfg, t)["z"].to_numpy().reshape(t.size, -1)
+    z0 = truth_table(nominal, t)["z"].to_numpy().reshape(t.size, -1)
+    xi = np.asarray(cfg.plate_x_mm()) / cfg.beam.span_mm
+    expect = 0.5 * np.cos(2 * np.pi * 4.1 * tau + 0.3)[:, None] * np.sin(2 * np.pi * xi)[None, :]
+    np.testing.assert_allclose(z - z0, expect, atol=1e-9)
+    lds, lds0 = lds_block(cfg, 1, 0, 6.0), lds_block(nominal, 1, 0, 6.0)
+    p = int(lds.plate.iloc[0])
+    sel = (lds.plate == p).to_numpy()
+    tl = lds.t.to_numpy()[sel] - cfg.t0_s
+    np.testing.assert_allclose(
+        lds.z.to_numpy()[sel] - lds0.z.to_numpy()[sel],
+        0.5 * np.sin(2 * np.pi * xi[p - 1]) * np.cos(2 * np.pi * 4.1 * tl + 0.3),
+        atol=1e-9,
+    )
+    t1, f1, _, _ = render_frames(cfg, seed=3)
+    t0, f0, _, _ = render_frames(nominal, seed=3)
+    assert np.array_equal(t1, t0)
+    d = np.nan_to_num(f1 - f0)
+    from jaxdefl.simulate.scene import pixel_model
+
+    idx = pixel_model(cfg).plate_idx.reshape(f0.shape[1:])
+    assert np.all(d[:, idx < 0] == 0)  # the scene off the plates does not move
+    q = np.cos(2 * np.pi * 4.1 * (t0 - cfg.t0_s) + 0.3)
+    seen = [j for j in range(len(xi)) if np.any(idx == j)]
+    assert len(seen) >= 3
+    for j in seen:  # ranges along oblique rays: within 10 % of the plate's displacement
+        want = 0.5 * np.sin(2 * np.pi * xi[j]) * q
+        np.testing.assert_allclose(
+            d[:, idx == j].mean(axis=1), want, atol=0.1 * 0.5 * abs(np.sin(2 * np.pi * xi[j])) + 1e-6
+        )
+    # the plates either side of mid-span move in opposite directions
+    assert np.corrcoef(d[:, idx == seen[0]].mean(axis=1), d[:, idx == seen[-1]].mean(axis=1))[0, 1] < -0.99
+
+
 def test_timing_error_moves_the_written_stamps_only():
     cfg = _cfg({"id": "timing_error", "offset_s": 0.004, "rate_ppm": 100.0})
     t, f, _, _ = render_frames(cfg, seed=2)
@@ -115,6 +160,7 @@ def test_effects_round_trip_through_the_effective_config():
 EXAMPLES = {
     "drift": {"amplitude_mm": 1.5, "tau_s": 2.0},
     "level_jump": {"t_jump_s": 3.0, "size_mm": -0.8, "plates": [7]},
+    "camera_shake": {"rms_mm": 0.5, "corner_hz": 0.2, "amplitude_mm": 0.3, "freq_hz": 1.3},
     "outliers": {"fraction": 0.3, "scale_mm": 5.0, "plates": [6, 7]},
     "timing_error": {"offset_s": 0.004, "rate_ppm": 100.0},
     "amplitude_modulation": {"depth": 0.2, "freq_hz": 0.5, "phase_rad": 0.3},
@@ -124,6 +170,8 @@ EXAMPLES = {
     "stiffness_change": {"t_s": 2.0, "stiffness_change": -0.05},
     "debond": {"t_s": 2.0, "duration_s": 3.0, "plate": 7, "amplitude_change": -0.5},
     "sensor_fault": {"t_s": 2.0, "plate": 3, "fault": "jump", "size": 2.0},
+    "mode_shape": {"mode": 2, "freq_hz": 4.1, "amplitude_mm": 0.5, "phase_rad": 0.3},
+    "clipping": {"plate": 7, "level_mm": 0.5},
 }
 
 

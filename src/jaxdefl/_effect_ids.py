@@ -13,4 +13,9 @@ EFFECT_IDS = (
     "outliers",
     "heteroscedastic_noise",
     "quantization",
+    "mode_shape",
+    "clipping",
+    # issue 12's vocabulary (camera shake, crack)
+    "camera_shake",
+    "stiffness_change",
 )

@@ -224,6 +224,9 @@ class Proposal:
             nonlinear parameters by `_varpro.fit_shared`), or None when the refit fails. Effects
             screen cheaply (grids, FFTs, linear fits at the grid optimum); the search calls
             ``refine`` only on the proposal it is about to accept, then scores it again.
+        shape: {series index: factor} when the term is one signal times a known factor per series
+            (a mode shape, signs included), so that noise shared by the plates of a frame is
+            weighed against that pattern (`_correlation`); None: the same term on every series.
         trials: the look-elsewhere factor of the proposal's statistic: how many independent
             alternatives the effect's scan chose it from (frequencies × axes × kinds, jump
             times, orders, candidate series a subset was picked from); 1 for a term of known form.
@@ -249,6 +252,7 @@ class Proposal:
     explanation: str
     detail: dict = field(default_factory=dict)
     refine: Callable[[], Proposal | None] | None = None
+    shape: dict[int, float] | None = None
     trials: float = 1.0
     scan_params: int = 0
     inflation: float = 1.0

@@ -50,21 +50,26 @@ class FrameCorrelation:
         m = r.shape[0]
         return float((r.sum() - m) / (m * (m - 1))) if m > 1 else 0.0
 
-    def design_effect(self, series: list[int]) -> dict[str, float]:
-        """Per axis, d = 1ᵀR1 / m over the given series of that axis (≥ 1)."""
+    def design_effect(self, series: list[int], shape: dict[int, float] | None = None) -> dict[str, float]:
+        """Per axis, d = 1ᵀR1 / m over the given series of that axis (≥ 1); for a term with a
+        factor φ per series (`Proposal.shape`), d = φᵀRφ / φᵀφ (an antisymmetric pattern is not
+        mimicked by noise common to the frame: d stays 1)."""
         cols: dict[str, list[int]] = {}
+        wts: dict[str, list[float]] = {}
         for i in series:
             axis, c = self.index[i]
             cols.setdefault(axis, []).append(c)
+            wts.setdefault(axis, []).append(1.0 if shape is None else float(shape.get(i, 0.0)))
         out = {}
         for axis, c in cols.items():
             r = self.matrix[axis][np.ix_(c, c)]
-            out[axis] = max(1.0, float(r.sum()) / len(c))
+            w = np.asarray(wts[axis])
+            out[axis] = max(1.0, float(w @ r @ w) / max(float(w @ w), 1e-300))
         return out
 
     def discount(self, ctx: Context, p: Proposal, dll: dict[int, float]) -> float:
         """Δlog L of proposal ``p`` (per-series ``dll``) with each axis' share divided by d."""
-        d = self.design_effect(p.series)
+        d = self.design_effect(p.series, p.shape)
         return float(sum(v / d[ctx.series[i].axis] for i, v in dll.items()))
 
 

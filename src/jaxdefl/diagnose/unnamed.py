@@ -51,6 +51,8 @@ __all__ = [
     "colored_gain",
     "ar1_loglik",
     "ar1_rho",
+    "ar1_whiten",
+    "term_sigmas",
     "MAX_TERMS",
     "KINDS",
 ]
@@ -187,9 +189,10 @@ def colored_gain(s, st: State, mean: np.ndarray) -> float | None:
 class _Noise:
     """Per series: the inlier times, frames, the scale, and the AR(1) log-likelihood of a mean."""
 
-    def __init__(self, ctx: Context, states: list[State], bases: dict | None = None):
+    def __init__(self, ctx: Context, states: list[State], bases: dict | None = None, corr=None):
         self.ctx = ctx
         self.states = states
+        self.corr = corr
         self._base: dict[int, float] = {}
         self.bases = {} if bases is None else bases
 
@@ -210,6 +213,15 @@ class _Noise:
 
     def loglik(self, i: int, mean: np.ndarray) -> float:
         return _ar1_of(self.ctx.series[i], self.states[i], mean)[0]
+
+    def gain(self, means: dict[int, np.ndarray]) -> float:
+        """Δlog L of new means of a term over its series, each axis' share divided by the
+        frame correlation's design effect (`_correlation`) when the search has one."""
+        dll = {i: self.loglik(i, m) - self.base(i) for i, m in means.items()}
+        if self.corr is None:
+            return sum(dll.values())
+        d = self.corr.design_effect(list(dll))
+        return sum(v / d[self.ctx.series[i].axis] for i, v in dll.items())
 
 
 # ---------------------------------------------------------------------------------------------
@@ -252,7 +264,7 @@ def _decay_columns(theta, t, aux):
     return jnp.stack([e * aux["c"], e * aux["s"]], axis=1)
 
 
-def _varpro(ctx, states, idx, columns, theta0, scale, aux, offset_only):
+def _varpro(ctx, states, idx, columns, theta0, scale, aux, offset_only, bounds=None):
     """Refine shared nonlinear θ (optimistix, `_varpro.fit_shared`): {i: new mean} and θ, or None."""
     ts = [ctx.series[i].t for i in idx]
     rs = [ctx.series[i].y - states[i].mean for i in idx]
@@ -260,7 +272,9 @@ def _varpro(ctx, states, idx, columns, theta0, scale, aux, offset_only):
     nus = [_nuisance(ctx, i, offset_only) for i in idx]
     q = max(nu.shape[1] for nu in nus)  # a tied series has the offset only: zero columns pad it
     nus = [np.pad(nu, ((0, 0), (0, q - nu.shape[1]))) for nu in nus]
-    fit = fit_shared(columns, np.asarray(theta0, float), ts, rs, ws, nus, aux=aux, scale=np.asarray(scale))
+    fit = fit_shared(
+        columns, np.asarray(theta0, float), ts, rs, ws, nus, aux=aux, scale=np.asarray(scale), bounds=bounds
+    )
     if not fit.converged or not np.all(np.isfinite(fit.theta)):
         return None
     return {i: states[i].mean + fit.fitted[j] for j, i in enumerate(idx)}, np.asarray(fit.theta), fit
@@ -347,9 +361,37 @@ def _line(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> lis
             dbic = -2 * sum(gains[i] for i in kept) + k_par * math.log(n_total)
             if best is None or dbic < best[0]:
                 best = (dbic, lam, kept, {i: means[i] for i in kept}, {i: fits[i] for i in kept}, k_par)
+        # the common line: one amplitude and phase for every series of the axis (a vibration of
+        # the camera or of the whole scene), worth its fewer parameters when the plates share
+        # their noise (the design effect discounts a per-series line's evidence as much)
+        common = None
+        if len(idx) > 1:
+            proj = _projections(ctx, states, idx)
+            for lam_u in _DECAY_GRID:
+                lam = lam_u / ctx.duration_s
+
+                def cols_of(i, lam=lam, f=f):
+                    s = ctx.series[i]
+                    env = np.exp(-lam * (s.t - s.t[0]))
+                    a = 2 * np.pi * f * s.t
+                    return np.stack([env * np.cos(a), env * np.sin(a)], axis=1)
+
+                beta, m_ax, _ = _shared_fit(ctx, states, idx, cols_of, proj)
+                k_par = 1 + (1 if lam_u > 0 else 0) + 2
+                dbic = -2 * noise.gain(m_ax) + k_par * math.log(n_total)
+                if common is None or dbic < common[0]:
+                    common = (dbic, lam, m_ax, beta, k_par)
+        if best is not None:
+            _, lam, kept, means, fits, k_par = best
+            own = -2 * noise.gain(means) + k_par * math.log(n_total)
+        if common is not None and (best is None or common[0] < own):
+            _, lam, means, beta, k_par = common
+            amp = float(math.hypot(*beta))
+            info = {"freq_hz": f, "decay_per_s": lam, "amplitudes_mm": {i: amp for i in idx}, "axis": axis}
+            out.append(_Candidate("line", idx, means, k_par, dict(info, common=True)))
+            continue
         if best is None:
             continue
-        _, lam, kept, means, fits, k_par = best
         amps = {i: float(math.hypot(*fits[i])) for i in kept}
         info = {"freq_hz": f, "decay_per_s": lam, "amplitudes_mm": amps, "axis": axis}
         cand = _Candidate("line", kept, means, k_par, info)
@@ -359,17 +401,19 @@ def _line(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> lis
 
 
 def _refine_line(ctx: Context, states: list[State], c: _Candidate) -> _Candidate | None:
-    """The line's frequency and decay refined together (optimistix variable projection)."""
+    """The line's frequency and decay refined together (optimistix variable projection); a line
+    screened without decay keeps none (its frequency alone refined, its parameters as counted)."""
     f, lam = c.info["freq_hz"], c.info["decay_per_s"]
     aux = {"t_s": [float(ctx.series[i].t[0]) for i in c.series]}
     scale = [0.1 / ctx.duration_s, max(lam, 1.0 / ctx.duration_s)]
-    ref = _varpro(ctx, states, c.series, _line_columns, [f, lam], scale, aux, True)
+    bounds = None if lam > 0 else (np.array([-np.inf, 0.0]), np.array([np.inf, 0.0]))
+    ref = _varpro(ctx, states, c.series, _line_columns, [f, lam], scale, aux, True, bounds)
     if ref is None or abs(ref[1][0] - f) > 2.0 / ctx.duration_s or ref[1][1] < 0:
         return None
     means, theta, fit = ref
     amps = {i: float(math.hypot(*fit.beta[j][:2])) for j, i in enumerate(c.series)}
     info = dict(c.info, freq_hz=float(theta[0]), decay_per_s=float(theta[1]), amplitudes_mm=amps)
-    return _Candidate("line", c.series, means, 2 + 2 * len(c.series), info)
+    return _Candidate("line", c.series, means, (2 if lam > 0 else 1) + 2 * len(c.series), info)
 
 
 def _carriers(ctx: Context, states: list[State]) -> list[int]:
@@ -548,56 +592,340 @@ def _change_point(ctx: Context, states: list[State]) -> float | None:
 
 def _trend(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> list[_Candidate]:
     """A slow additive B-spline (K knots by BIC), optionally with a step at the common change
-    point: per series (series that pay for it), or one shape shared by the series with a scale
-    each (rank one: a camera that warms up, a support that settles)."""
+    point, or that step alone: per series (series that pay for it), one shape shared by the
+    series with a scale each (rank one: a support that settles), or one motion common to the
+    series of an axis (a camera that warms up or moves: the same millimetres on every plate)."""
     k_max = int(min(MAX_KNOTS, max(0, ctx.f0_hz * ctx.duration_s / 4.0 - 1)))
     t_c = _change_point(ctx, states)
     logn = math.log(n_total)
+    by_axis: dict[str, list[int]] = {}
+    for i, s in enumerate(ctx.series):
+        by_axis.setdefault(s.axis, []).append(i)
+    shapes = [
+        (k, step) for k in KNOTS if k <= k_max for step in ((False, True) if t_c is not None else (False,))
+    ]
+    if t_c is not None:
+        shapes.append((None, True))  # the step alone
     best = None
-    for knots in (k for k in KNOTS if k <= k_max):
-        for step in (False, True) if t_c is not None else (False,):
-            cols, betas, means, gains = {}, {}, {}, {}
-            for i, s in enumerate(ctx.series):
-                st = states[i]
-                b = noise.basis(i, knots)[:, 1:]  # the constant: the offset
-                if step:
-                    b = np.concatenate([b, (s.t > t_c).astype(float)[:, None]], axis=1)
-                cols[i] = b
-                g = np.concatenate([b, _nuisance(ctx, i)], axis=1)
-                beta, fitted = _wls(g, s.y - st.mean, _weights(st))
-                betas[i] = beta[: b.shape[1]] / max(ctx.noise_sigma(i), 1e-12)
-                means[i] = st.mean + fitted
-                gains[i] = noise.loglik(i, means[i]) - noise.base(i)
-            k_own = cols[0].shape[1]
-            extra = 1 if step else 0  # the step time, shared
-            kept = [i for i in gains if 2 * gains[i] > k_own * logn + 6.0]
-            if kept:
-                dbic = -2 * sum(gains[i] for i in kept) + (k_own * len(kept) + extra) * logn
-                if best is None or dbic < best[0]:
-                    info = {"knots": knots, "shared": False, "step_s": t_c if step else None}
-                    best = (dbic, kept, {i: means[i] for i in kept}, k_own * len(kept) + extra, info)
-            # the shared shape: the first right singular vector of the noise-scaled coefficients
-            m = np.stack([betas[i] for i in range(len(ctx.series))])
-            v = np.linalg.svd(m, full_matrices=False)[2][0]
-            sh_means, sh_gains = {}, {}
-            for i, s in enumerate(ctx.series):
-                st = states[i]
-                g = np.concatenate([(cols[i] @ v)[:, None], _nuisance(ctx, i)], axis=1)
-                _, fitted = _wls(g, s.y - st.mean, _weights(st))
-                sh_means[i] = st.mean + fitted
-                sh_gains[i] = noise.loglik(i, sh_means[i]) - noise.base(i)
-            kept = [i for i in sh_gains if 2 * sh_gains[i] > logn + 6.0]
-            if kept:
-                k_par = k_own - 1 + len(kept) + extra
-                dbic = -2 * sum(sh_gains[i] for i in kept) + k_par * logn
-                if best is None or dbic < best[0]:
-                    info = {"knots": knots, "shared": True, "step_s": t_c if step else None}
-                    best = (dbic, kept, {i: sh_means[i] for i in kept}, k_par, info)
+
+    def offer(dbic, kept, means, k_par, info):
+        nonlocal best
+        if best is None or dbic < best[0]:
+            best = (dbic, kept, means, k_par, info)
+
+    for knots, step in shapes:
+        cols, betas, means, gains = {}, {}, {}, {}
+        for i, s in enumerate(ctx.series):
+            st = states[i]
+            # the spline's constant is the offset
+            b = noise.basis(i, knots)[:, 1:] if knots is not None else np.zeros((s.n, 0))
+            if step:
+                b = np.concatenate([b, (s.t > t_c).astype(float)[:, None]], axis=1)
+            cols[i] = b
+            g = np.concatenate([b, _nuisance(ctx, i)], axis=1)
+            beta, fitted = _wls(g, s.y - st.mean, _weights(st))
+            betas[i] = beta[: b.shape[1]] / max(ctx.noise_sigma(i), 1e-12)
+            means[i] = st.mean + fitted
+            gains[i] = noise.loglik(i, means[i]) - noise.base(i)
+        k_own = cols[0].shape[1]
+        extra = 1 if step else 0  # the step time, shared
+        info = {"knots": knots, "step_s": t_c if step else None}
+        kept = [i for i in gains if 2 * gains[i] > k_own * logn + 6.0]
+        if kept:
+            dbic = -2 * noise.gain({i: means[i] for i in kept}) + (k_own * len(kept) + extra) * logn
+            offer(dbic, kept, {i: means[i] for i in kept}, k_own * len(kept) + extra, dict(info, form="own"))
+        # the common motion: per axis one set of coefficients for all its series (each series'
+        # offset and harmonic still free)
+        co_means, co_kept, k_co = {}, [], extra
+        for idx in by_axis.values():
+            _, m_ax, _ = _shared_fit(ctx, states, idx, cols.__getitem__)
+            g_ax = noise.gain(m_ax)  # noise common to the plates is no evidence for it
+            if 2 * g_ax > k_own * logn + 6.0:
+                co_kept += idx
+                co_means.update(m_ax)
+                k_co += k_own
+        if co_kept:
+            dbic = -2 * noise.gain(co_means) + k_co * logn
+            offer(dbic, co_kept, co_means, k_co, dict(info, form="common"))
+        if k_own < 2:
+            continue
+        # the shared shape: the first right singular vector of the noise-scaled coefficients
+        m = np.stack([betas[i] for i in range(len(ctx.series))])
+        v = np.linalg.svd(m, full_matrices=False)[2][0]
+        sh_means, sh_gains = {}, {}
+        for i, s in enumerate(ctx.series):
+            st = states[i]
+            g = np.concatenate([(cols[i] @ v)[:, None], _nuisance(ctx, i)], axis=1)
+            _, fitted = _wls(g, s.y - st.mean, _weights(st))
+            sh_means[i] = st.mean + fitted
+            sh_gains[i] = noise.loglik(i, sh_means[i]) - noise.base(i)
+        kept = [i for i in sh_gains if 2 * sh_gains[i] > logn + 6.0]
+        if kept:
+            k_par = k_own - 1 + len(kept) + extra
+            dbic = -2 * noise.gain({i: sh_means[i] for i in kept}) + k_par * logn
+            offer(dbic, kept, {i: sh_means[i] for i in kept}, k_par, dict(info, form="shared", shape=v))
     if best is None:
         return []
     _, kept, means, k_par, info = best
     info["swing_mm"] = {i: float(np.ptp(means[i] - states[i].mean)) for i in kept}
     return [_Candidate("trend", kept, means, k_par, info)]
+
+
+# ---------------------------------------------------------------------------------------------
+# uncertainty of a term's parameters
+
+
+def ar1_whiten(x: np.ndarray, k: np.ndarray, rho: float) -> np.ndarray:
+    """Rows of x (sample[, column]) prewhitened for AR(1) noise on the frame clock k, in units
+    of the innovation σ (the transform whose squared sum is `ar1_loglik`'s quadratic form)."""
+    if rho <= 0.0:
+        return x
+    rg = rho ** np.diff(k).astype(np.float64)
+    v = np.concatenate([[1.0], 1.0 - rg * rg]) / (1.0 - rho * rho)
+    tail = (slice(None),) + (None,) * (x.ndim - 1)
+    out = np.concatenate([x[:1], x[1:] - rg[tail] * x[:-1]])
+    return out / np.sqrt(v)[tail]
+
+
+def _gls_covariance(ctx, states, c, blocks, n_shared, corr=None) -> np.ndarray:
+    """Covariance of a term's parameters: n_shared shared ones, then each block's own columns.
+
+    ``blocks``: per series (i, J_shared (sample, n_shared), X_own (sample, k)), the Jacobian of
+    the series' mean with respect to the parameters. The noise: per series AR(1) (ρ from the
+    residual after the term, `ar1_rho`) and its state's scale; the innovation σ² from the
+    whitened residual (degrees of freedom removed), so the covariance is the generalised least
+    squares one, (Jᵀ Σ⁻¹ J)⁻¹. With ``corr``, the shared block is inflated by the design effect
+    of the term's series (noise common to the plates of a frame carries no information twice).
+    """
+    sizes = [x.shape[1] for _, _, x in blocks]
+    p = n_shared + sum(sizes)
+    m = np.zeros((p, p))
+    off = n_shared
+    for (i, js, x), k in zip(blocks, sizes, strict=True):
+        s, st = ctx.series[i], states[i]
+        inl = st.inlier
+        sc = st.scale[inl] if np.ndim(st.scale) else st.scale
+        z = ((s.y - c.means[i])[inl]) / sc
+        kk = s.k[inl]
+        rho = ar1_rho(z - z.mean(), kk)
+        j = np.concatenate([js, x], axis=1)[inl] / np.reshape(sc, (-1, 1))
+        jw = ar1_whiten(j, kk, rho)
+        zw = ar1_whiten(z - z.mean(), kk, rho)
+        s2 = float(zw @ zw) / max(zw.size - n_shared / max(len(blocks), 1) - k, 1.0)
+        g = jw.T @ jw / s2
+        sel = np.r_[np.arange(n_shared), off + np.arange(k)]
+        m[np.ix_(sel, sel)] += g
+        off += k
+    cov = np.linalg.pinv(m, rcond=1e-12, hermitian=True)
+    if corr is not None and n_shared:
+        d = corr.design_effect([b[0] for b in blocks])
+        f = math.sqrt(max(d.values()))
+        cov[:n_shared, :] *= f
+        cov[:, :n_shared] *= f
+    return cov
+
+
+def _sd(cov: np.ndarray, grad: np.ndarray) -> float:
+    v = float(grad @ cov @ grad)
+    return math.sqrt(v) if v > 0 else 0.0
+
+
+def _line_sigmas(ctx, states, c, corr) -> dict:
+    """σ of a line's frequency, decay, damping ratio and per-series amplitudes."""
+    f, lam = c.info["freq_hz"], c.info["decay_per_s"]
+    free_decay = lam > 0
+    n_sh = 2 if free_decay else 1
+    if c.info.get("common"):
+        return _common_line_sigmas(ctx, states, c, corr, f, lam)
+    blocks, ab = [], []
+    for i in c.series:
+        s = ctx.series[i]
+        tau = s.t - s.t[0]
+        e = np.exp(-lam * tau)
+        ca, sa = np.cos(2 * np.pi * f * s.t), np.sin(2 * np.pi * f * s.t)
+        x = np.stack([e * ca, e * sa, np.ones_like(tau)], axis=1)
+        a, b = np.linalg.lstsq(x, c.means[i] - states[i].mean, rcond=None)[0][:2]
+        js = [e * 2 * np.pi * s.t * (-a * sa + b * ca)]
+        if free_decay:
+            js.append(-tau * e * (a * ca + b * sa))
+        blocks.append((i, np.stack(js, axis=1), x))
+        ab.append((a, b))
+    cov = _gls_covariance(ctx, states, c, blocks, n_sh, corr)
+    out = {"freq_hz": math.sqrt(max(cov[0, 0], 0.0))}
+    if free_decay:
+        out["decay_per_s"] = math.sqrt(max(cov[1, 1], 0.0))
+        zeta = lam / (2 * np.pi * f)
+        out["damping_ratio"] = _sd(cov[:2, :2], np.array([-zeta / f, 1.0 / (2 * np.pi * f)]))
+    amps = {}
+    for j, (i, (a, b)) in enumerate(zip(c.series, ab, strict=True)):
+        amp = math.hypot(a, b)
+        g = np.zeros(cov.shape[0])
+        g[n_sh + 3 * j : n_sh + 3 * j + 2] = (a / amp, b / amp) if amp > 0 else (1.0, 0.0)
+        amps[i] = _sd(cov, g)
+    out["amplitudes_mm"] = amps
+    return out
+
+
+def _common_line_sigmas(ctx, states, c, corr, f, lam) -> dict:
+    """`_line_sigmas` of a line common to the series: shared frequency, decay, amplitude and
+    phase, each series' nuisance free."""
+    free_decay = lam > 0
+    cols, xs = {}, {}
+    for i in c.series:
+        s = ctx.series[i]
+        tau = s.t - s.t[0]
+        e = np.exp(-lam * tau)
+        ca, sa = np.cos(2 * np.pi * f * s.t), np.sin(2 * np.pi * f * s.t)
+        cols[i] = (tau, e, ca, sa)
+        xs[i] = np.stack([e * ca, e * sa], axis=1)
+    a, b = _shared_fit(ctx, states, c.series, lambda i: xs[i])[0]
+    blocks = []
+    for i in c.series:
+        tau, e, ca, sa = cols[i]
+        js = [e * 2 * np.pi * ctx.series[i].t * (-a * sa + b * ca)]
+        if free_decay:
+            js.append(-tau * e * (a * ca + b * sa))
+        blocks.append((i, np.concatenate([np.stack(js, axis=1), xs[i]], axis=1), _nuisance(ctx, i)))
+    n_nl = 2 if free_decay else 1
+    cov = _gls_covariance(ctx, states, c, blocks, n_nl + 2, corr)
+    out = {"freq_hz": math.sqrt(max(cov[0, 0], 0.0))}
+    if free_decay:
+        out["decay_per_s"] = math.sqrt(max(cov[1, 1], 0.0))
+        zeta = lam / (2 * np.pi * f)
+        out["damping_ratio"] = _sd(cov[:2, :2], np.array([-zeta / f, 1.0 / (2 * np.pi * f)]))
+    amp = math.hypot(a, b)
+    g = np.zeros(cov.shape[0])
+    g[n_nl : n_nl + 2] = (a / amp, b / amp) if amp > 0 else (1.0, 0.0)
+    sd = _sd(cov, g)
+    out["amplitudes_mm"] = {i: sd for i in c.series}
+    return out
+
+
+def _envelope_sigmas(ctx, states, c, corr) -> dict:
+    """σ of the envelope's extremes (spline) or of its decay rate and damping ratio."""
+    info = c.info
+    idx = c.series
+    carrier = {}
+    for i in idx:
+        h, t = ctx.nominal[i], ctx.series[i].t
+        arg = h.argument(t)
+        carrier[i] = (h.amplitude * np.cos(arg), -h.amplitude * np.sin(arg))
+    if info["form"] == "spline":
+        knots = info["knots"]
+        blocks = []
+        for i in idx:
+            b = _bspline(ctx.series[i].t, 0.0, ctx.duration_s, knots)
+            cc, ss = carrier[i]
+            blocks.append((i, np.concatenate([b * cc[:, None], b * ss[:, None]], axis=1), _nuisance(ctx, i)))
+        nb = knots + 4
+        cov = _gls_covariance(ctx, states, c, blocks, 2 * nb, corr)
+        # |1 + shift + u(t)| at the extremes, shift from the reference series' harmonic (C, D)
+        t = np.linspace(0.0, ctx.duration_s, 400)
+        env = info["relative_envelope"]
+        bt = _bspline(t, 0.0, ctx.duration_s, knots)
+        co = info["coef"]
+        w = 1.0 + info["shift"] + bt @ co[:nb] + 1j * (bt @ co[nb:])
+        ref = max(idx, key=lambda i: ctx.nominal[i].amplitude / max(ctx.noise_sigma(i), 1e-12))
+        j_ref = idx.index(ref)
+        q = _nuisance(ctx, ref).shape[1]
+        out = {}
+        for name, jt in (("envelope_min", int(np.argmin(env))), ("envelope_max", int(np.argmax(env)))):
+            g = np.zeros(cov.shape[0])
+            u = np.conj(w[jt]) / max(abs(w[jt]), 1e-300)
+            g[:nb] = np.real(u * bt[jt])
+            g[nb : 2 * nb] = np.real(u * 1j * bt[jt])
+            if not ctx.series[ref].tied and q >= 3:
+                h = ctx.nominal[ref]
+                e = np.exp(1j * h.phase) / max(h.amplitude, 1e-300)
+                k0 = 2 * nb + q * j_ref
+                g[k0 + 1], g[k0 + 2] = np.real(u * e), np.real(u * (-1j) * e)
+            out[name] = _sd(cov, g)
+        return out
+    lam = info["decay_per_s"]
+    per_series = c.n_params == 1 + 2 * len(idx)
+    blocks, coefs = [], []
+    for i in idx:
+        t = ctx.series[i].t
+        e = np.exp(-lam * (t - 0.5 * ctx.duration_s))
+        cc, ss = carrier[i]
+        x = np.stack([e * cc, e * ss], axis=1)
+        nu = _nuisance(ctx, i)
+        a, b = np.linalg.lstsq(np.concatenate([x, nu], axis=1), c.means[i] - states[i].mean, rcond=None)[0][
+            :2
+        ]
+        coefs.append((a, b))
+        dl = (-(t - 0.5 * ctx.duration_s) * (a * x[:, 0] + b * x[:, 1]))[:, None]
+        if per_series:
+            blocks.append((i, dl, np.concatenate([x, nu], axis=1)))
+        else:
+            blocks.append((i, np.concatenate([dl, x], axis=1), nu))
+    cov = _gls_covariance(ctx, states, c, blocks, 1 if per_series else 3, corr)
+    sl = math.sqrt(max(cov[0, 0], 0.0))
+    return {"decay_per_s": sl, "damping_ratio": sl / (2 * math.pi * ctx.f0_hz)}
+
+
+def _trend_sigmas(ctx, states, c, corr) -> dict:
+    """σ of each series' swing (peak to peak of the term, at the times of its extremes), the step
+    time held where the change point put it and the shared shape (``shared``) held fixed."""
+    info = c.info
+    knots, step, form = info["knots"], info["step_s"], info["form"]
+
+    def cols(i):
+        s = ctx.series[i]
+        b = _bspline(s.t, 0.0, ctx.duration_s, knots)[:, 1:] if knots is not None else np.zeros((s.n, 0))
+        if step is not None:
+            b = np.concatenate([b, (s.t > step).astype(float)[:, None]], axis=1)
+        return b
+
+    out = {}
+    groups: list[list[int]] = []
+    if form == "common":
+        by_axis: dict[str, list[int]] = {}
+        for i in c.series:
+            by_axis.setdefault(ctx.series[i].axis, []).append(i)
+        groups = list(by_axis.values())
+    else:
+        groups = [[i] for i in c.series]
+    for grp in groups:
+        blocks = []
+        for i in grp:
+            x = cols(i)
+            if form == "shared":
+                x = (x @ info["shape"])[:, None]
+            if form == "common":
+                blocks.append((i, x, _nuisance(ctx, i)))
+            else:
+                blocks.append((i, np.zeros((x.shape[0], 0)), np.concatenate([x, _nuisance(ctx, i)], axis=1)))
+        n_sh = blocks[0][1].shape[1]
+        cov = _gls_covariance(ctx, states, c, blocks, n_sh, corr if form == "common" else None)
+        off = n_sh
+        for i, js, xo in blocks:
+            d = c.means[i] - states[i].mean
+            x = js if form == "common" else xo[:, : cols(i).shape[1] if form != "shared" else 1]
+            beta = np.linalg.lstsq(np.concatenate([x, _nuisance(ctx, i)], axis=1), d, rcond=None)[0][
+                : x.shape[1]
+            ]
+            term = x @ beta
+            g_rows = x[int(np.argmax(term))] - x[int(np.argmin(term))]
+            g = np.zeros(cov.shape[0])
+            if form == "common":
+                g[:n_sh] = g_rows
+            else:
+                g[off : off + x.shape[1]] = g_rows
+            out[i] = _sd(cov, g)
+            off += xo.shape[1]
+    return {"swing_mm": out}
+
+
+_SIGMAS = {"line": _line_sigmas, "envelope": _envelope_sigmas, "trend": _trend_sigmas}
+
+
+def term_sigmas(ctx: Context, states: list[State], c, corr: FrameCorrelation | None = None) -> dict:
+    """σ's of an accepted term's parameters (`_gls_covariance`); {} when they cannot be had."""
+    try:
+        return _SIGMAS[c.kind](ctx, states, c, corr)
+    except (np.linalg.LinAlgError, ValueError, KeyError, ZeroDivisionError):
+        return {}
 
 
 _BUILDERS = {"line": _line, "envelope": _envelope, "trend": _trend}
@@ -607,7 +935,19 @@ _BUILDERS = {"line": _line, "envelope": _envelope, "trend": _trend}
 # the search
 
 
-def _report(ctx: Context, c: _Candidate, states: list[State]) -> UnnamedTerm:
+def _median_sigma(values: dict, sigmas: dict) -> float | None:
+    """σ of the series whose value is nearest the reported median (the typical series')."""
+    if not sigmas:
+        return None
+    med = float(np.median(list(values.values())))
+    i = min(values, key=lambda j: abs(values[j] - med))
+    return sigmas.get(i)
+
+
+def _report(
+    ctx: Context, c: _Candidate, states: list[State], corr: FrameCorrelation | None = None
+) -> UnnamedTerm:
+    sig = term_sigmas(ctx, states, c, corr)
     plates = sorted({ctx.series[i].plate for i in c.series})
     axes = sorted({ctx.series[i].axis for i in c.series})
     where = f"plate(s) {', '.join(map(str, plates))} ({', '.join(axes)})"
@@ -626,7 +966,11 @@ def _report(ctx: Context, c: _Candidate, states: list[State]) -> UnnamedTerm:
         f, lam = info["freq_hz"], info["decay_per_s"]
         amps = info["amplitudes_mm"]
         a_med = float(np.median(list(amps.values())))
-        par = {"freq_hz": {"value": f, "sigma": None}, "amplitude_mm": {"value": a_med, "sigma": None}}
+        amp_sig = sig.get("amplitudes_mm", {})
+        par = {
+            "freq_hz": {"value": f, "sigma": sig.get("freq_hz")},
+            "amplitude_mm": {"value": a_med, "sigma": _median_sigma(amps, amp_sig)},
+        }
         half = max(1.0 / ctx.duration_s, lam / (2 * math.pi))
         text = (
             f"A periodic motion at {f:.4g} Hz ({f / ctx.f0_hz:.3f} × the loading frequency) of about "
@@ -634,12 +978,14 @@ def _report(ctx: Context, c: _Candidate, states: list[State]) -> UnnamedTerm:
         )
         if lam > 0:
             zeta = lam / (2 * math.pi * f)
-            par["damping_ratio"] = {"value": zeta, "sigma": None}
-            par["decay_per_s"] = {"value": lam, "sigma": None}
+            par["damping_ratio"] = {"value": zeta, "sigma": sig.get("damping_ratio")}
+            par["decay_per_s"] = {"value": lam, "sigma": sig.get("decay_per_s")}
             text += (
                 f", dying away with a damping ratio of {100 * zeta:.2g} % (a free vibration of a "
                 "mode the loading does not drive)"
             )
+        if info.get("common"):
+            text += " (the same motion on every one of them: the camera or the whole scene vibrating)"
         text += ": structure no named effect explains."
         return UnnamedTerm(
             "line",
@@ -651,23 +997,30 @@ def _report(ctx: Context, c: _Candidate, states: list[State]) -> UnnamedTerm:
             t_hi,
             [f - half, f + half],
             text,
-            detail={"amplitudes_mm": {ctx.series[i].key: a for i, a in amps.items()}},
+            detail={
+                "amplitudes_mm": {
+                    ctx.series[i].key: {"value": a, "sigma": amp_sig.get(i)} for i, a in amps.items()
+                }
+            },
         )
     if c.kind == "envelope":
         env = info["relative_envelope"]
         lo, hi = float(env.min()), float(env.max())
         par = {
             "form": info["form"],
-            "envelope_min": {"value": lo, "sigma": None},
-            "envelope_max": {"value": hi, "sigma": None},
+            "envelope_min": {"value": lo, "sigma": sig.get("envelope_min")},
+            "envelope_max": {"value": hi, "sigma": sig.get("envelope_max")},
         }
         if info["form"] == "spline":
             par["knots"] = int(info["knots"])
             shape = f"a smooth envelope ({info['knots']} interior knots)"
         else:
             lam = info["decay_per_s"]
-            par["decay_per_s"] = {"value": lam, "sigma": None}
-            par["damping_ratio"] = {"value": lam / (2 * math.pi * ctx.f0_hz), "sigma": None}
+            par["decay_per_s"] = {"value": lam, "sigma": sig.get("decay_per_s")}
+            par["damping_ratio"] = {
+                "value": lam / (2 * math.pi * ctx.f0_hz),
+                "sigma": sig.get("damping_ratio"),
+            }
             shape = (
                 f"an exponential {'decay' if lam > 0 else 'growth'} (damping ratio "
                 f"{100 * lam / (2 * math.pi * ctx.f0_hz):.2g} %)"
@@ -695,11 +1048,17 @@ def _report(ctx: Context, c: _Candidate, states: list[State]) -> UnnamedTerm:
     swing = info["swing_mm"]
     s_med = float(np.median(list(swing.values())))
     par = {
-        "knots": int(info["knots"]),
-        "shared": bool(info["shared"]),
-        "swing_mm": {"value": s_med, "sigma": None},
+        "knots": None if info["knots"] is None else int(info["knots"]),
+        "form": info["form"],
+        "swing_mm": {"value": s_med, "sigma": _median_sigma(swing, sig.get("swing_mm", {}))},
     }
-    shape = "one shape shared by the plates" if info["shared"] else "each plate its own way"
+    shape = {
+        "own": "each plate its own way",
+        "shared": "one shape shared by the plates, a scale each",
+        "common": "the same motion on every plate: the camera or the whole scene moving",
+    }[info["form"]]
+    if info["knots"] is None:
+        shape += ", a step alone"
     if info["step_s"] is not None:
         par["step_at_s"] = {"value": float(info["step_s"]), "sigma": None}
         shape += f", with a step at {info['step_s']:.1f} s"
@@ -715,9 +1074,14 @@ def _report(ctx: Context, c: _Candidate, states: list[State]) -> UnnamedTerm:
         par,
         t_lo,
         t_hi,
-        [0.0, (info["knots"] + 1) / ctx.duration_s],
+        [0.0, ((info["knots"] or 0) + 1) / ctx.duration_s],
         text,
-        detail={"swing_mm": {ctx.series[i].key: v for i, v in swing.items()}},
+        detail={
+            "swing_mm": {
+                ctx.series[i].key: {"value": v, "sigma": sig.get("swing_mm", {}).get(i)}
+                for i, v in swing.items()
+            }
+        },
     )
 
 
@@ -733,7 +1097,7 @@ def best_term(
     ``refine``) when its ΔBIC is below `REFINE_BELOW`, and kept refined when that scores better.
     ``bases``: the search's cache of spline bases."""
     n_total = sum(s.n for s in ctx.series)
-    noise = _Noise(ctx, states, bases)
+    noise = _Noise(ctx, states, bases, corr)
     best = None
     for kind in kinds:
         try:
@@ -767,22 +1131,24 @@ def _term_states(ctx: Context, base: list[State], deltas: list[dict[int, np.ndar
     return states
 
 
-def _as_term(ctx: Context, states: list[State], best) -> UnnamedTerm:
+def _as_term(ctx: Context, states: list[State], best, corr: FrameCorrelation | None = None) -> UnnamedTerm:
     dbic, c = best
     rms0 = float(np.sqrt(np.mean(np.concatenate([ctx.series[i].y - states[i].mean for i in c.series]) ** 2)))
     rms1 = float(np.sqrt(np.mean(np.concatenate([ctx.series[i].y - c.means[i] for i in c.series]) ** 2)))
-    term = _report(ctx, c, states)
+    term = _report(ctx, c, states, corr)
     term.delta_bic, term.rms_before_mm, term.rms_after_mm = float(dbic), rms0, rms1
     term.change = {i: c.means[i] - states[i].mean for i in c.series}
     term.candidate = c
     return term
 
 
-def apply_term(ctx: Context, states: list[State], best) -> tuple[UnnamedTerm, list[State]]:
+def apply_term(
+    ctx: Context, states: list[State], best, corr: FrameCorrelation | None = None
+) -> tuple[UnnamedTerm, list[State]]:
     """The accepted term's report and the states with it."""
     c = best[1]
     delta = {i: c.means[i] - states[i].mean for i in c.series}
-    return _as_term(ctx, states, best), _term_states(ctx, states, [delta], [c])
+    return _as_term(ctx, states, best, corr), _term_states(ctx, states, [delta], [c])
 
 
 def search_unnamed(
@@ -842,7 +1208,7 @@ def search_unnamed(
             before = _term_states(ctx, base, deltas[:j], cands[:j])
             n_total = sum(s.n for s in ctx.series)
             d = _score(ctx, _Noise(ctx, before, bases), before, corr, c, n_total)
-            terms.append(_as_term(ctx, before, (d, c)))
+            terms.append(_as_term(ctx, before, (d, c), corr))
         else:
-            terms.append(_as_term(ctx, others, (scores[j][0], c)))
+            terms.append(_as_term(ctx, others, (scores[j][0], c), corr))
     return terms, _term_states(ctx, base, deltas, cands)

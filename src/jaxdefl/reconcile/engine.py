@@ -127,12 +127,21 @@ def specs_from_diagnosis(
         elif eid == "extra_periodic":
             params = {"freq_hz": p["freq_hz"], "amplitude_mm": p["amplitude_mm"]}
             plates = ()
+        elif eid == "camera_shake":  # the camera moved: the whole image, a motion alike in law
+            params = {"rms_mm": p["rms_mm"], "corner_hz": p["corner_hz"]}
+            plates = ()
+        elif eid == "stiffness_change":
+            params = {k: p[k] for k in ("t_s", "f0_change", "amplitude_change")}
+            plates = ()
         elif eid == "harmonic_distortion":
             params = {
                 "order": p["order"],
                 "amplitude_mm": p["amplitude_mm"],
                 "phase_rad": p.get("phase_rad") or 0.0,
             }
+            plates = ()
+        elif eid == "mode_shape":  # the diagnosis fits the injection's parameters
+            params = {k: p[k] for k in ("mode", "freq_hz", "amplitude_mm", "phase_rad")}
             plates = ()
         if any(v is None or not math.isfinite(float(v)) for v in params.values()):
             out.append((None, f"{eid}: a parameter was not estimated"))

@@ -71,7 +71,7 @@ class Twin:
         """A table like the recording (same rows), rendered with ``effects``."""
         out = self.df.copy()
         rng = np.random.default_rng([int(seed), 9301])
-        gain, shift, extra = motion_modulations(effects, 0.0)
+        gain, shift, extra = motion_modulations(effects, 0.0, self.f0_hz)
         stamps = stamp_times(effects, self.df["t"].to_numpy(), self.t_first)
         cal = self.calibration
         n_frames = int(self.frame.max()) + 1

@@ -144,7 +144,11 @@ def diagnosis_markdown(d: dict, figures: list[str]) -> str:
             lines += [
                 f"- `{u['kind']}` on {where}: {u['explanation']}",
                 f"  ΔBIC {u['delta_bic']:.1f}; residual RMS {u['rms_before_mm']:.4g} → "
-                f"{u['rms_after_mm']:.4g} mm",
+                f"{u['rms_after_mm']:.4g} mm; "
+                + "; ".join(
+                    f"{name} = {_fmt_param(v) if isinstance(v, dict) else v}"
+                    for name, v in u["parameters"].items()
+                ),
             ]
         lines.append("")
     if d["unexplained"]:

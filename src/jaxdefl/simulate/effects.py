@@ -35,6 +35,17 @@ heteroscedastic_noise  σ_i = σ0 (1 + m u_i), u = cos(ω t_rel − φ − ψ) (
                        (t − t_mid)/(duration/2) (kind "time"); ``modulation`` (m).
 quantization           z = q round((z_clean − o)/q) + o before the noise; ``step_mm``,
                        ``offset_mm`` (structured-light recordings only).
+mode_shape             z_p += a sin(nπ x_p/L) cos(2π f t_rel + ψ), x_p the plate's position on the
+                       span L; ``mode`` (n = 2 or 3: sign changes across the plates), ``freq_hz``,
+                       ``amplitude_mm`` (a, at the antinode), ``phase_rad``.
+clipping               z_p = offset_p + min(s (z_p − offset_p), c A_p) s, c 0.3-0.99, on 1-2 plates of the
+                       middle of the span (before the noise: the pixels read the bound each with
+                       its own noise); ``level`` (c), ``side`` (s = +1 far, −1 near), ``level_mm``.
+camera_shake           z += u(t) on every plate alike, u the camera's random low-pass motion
+                       (`injection.shake_displacement`); ``rms_mm``, ``corner_hz`` (3-30 mHz).
+stiffness_change       a crack at ``t_s``: amplitude × 1/(1 + s), frequency × √(1 + s), phase
+                       continuous (`injection`'s motion term; the LDS sees it); ``stiffness_change``
+                       (s < 0); every axis.
 =====================  ======================================================================
 
 Magnitudes (`draw_effect`): "below the raw noise": the effect's RMS contribution, after removing
@@ -56,7 +67,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -64,7 +75,7 @@ import numpy as np
 import pandas as pd
 
 from .config import SimConfig, config_from_dict
-from .injection import make_spec, motion_terms
+from .injection import make_spec, motion_terms, shake_displacement
 from .lds import frame_clock, truth_table
 from .writer import simulate_trajectories
 
@@ -317,24 +328,32 @@ def _by_id(effects: Sequence[Mapping], eid: str) -> Mapping | None:
 
 def _modulations(base: CleanRecording, effects: Sequence[Mapping]):
     """AM gain g(t) and FM phase Δφ(t) functions of true epoch time (None when absent): the
-    simulator's registry injections (`jaxdefl.simulate.injection`), the linear kinds about t_mid."""
-    out = []
-    for eid in ("amplitude_modulation", "frequency_modulation"):
+    simulator's registry injections (`jaxdefl.simulate.injection`), the linear kinds about t_mid;
+    a stiffness change is in both (its amplitude factor in g, its frequency's phase in Δφ)."""
+    specs = []
+    for eid in ("amplitude_modulation", "frequency_modulation", "stiffness_change"):
         e = _by_id(effects, eid)
-        if e is None:
-            out.append(None)
-            continue
-        params = {k: float(v) for k, v in e["parameters"].items()}
-        if e["kind"] == "linear":
-            params["t_ref_s"] = base.t_mid - base.t_first
-        spec = make_spec(eid, params)
+        if e is not None:
+            params = {k: float(v) for k, v in e["parameters"].items()}
+            if e["kind"] == "linear":
+                params["t_ref_s"] = base.t_mid - base.t_first
+            specs.append(make_spec(eid, params))
+    ids = {sp.id for sp in specs}
 
-        def term(t, spec=spec, am=eid == "amplitude_modulation"):
-            m = motion_terms((spec,), np.asarray(t, np.float64) - base.t_first, 0.0)
-            return m.gain if am else m.shift
+    def motion(t):
+        return motion_terms(tuple(specs), np.asarray(t, np.float64) - base.t_first, base.f0)
 
-        out.append(term)
-    return tuple(out)
+    def gain(t):
+        m = motion(t)
+        return m.gain * m.amplitude
+
+    def shift(t):
+        m = motion(t)
+        return m.shift + m.load_phase
+
+    am = gain if ids & {"amplitude_modulation", "stiffness_change"} else None
+    fm = shift if ids & {"frequency_modulation", "stiffness_change"} else None
+    return am, fm
 
 
 def _camera_clean(base: CleanRecording, effects: Sequence[Mapping]) -> tuple[np.ndarray, np.ndarray]:
@@ -364,10 +383,29 @@ def _camera_clean(base: CleanRecording, effects: Sequence[Mapping]) -> tuple[np.
             pos[:, idx, 2] += (float(p["amplitude_mm"]) * np.exp(-trel / float(p["tau_s"])))[:, None]
         elif e["id"] == "level_jump":
             pos[:, idx, 2] += (float(p["size_mm"]) * (trel >= float(p["t_jump_s"])))[:, None]
+        elif e["id"] == "camera_shake":
+            shake = shake_displacement(make_spec("camera_shake", dict(p)), trel, base.seed)
+            for a in e["axes"]:
+                pos[:, idx, _AXES.index(a)] += shake[:, None]
         elif e["id"] == "extra_periodic":
             c = np.cos(2 * math.pi * float(p["freq_hz"]) * trel + float(p["phase_rad"]))
             for a, amps in _plate_amplitudes(e).items():
                 pos[:, idx, _AXES.index(a)] += c[:, None] * amps[None, :]
+    e = _by_id(effects, "mode_shape")
+    if e is not None:
+        p = e["parameters"]
+        idx = np.asarray(e["plates"], int) - 1
+        xi = np.asarray(base.cfg.plate_x_mm())[idx] / base.cfg.beam.span_mm
+        arg = 2 * math.pi * float(p["freq_hz"]) * trel + float(p["phase_rad"])
+        q = float(p["amplitude_mm"]) * np.cos(arg)
+        pos[:, idx, 2] += q[:, None] * np.sin(int(p["mode"]) * math.pi * xi)[None, :]
+    e = _by_id(effects, "clipping")  # last: the reading saturates, whatever moved the plate
+    if e is not None:
+        side, c = float(e["parameters"]["side"]), float(e["parameters"]["level"])
+        for j in np.asarray(e["plates"], int) - 1:
+            off = base.static[j, 2] + base.shape[j] * base.cfg.loading.mean_mm
+            bound = c * base.amp0 * abs(base.shape[j])
+            pos[:, j, 2] = off + side * np.minimum(side * (pos[:, j, 2] - off), bound)
     return t_tab, pos
 
 
@@ -680,6 +718,25 @@ def draw_effect(
                 break
             e["parameters"]["modulation"] = min(MODULATION_RANGE[1], e["parameters"]["modulation"] * 1.2)
         return e
+    elif effect_id == "camera_shake":
+        e = dict(
+            kind="low_pass",
+            parameters={"rms_mm": 0.1, "corner_hz": round(_loguniform(rng, 0.003, 0.03), 5)},
+            plates=everyone,
+            axes=["z"],
+        )
+        key = "rms_mm"
+    elif effect_id == "stiffness_change":
+        e = dict(
+            kind="crack",
+            parameters={
+                "t_s": round(float(rng.uniform(0.2, 0.8)) * base.duration, 3),
+                "stiffness_change": -1e-4,
+            },
+            plates=everyone,
+            axes=list(_AXES),
+        )
+        key = "stiffness_change"
     elif effect_id == "quantization":
         if spec.sensor != "structured_light":
             raise ValueError("quantization: only for structured-light recordings (spec.sensor)")
@@ -692,17 +749,67 @@ def draw_effect(
             axes=["z"],
         )
         key = "step_mm"
+    elif effect_id == "mode_shape":
+        e = dict(
+            kind=f"mode_{int(rng.choice([2, 3], p=[0.7, 0.3]))}",
+            parameters={
+                "freq_hz": _extra_frequency(rng, base.f0, spec.frame_rate_hz),
+                "amplitude_mm": 0.1,
+                "phase_rad": psi,
+            },
+            plates=everyone,
+            axes=["z"],
+        )
+        e["parameters"]["mode"] = int(e["kind"][-1])
+        key = "amplitude_mm"
+    elif effect_id == "clipping":
+        mid = list(range(max(1, n_pl // 3), n_pl - n_pl // 3 + 1))  # the plates that move most
+        plates = _adjacent(rng, len(mid), int(rng.integers(1, 3)))
+        side = float(rng.choice([-1.0, 1.0]))
+        e = dict(
+            id=effect_id,
+            kind="far" if side > 0 else "near",
+            parameters={"level": 0.9, "side": side},
+            plates=[mid[k - 1] for k in plates],
+            axes=["z"],
+        )
+        return _clip_level(base, e, target, signal_min)
     e["id"] = effect_id
     bounds = (0.0, math.inf)
-    if effect_id in ("drift", "level_jump"):  # a step or warm-up larger than σ would show by eye
+    if effect_id in ("drift", "level_jump", "camera_shake"):  # larger than σ would show by eye
         bounds = (0.0, float(np.median(base.sigma[np.asarray(e["plates"]) - 1, 2])))
     elif key in ("depth", "relative_rate_per_s"):  # an envelope changing by more than ±25 % too
         bounds = (0.0, 0.25 if key == "depth" else 0.25 / (0.5 * base.duration))
     elif key == "depth_rad":
         bounds = (0.0, 0.5)
+    elif key == "stiffness_change":  # a crack costs at most 30 % of the stiffness
+        bounds = (0.0, 0.3)
     _fit_magnitude(base, e, key, target, signal_min, bounds)
     if effect_id == "quantization":
         e["parameters"]["offset_mm"] = float(rng.uniform(0, e["parameters"]["step_mm"]))
+    return e
+
+
+def _clip_level(base: CleanRecording, e: dict, target: float, signal_min: float) -> dict:
+    """The clip level c (fraction of the amplitude, 0.3-0.99: the peaks of the motion) giving the
+    RMS ratio ``target``, lowered until the likelihood signal reaches ``signal_min``; bisection
+    (both fall as c rises)."""
+    p = e["parameters"]
+
+    def level_for(want: Callable[[float, float], bool]) -> float:
+        lo, hi = 0.3, 0.99  # want(lo) holds (the strongest clip), want(hi) may not
+        for _ in range(30):
+            p["level"] = 0.5 * (lo + hi)
+            if want(*effect_strength(base, e)):
+                lo = p["level"]
+            else:
+                hi = p["level"]
+        return lo
+
+    c = min(level_for(lambda r, s: r >= target), level_for(lambda r, s: s >= signal_min))
+    p["level"] = round(c, 4)
+    j = e["plates"][0] - 1
+    p["level_mm"] = p["side"] * p["level"] * base.amp0 * abs(float(base.shape[j]))
     return e
 
 
@@ -744,6 +851,14 @@ def primary_parameters(effect: Mapping) -> dict[str, tuple[float, bool]]:
         names = {"modulation": kind == "time"}  # growing noise; with the motion phase, ψ holds the sign
     elif eid == "quantization":
         names = {"step_mm": True}
+    elif eid == "mode_shape":
+        names = {"mode": True, "freq_hz": True, "amplitude_mm": False}
+    elif eid == "clipping":
+        names = {"level_mm": True}
+    elif eid == "camera_shake":
+        names = {"rms_mm": False}
+    elif eid == "stiffness_change":
+        names = {"stiffness_change": True, "t_s": True}
     else:
         raise ValueError(f"unknown effect id {eid!r}")
     return {k: (float(p[k]), sign) for k, sign in names.items()}
@@ -771,6 +886,8 @@ def _truth_entry(base: CleanRecording, t_tab: np.ndarray, e: Mapping, extras: Ma
         out["t_end"] = min(t1, t0 + 3.0 * float(p["tau_s"]))
     if eid == "level_jump":
         out["t_start"] = out["t_end"] = t0 + float(p["t_jump_s"])
+    if eid == "stiffness_change":
+        out["t_start"] = t0 + float(p["t_s"])
     if eid == "extra_periodic":
         amps = _plate_amplitudes(e)
         out["plate_amplitudes_mm"] = {k: [round(float(v), 6) for v in a] for k, a in amps.items()}

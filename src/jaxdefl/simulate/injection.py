@@ -16,6 +16,11 @@ drift                  range        amplitude_mm (at t_rel = 0, signed), tau_s: 
                                     (or the listed plates' pixels) reads a·exp(−t_rel/τ)
                                     farther: a camera warming up
 level_jump             range        t_jump_s, size_mm: a range offset from t_jump_s on
+camera_shake           range        rms_mm, corner_hz (a random low-pass motion, seeded by the
+                                    simulation's seed) and/or amplitude_mm, freq_hz, phase_rad
+                                    (a sway): the camera moves along its optical axis, so every
+                                    pixel (plates, floor targets, beam top) reads the same
+                                    displacement
 outliers               range        fraction, scale_mm: that fraction of the frames read the
                                     listed plates (default: all) N(0, scale²) off
 timing_error           timestamps   offset_s, rate_ppm: stamps = t + offset + rate·t_rel
@@ -27,12 +32,19 @@ extra_periodic         motion       freq_hz, amplitude_mm (mid-span), phase_rad:
                                     motion of the beam in its deflection shape
 harmonic_distortion    motion       order (k), amplitude_mm (mid-span), phase_rad: the load's
                                     k-th harmonic, a cos(k θ(t) − ψ) with θ the load's phase
+mode_shape             motion       mode (n), freq_hz, amplitude_mm (at the antinode),
+                                    phase_rad: the beam's n-th bending mode of a simply
+                                    supported span, a sin(nπ x/L) cos(2π f t_rel + ψ) at a plate
+                                    at x (LDS, trajectories, the plates' pixels in frames)
 stiffness_change       motion       t_s, duration_s, stiffness_change (relative, −0.01 = 1 %
                                     lost), f0_change, amplitude_change (relative; default from
                                     stiffness_change: f0 × √(1 + s), amplitude × 1/(1 + s)):
                                     a crack; the load's phase stays continuous
 debond                 plate        t_s, duration_s, plate, amplitude_change (relative, default
                                     −0.5): the plate's motion about rest scales (trajectories)
+clipping               plate        plate, level_mm (signed: + far side, − near side): the
+                                    plate's reading saturates at level_mm from its rest
+                                    position (trajectories; one table per plate)
 sensor_fault           measurement  t_s, duration_s, plate, fault (lost, jump, noise), size (mm
                                     of the z jump, default 1; noise factor, default 3): the live
                                     camera's centroids of that plate (`jaxdefl.simulate.live`)
@@ -69,11 +81,13 @@ __all__ = [
     "parse_effects",
     "parse_table",
     "motion_terms",
+    "shake_displacement",
     "motion_modulations",
     "range_offset",
     "stamp_times",
     "plate_motion",
     "measurement_faults",
+    "mode_displacement",
     "active",
     "elapsed",
 ]
@@ -143,6 +157,9 @@ class Motion:
     gain: Any = 1.0  # factor on the response (deflection and longitudinal)
     shift: Any = 0.0  # rad added to the response's phase (not counted in cycles)
     extra: list[Callable[[np.ndarray], np.ndarray]] = field(default_factory=list)  # mm at mid-span
+    # other bending modes: (shape φ(x / L), displacement q(τ) mm at the antinode), each plate at
+    # x moving by φ(x / L) q(τ) (`mode_displacement`)
+    modes: list[tuple[Callable[[np.ndarray], np.ndarray], np.ndarray]] = field(default_factory=list)
 
 
 @dataclass(frozen=True)
@@ -221,6 +238,36 @@ def _level_jump(e, trel, n_plates, seed):
     return _columns(e, n_plates, off_plates=True), (e.p("size_mm") * (trel >= e.p("t_jump_s")))[:, None]
 
 
+# the camera's random low-pass motion: a sum of sinusoids (spectral representation of a
+# first-order low-pass process, S(f) ∝ 1/(1 + (f/f_c)²) on [f_c/20, 10 f_c]), so that its value at
+# a time does not depend on how the frames are chunked
+_SHAKE_LINES = 64
+
+
+def shake_displacement(e: EffectSpec, t_rel: np.ndarray, seed: int) -> np.ndarray:
+    """(frame,) mm the camera moved along its optical axis at ``t_rel`` (`camera_shake`): the random
+    low-pass motion of RMS ``rms_mm`` and corner ``corner_hz`` (deterministic for a seed) plus
+    the sway ``amplitude_mm`` cos(2π ``freq_hz`` t_rel + ``phase_rad``)."""
+    t_rel = np.asarray(t_rel, np.float64)
+    out = e.p("amplitude_mm") * np.cos(2 * math.pi * e.p("freq_hz") * t_rel + e.p("phase_rad"))
+    rms, fc = e.p("rms_mm"), e.p("corner_hz")
+    if rms > 0 and fc > 0:
+        rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, 0x5A4B])
+        edges = np.geomspace(fc / 20.0, 10.0 * fc, _SHAKE_LINES + 1)
+        f = edges[:-1] * np.exp(rng.uniform(0, 1, _SHAKE_LINES) * np.log(edges[1:] / edges[:-1]))
+        power = np.diff(np.arctan(edges / fc))  # ∫ S df over each band
+        amp = np.sqrt(2.0 * power / power.sum()) * rng.rayleigh(1.0 / math.sqrt(2.0), _SHAKE_LINES)
+        amp *= rms / math.sqrt(0.5 * float(np.sum(amp**2)))  # the realised RMS is rms_mm
+        ph = rng.uniform(0, 2 * math.pi, _SHAKE_LINES)
+        out = out + np.cos(2 * math.pi * t_rel[:, None] * f[None, :] + ph[None, :]) @ amp
+    return out
+
+
+def _camera_shake(e, trel, n_plates, seed):
+    """Every pixel: the camera moves, so the plates and the static scene move together."""
+    return np.arange(0, n_plates + 1), shake_displacement(e, trel, seed)[:, None]
+
+
 def _outliers(e, trel, n_plates, seed):
     """Each (frame, plate) drawn from a hash of its time: chunking moves nothing."""
     cols = _columns(e, n_plates, off_plates=False)
@@ -283,6 +330,15 @@ def _harmonic_distortion(e, m: Motion):
     m.extra.append(lambda theta: a * np.cos(k * theta - psi))
 
 
+def _mode_shape(e, m: Motion):
+    """The n-th bending mode of a simply supported span: shape sin(nπ x/L), antisymmetric for
+    even n (zero at mid-span, so the LDS at mid-span and the load's own shape do not see n = 2)."""
+    n, f, a, psi = int(e.p("mode")), e.p("freq_hz"), e.p("amplitude_mm"), e.p("phase_rad")
+    m.modes.append(
+        (lambda xi: np.sin(n * math.pi * np.asarray(xi, float)), a * np.cos(2 * math.pi * f * m.tau + psi))
+    )
+
+
 def _stiffness_change(e, m: Motion):
     """k ∝ f0² and, under load control, deflection ∝ 1/k: phase continuous at the change."""
     if e.p("f0_change"):
@@ -310,6 +366,14 @@ def _debond(e, trel, motion, dx, dy, rest):
     motion[:, j] = f * (motion[:, j] - rest[j]) + rest[j]
     dx[:, j] *= f
     dy[:, j] *= f
+
+
+def _clipping(e, trel, motion, dx, dy, rest):
+    """The camera's reading of the plate saturates (the plate leaves the depth band, the pixels
+    read the band's bound): its deflection from rest is clamped at ``level_mm`` on that side."""
+    j, lv = e.p("plate") - 1, e.p("level_mm")
+    d = motion[:, j] - rest[j]
+    motion[:, j] = rest[j] + (np.minimum(d, lv) if lv > 0 else np.maximum(d, lv))
 
 
 def _sensor_fault(e, trel, xyz, noise):
@@ -358,9 +422,28 @@ def _outlier_check(e, bad):
     _positive("scale_mm", "a scale > 0 mm")(e, bad)
 
 
+def _shake_check(e, bad):
+    for name in ("rms_mm", "corner_hz", "freq_hz"):
+        if not e.p(name) >= 0:
+            raise bad(name, "a value >= 0")
+    if e.p("rms_mm") > 0 and not e.p("corner_hz") > 0:
+        raise bad("corner_hz", "a corner frequency > 0 Hz for a random motion (rms_mm > 0)")
+
+
 def _order_check(e, bad):
     if not (e.p("order") >= 2 and e.p("order") == round(e.p("order"))):
         raise bad("order", "an integer >= 2")
+
+
+def _mode_check(e, bad):
+    if not (e.p("mode") >= 1 and e.p("mode") == round(e.p("mode"))):
+        raise bad("mode", "an integer >= 1")
+    _positive("freq_hz", "a frequency > 0 Hz")(e, bad)
+
+
+def _clip_check(e, bad):
+    if e.p("level_mm") == 0:
+        raise bad("level_mm", "a level != 0 mm (+ far side, − near side)")
 
 
 def _depth_check(e, bad):
@@ -413,6 +496,20 @@ _ENTRIES = (
         _non_negative("t_jump_s", "a time >= 0 s"),
     ),
     Injection(
+        "camera_shake",
+        "range",
+        (
+            Param("rms_mm", "mm (random low-pass motion)", 0.0),
+            Param("corner_hz", "Hz (its corner frequency)", 0.0),
+            Param("amplitude_mm", "mm (sway)", 0.0),
+            Param("freq_hz", "Hz (sway)", 0.0),
+            _PHASE,
+        ),
+        "the camera moves along its optical axis: every pixel reads the same displacement",
+        _camera_shake,
+        _shake_check,
+    ),
+    Injection(
         "outliers",
         "range",
         (Param("fraction", "of the frames"), Param("scale_mm", "mm")),
@@ -459,6 +556,14 @@ _ENTRIES = (
         _order_check,
     ),
     Injection(
+        "mode_shape",
+        "motion",
+        (Param("mode", "n"), Param("freq_hz", "Hz"), Param("amplitude_mm", "mm at the antinode"), _PHASE),
+        "the beam's n-th bending mode a sin(nπ x/L) cos(2π f t + ψ)",
+        _mode_shape,
+        _mode_check,
+    ),
+    Injection(
         "stiffness_change",
         "motion",
         (
@@ -479,6 +584,14 @@ _ENTRIES = (
         "a plate no longer following the beam fully: its motion about rest scales",
         _debond,
         _checks(_check_when, lambda e, bad: _relative(e, bad, "amplitude_change")),
+    ),
+    Injection(
+        "clipping",
+        "plate",
+        (Param("plate", "plate number", plate=True), Param("level_mm", "mm from rest, signed")),
+        "a plate's reading saturating at level_mm from its rest position (the depth band's bound)",
+        _clipping,
+        _clip_check,
     ),
     Injection(
         "sensor_fault",
@@ -649,6 +762,18 @@ def motion_modulations(
 
     extra = [additive(e) for e in motion if motion_terms((e,), np.zeros(1), f0_hz).extra]
     return gain, shift, extra
+
+
+def mode_displacement(effects, tau_s: np.ndarray, xi: np.ndarray) -> np.ndarray | None:
+    """(frame, plate) mm the bending modes (`mode_shape`) move plates at ``xi`` = x / span, at
+    ``tau_s`` (s since the first frame); None when no mode acts."""
+    m = Motion(np.asarray(tau_s, np.float64), 0.0)
+    for e in _of(effects, "motion"):
+        if e.id == "mode_shape":
+            REGISTRY[e.id].inject(e, m)
+    if not m.modes:
+        return None
+    return sum(q[:, None] * shape(xi)[None, :] for shape, q in m.modes)
 
 
 def range_offset(effects, t_s: np.ndarray, t0_s: float, n_plates: int, seed: int) -> np.ndarray:

@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 
 from .config import SimConfig
-from .injection import plate_motion
+from .injection import mode_displacement, plate_motion
 from .scene import beam_shape, kinematics, plate_centres_world
 
 __all__ = ["frame_clock", "truth_table", "lds_block", "LDS_BLOCK_S"]
@@ -45,6 +45,9 @@ def truth_table(cfg: SimConfig, t_s: np.ndarray) -> pd.DataFrame:
     shape = beam_shape(c[:, 0] + cfg.camera.x_mm, cfg.beam.span_mm, cfg.beam.load_a_mm)
     n, m = len(t_s), len(c)
     motion = shape[None, :] * defl[:, None]
+    modal = mode_displacement(cfg.effects, t_s - cfg.t0_s, (c[:, 0] + cfg.camera.x_mm) / cfg.beam.span_mm)
+    if modal is not None:  # other bending modes, each in its own shape
+        motion = motion + modal
     dxp, dyp = np.repeat(dx[:, None], m, axis=1), np.repeat(dy[:, None], m, axis=1)
     # a plate's own motion (a debonded plate follows the beam only partly)
     plate_motion(cfg.effects, t_s - cfg.t0_s, motion, dxp, dyp, cfg.loading.mean_mm * shape)
@@ -78,6 +81,9 @@ def lds_block(cfg: SimConfig, seed: int, block: int, duration_s: float) -> pd.Da
     for p in lds.plates:
         shape = float(beam_shape(xs[p - 1], cfg.beam.span_mm, cfg.beam.load_a_mm))
         z = shape * defl + lds.noise_um * 1e-3 * rng.standard_normal(t.size)
+        modal = mode_displacement(cfg.effects, t - cfg.t0_s, np.array([xs[p - 1] / cfg.beam.span_mm]))
+        if modal is not None:
+            z = z + modal[:, 0]
         if p == lds.defective_plate:
             z = lds.defect_gain * z + lds.defect_noise_um * 1e-3 * rng.standard_normal(t.size)
         frames.append(pd.DataFrame({"segment": cfg.recording.segment, "t": t, "plate": p, "z": z}))

@@ -21,7 +21,7 @@ from .._errors import ConfigError, ParameterError
 from .._signals import check_interrupt
 from ..io.output import Outputs
 from .config import SimConfig, load_config
-from .injection import FRAME_LEVELS, range_offset, stamp_times
+from .injection import FRAME_LEVELS, mode_displacement, range_offset, stamp_times
 from .lds import LDS_BLOCK_S, frame_clock, lds_block, truth_table
 from .scene import kinematics, pixel_model
 
@@ -144,6 +144,16 @@ class _Renderer:
             off = range_offset(self.cfg.effects, t_frame, self.cfg.t0_s, self.cfg.plates.count, self.seed)
             col = (self.pm.plate_idx + 1).reshape(h, w)
             r = (r + off[:, col]).astype(r.dtype, copy=False)
+        xi = np.asarray(self.cfg.plate_x_mm()) / self.cfg.beam.span_mm
+        modal = mode_displacement(self.cfg.effects, t_frame - self.cfg.t0_s, xi)
+        if modal is not None:
+            # other bending modes move each plate in its own shape: its pixels read the plate's
+            # displacement along their rays (the beam top between the plates is left as it is)
+            on = self.pm.plate_idx >= 0
+            gain = self.pm.plate_gain[on] if self.kind == "range" else 1.0
+            add = np.zeros((n, h * w), r.dtype)
+            add[:, on] = modal[:, self.pm.plate_idx[on]] * gain
+            r = r + add.reshape(n, h, w)
         return r, np.asarray(a, np.float32).reshape(n, h, w)
 
 

@@ -47,7 +47,7 @@ from .._base import (
 from .._varpro import fit_shared
 from .screening import shared_amplitude, subset_trials
 
-__all__ = ["ExtraPeriodic", "EFFECT"]
+__all__ = ["ExtraPeriodic", "EFFECT", "local_median", "line_band", "OVERSAMPLE", "LOCAL_BINS"]
 
 HARMONICS = 6  # k·f0 bands excluded: k = 0 (drift), 1..6 (loading, distortion)
 SIDEBAND_HZ = 0.06  # half-width of the excluded band around each k·f0
@@ -55,7 +55,7 @@ OVERSAMPLE = 2  # zero-padding of the spectra: a line between Fourier frequencie
 LOCAL_BINS = 201  # running-median window (frequency bins) of the spectra's null level
 
 
-def _local_median(x: np.ndarray, width: int = LOCAL_BINS) -> np.ndarray:
+def local_median(x: np.ndarray, width: int = LOCAL_BINS) -> np.ndarray:
     """Running median of ``x`` over ``width`` bins, NaNs (excluded bins) ignored; the global
     median where a window holds too few values."""
     n = x.size
@@ -68,6 +68,19 @@ def _local_median(x: np.ndarray, width: int = LOCAL_BINS) -> np.ndarray:
     count = np.sum(np.isfinite(win), axis=1)
     glob = np.nanmedian(x)
     return np.where((count >= width // 4) & np.isfinite(med), med, glob)[:n]
+
+
+def line_band(ctx: Context, freq: np.ndarray) -> np.ndarray:
+    """(freq,) True where a line unrelated to the loading may be: away from k·f0 (k = 0..6, with
+    their modulation sidebands) and their aliases below Nyquist, and from Nyquist itself."""
+    excl = np.zeros(freq.size, bool)
+    half = max(SIDEBAND_HZ, 3.0 / max(ctx.duration_s, 1e-9))
+    fs = 1.0 / ctx.dt_s
+    for k in range(HARMONICS + 1):
+        for alias in (k * ctx.f0_hz, fs - k * ctx.f0_hz):  # k·f0 and its alias below Nyquist
+            excl |= np.abs(freq - alias) < half
+    excl |= np.abs(freq - fs / 2) < half
+    return ~excl
 
 
 def _columns(theta, t, aux):
@@ -88,14 +101,7 @@ class ExtraPeriodic(Effect):
             st = states[i]
             r = np.where(st.inlier, (s.y - st.mean) / st.scale, 0.0)
             freq, spectra[i] = masked_fourier(ctx, i, r, OVERSAMPLE)
-        excl = np.zeros(freq.size, bool)
-        half = max(SIDEBAND_HZ, 3.0 / max(ctx.duration_s, 1e-9))
-        fs = 1.0 / ctx.dt_s
-        for k in range(HARMONICS + 1):
-            for alias in (k * ctx.f0_hz, fs - k * ctx.f0_hz):  # k·f0 and its alias below Nyquist
-                excl |= np.abs(freq - alias) < half
-        excl |= np.abs(freq - fs / 2) < half
-        allowed = ~excl
+        allowed = line_band(ctx, freq)
         m_freq = int(allowed.sum()) // OVERSAMPLE  # independent frequencies scanned
         if m_freq < LOCAL_BINS:
             return []
@@ -117,7 +123,7 @@ class ExtraPeriodic(Effect):
                 # the null's scale from the spectrum itself about each frequency (running median):
                 # coloured noise and noise shared by the plates of a frame (which inflates the
                 # coherent sum by the design effect) raise it, a line does not
-                level = _local_median(np.where(allowed, stat, np.nan)) / null.median()
+                level = local_median(np.where(allowed, stat, np.nan)) / null.median()
                 z = stat / level
                 j = int(np.argmax(np.where(allowed, z, -np.inf)))
                 logp = float(null.logsf(z[j]))

@@ -35,6 +35,7 @@ __all__ = [
     "P_SCREEN",
     "subset_trials",
     "changepoint_trials",
+    "scanned",
 ]
 
 # A signature weaker than this cannot pass the search's calibrated test (α = 0.05 over ~10
@@ -47,6 +48,22 @@ def subset_trials(n_kept: int, n_candidates: int) -> float:
     effect the likeliest pick is one series of ``n_candidates`` (Bonferroni over them); a term
     kept on all candidates was not picked."""
     return 1.0 if n_kept >= n_candidates else float(n_candidates)
+
+
+def scanned(prop, trials: float, scan_params: int):
+    """``prop`` (and the refit its ``refine`` returns) with its scan's look-elsewhere factor
+    and the parameters the scan fixed (`Proposal.trials`, `Proposal.scan_params`)."""
+
+    def mark(q):
+        if q is not None:
+            q.trials, q.scan_params = float(trials), int(scan_params)
+        return q
+
+    if prop is not None:
+        mark(prop)
+        if prop.refine is not None:
+            prop.refine = (lambda f: lambda: mark(f()))(prop.refine)
+    return prop
 
 
 def changepoint_trials(edge: float, n_splits: int, u: float = 25.0) -> float:

@@ -534,11 +534,11 @@ class Carriers:
 
     def fit(self, term: Callable, theta0: np.ndarray, scale: np.ndarray) -> SharedFit:
         """Fit shared θ of ``term(theta, t, aux) -> (sample,)`` (jax.numpy, one carrier; aux:
-        a, cos, sin, arg, half = duration/2) over all carriers, each series' free nuisance
-        profiled out, the term as `visible` gives it."""
+        a, cos, sin, arg, half = duration/2, omega: the nominal harmonic's) over all carriers,
+        each series' free nuisance profiled out, the term as `visible` gives it."""
         items = self.items
         half = 0.5 * self.ctx.duration_s
-        aux: dict = {"a": [], "cos": [], "sin": [], "arg": [], "absorbed": [], "absorber": [], "half": []}
+        aux: dict = {k: [] for k in ("a", "cos", "sin", "arg", "absorbed", "absorber", "half", "omega")}
         for it in items:
             aux["a"].append(np.broadcast_to(np.asarray(it.a, np.float64), it.cos.shape))
             aux["cos"].append(it.cos)
@@ -551,6 +551,7 @@ class Carriers:
                 aux["absorbed"].append(np.zeros((it.w.size, 2)))
                 aux["absorber"].append(np.zeros((it.w.size, 2)))
             aux["half"].append(half)
+            aux["omega"].append(self.ctx.nominal[it.i].omega)
         t = [self.ctx.series[it.i].t for it in items]
         blocks = [it.block for it in items]
         return shared_fit(visible(term), theta0, blocks, t, [it.r for it in items], aux, scale)
