@@ -23,7 +23,11 @@ statistic − K log N is kept; its p-value is Bonferroni over the spacings and t
 
 Model term: y_s += u(t) on every series s of the axis, u = B(t) c the common spline, shared
 coefficients (K parameters, counted once; none per series), each series' free nuisance refitted.
-The series whose likelihood does not rise are left out (`screening.shared_amplitude`).
+The series whose likelihood does not rise are left out (`screening.shared_amplitude`). A shake
+goes and comes back: a common motion that only goes one way (monotone, or one step: `one_way`) is
+what a camera warm-up or a range offset leaves on the trajectories, and the same data cannot tell
+a creeping bracket from them, so the shake leaves it to `drift` and `level_jump` (and, with those
+out of the vocabulary, to an unnamed common trend).
 
 Reported: ``rms_mm`` (RMS of u over the record), ``corner_hz`` (the frequency below which half
 of u's power lies: a first-order low-pass motion's corner), ``knot_spacing_s`` and, in the
@@ -44,6 +48,7 @@ from .screening import bonferroni, chi2_sf, open_series, param, project_out, sha
 __all__ = ["CameraShake", "EFFECT", "spline_basis"]
 
 GRID = (2, 3, 4, 6, 8, 12, 16, 24, 32, 48, 64, 96, 128)  # knot intervals over the record
+ONE_WAY = 0.9  # monotone or a single step: a drift or a jump, not a shake (`one_way`)
 MIN_PERIODS = 4.0  # the shortest knot spacing, in loading periods (the spline stays below f0)
 
 
@@ -134,7 +139,7 @@ class CameraShake(Effect):
             if best is None or crit > best[0]:
                 best = (crit, k, stat, n_par, fit)
         crit, k, stat, n_par, fit = best
-        if crit <= 0:
+        if crit <= 0 or one_way(fit, wk):
             return None
         p_value = bonferroni(float(chi2_sf(stat, n_par)), len(grid) * n_axes)
         shape = np.zeros(nf)
@@ -175,6 +180,23 @@ class CameraShake(Effect):
             ),
             detail={"t_s": (t[::step]).tolist(), "displacement_mm": motion[::step].tolist()},
         )
+
+
+def one_way(u: np.ndarray, w: np.ndarray) -> bool:
+    """Whether the common motion ``u`` (weighted mean removed) only goes one way: monotone (its
+    steps add up to at least `ONE_WAY` of their absolute sum) or a single step (two levels explain
+    `ONE_WAY` of its weighted variance). On the trajectories such a motion is a camera warm-up or a
+    range offset (`drift`, `level_jump`), which the shake leaves to them."""
+    if u.size < 4:
+        return False
+    d = np.diff(u)
+    if abs(float(d.sum())) >= ONE_WAY * float(np.abs(d).sum()):
+        return True
+    ss = float(np.sum(w * u * u))
+    cw, cu = np.cumsum(w)[:-1], np.cumsum(w * u)[:-1]
+    n = float(w.sum())
+    between = cu**2 / np.maximum(cw, 1e-300) + cu**2 / np.maximum(n - cw, 1e-300)  # mean 0: S1² (1/n1 + 1/n2)
+    return ss > 0 and float(between.max()) >= ONE_WAY * ss
 
 
 def _median_power_frequency(x: np.ndarray, dt: float) -> float:
