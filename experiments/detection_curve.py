@@ -13,6 +13,10 @@ nominal model absorbs (`effect_strength`; no floor: `concealed_effects.py` keeps
 the user's hints only (`concealed_effects.run_case`'s blind call); a case counts as detected when
 the injected id is reported on at least half of its plates (`concealed_effects.score_effect`).
 Controls: the same recordings without an effect; a control is flagged when anything is reported.
+They cycle through three noise kinds (`CONTROL_KINDS`): as drawn (white, half of the ToF records
+with frame-common noise), AR(1) noise added with ρ drawn in 0.3-0.8 (`concealed_effects.add_ar1_noise`:
+its marginal σ twice the white one), and frame-common noise forced (a ToF record, 40-85 % of the
+variance shared by the plates of a frame).
 
 The best possible detector of an effect knows its form up to its size: its log-likelihood ratio
 is then χ²₁ with noncentrality S under white Gaussian noise, so at a false-alarm rate α it
@@ -31,8 +35,8 @@ DIR/curve.png and DIR/results/*.json (a stopped run resumes), and prints the tab
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
-import math
 import sys
 import time
 from collections.abc import Sequence
@@ -43,7 +47,7 @@ import numpy as np
 import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from concealed_effects import _blind_call, _jsonable, _resolve, score_effect  # noqa: E402
+from concealed_effects import _blind_call, _jsonable, _resolve, add_ar1_noise, score_effect  # noqa: E402
 
 from jaxdefl.simulate.effects import (  # noqa: E402
     EFFECT_IDS,
@@ -59,6 +63,7 @@ from jaxdefl.simulate.effects import (  # noqa: E402
 
 DIAGNOSE = "jaxdefl.diagnose:diagnose"
 TARGET = 0.90
+CONTROL_KINDS = ("white", "ar1", "frame_common")
 
 
 def oracle_signal(power: float, alpha: float) -> float:
@@ -70,10 +75,13 @@ def oracle_signal(power: float, alpha: float) -> float:
     return float(brentq(lambda s: ncx2.sf(crit, 1, s) - power, 1e-6, 1e4))
 
 
-def make_case_at(seed: int, effect_id: str | None, signal: float, minutes: float):
-    """A random recording with one effect scaled to evidence ``signal`` (None: a control)."""
+def make_case_at(seed: int, effect_id: str | None, signal: float, minutes: float, noise: str = "white"):
+    """A random recording with one effect scaled to evidence ``signal`` (None: a control), its
+    noise of kind ``noise`` (`CONTROL_KINDS`)."""
     rng = np.random.default_rng([int(seed), 7100])
     sensor = reference = None
+    if noise == "frame_common":
+        sensor = "tof"
     if effect_id in STRUCTURED_LIGHT_ONLY:
         sensor = "structured_light"
     if effect_id in TOF_ONLY:
@@ -81,6 +89,9 @@ def make_case_at(seed: int, effect_id: str | None, signal: float, minutes: float
     if effect_id in NEEDS_REFERENCE:
         reference = True
     spec = random_spec(rng, minutes=minutes, sensor=sensor, reference=reference)
+    own = np.random.default_rng([int(seed), 7101])  # the noise kind's own draws
+    if noise == "frame_common":
+        spec = dataclasses.replace(spec, frame_common=round(float(own.uniform(0.4, 0.85)), 3))
     base = CleanRecording(spec, seed)
     effects = []
     if effect_id is not None:
@@ -88,13 +99,19 @@ def make_case_at(seed: int, effect_id: str | None, signal: float, minutes: float
         e = draw_effect(effect_id, base, rng, target_ratio=1e-6, signal_min=signal)
         effects.append(e)
     traj, lds, truth = make_recording(spec, effects, seed, base=base)
+    if noise == "ar1":
+        rho = round(float(own.uniform(0.3, 0.8)), 3)
+        traj = add_ar1_noise(traj, truth, rho, seed)
+        truth["recording"]["ar1_rho"] = rho
     for e, t in zip(effects, truth["effects"], strict=True):
         t["signal"] = float(effect_strength(base, e)[1])
     return traj, lds, truth
 
 
 def run_one(job: dict, diagnose: str = DIAGNOSE) -> dict:
-    traj, lds, truth = make_case_at(job["seed"], job["effect"], job["signal"], job["minutes"])
+    traj, lds, truth = make_case_at(
+        job["seed"], job["effect"], job["signal"], job["minutes"], job.get("noise", "white")
+    )
     rec = truth["recording"]
     hints = {"sensor": rec["sensor"], "frame_rate_hz": rec["frame_rate_hz"]}
     t0 = time.perf_counter()
@@ -114,6 +131,9 @@ def score_one(r: dict) -> dict:
         "signal_target": job["signal"],
         "seed": job["seed"],
         "sensor": truth["recording"]["sensor"],
+        "noise": job.get("noise", "white"),
+        "ar1_rho": truth["recording"].get("ar1_rho", 0.0),
+        "frame_common": truth["recording"].get("frame_common", 0.0),
         "reported": ";".join(ids),
         "seconds": round(r["seconds"], 2),
         "error": r["error"],
@@ -209,19 +229,22 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--out", type=Path, default=Path("detection_curve_out"))
     args = ap.parse_args(argv)
-    jobs = []
+    jobs = []  # the controls first: a false-alarm rate needs them all, a curve can be partial
+    for r in range(args.controls):
+        seed = args.seed * 1_000_000 + 900_000 + r
+        kind = CONTROL_KINDS[r % len(CONTROL_KINDS)]
+        jobs.append({"effect": None, "signal": 0.0, "seed": seed, "minutes": args.minutes, "noise": kind})
     for k, eid in enumerate(args.effects):
         for j, s in enumerate(args.signals):
             for r in range(args.reps):
                 seed = args.seed * 1_000_000 + k * 10_000 + j * 100 + r
                 jobs.append({"effect": eid, "signal": float(s), "seed": seed, "minutes": args.minutes})
-    for r in range(args.controls):
-        jobs.append({"effect": None, "signal": 0.0, "seed": args.seed * 1_000_000 + 900_000 + r, "minutes": args.minutes})
     res_dir = args.out / "results"
     res_dir.mkdir(parents=True, exist_ok=True)
 
     def path(job: dict) -> Path:
-        return res_dir / f"{job['effect'] or 'none'}_{job['signal']:g}_{job['seed']}.json"
+        kind = "" if job["effect"] else f"_{job.get('noise', 'white')}"
+        return res_dir / f"{job['effect'] or 'none'}{kind}_{job['signal']:g}_{job['seed']}.json"
 
     todo = [j for j in jobs if not path(j).exists()]
     print(f"{len(jobs)} cases, {len(jobs) - len(todo)} already in {res_dir}", flush=True)
@@ -249,7 +272,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     plot(cases, n_eff, args.out / "curve.png")
     ctl = cases[cases["effect"] == "none"]
     print(tab.to_string(index=False))
-    print(f"controls flagged: {int(ctl['flagged'].sum())}/{len(ctl)}")
+    print(f"controls flagged: {int(ctl['flagged'].sum())}/{len(ctl)} ("
+          + ", ".join(f"{k} {int(g['flagged'].sum())}/{len(g)}" for k, g in ctl.groupby("noise")) + ")")
     print(f"oracle (known-form χ²₁ at α = 0.05/{n_eff}): S at 50 % {oracle_signal(0.5, 0.05 / n_eff):.1f}, "
           f"at 90 % {oracle_signal(0.9, 0.05 / n_eff):.1f}, at 95 % {oracle_signal(0.95, 0.05 / n_eff):.1f}")
     return 0

@@ -10,11 +10,12 @@ import numpy as np
 import pytest
 
 from jaxdefl.diagnose._base import Context, Harmonic, Series, State, loglik, lstsq
+from jaxdefl.diagnose._search import Calibration
 
 F0 = 3.0
 OMEGA = 2 * math.pi * F0
 PHASE = 1.1  # the motion's phase: clean = level + A cos(ω t − PHASE)
-ALPHA = 0.01 / 400  # the search's Bonferroni level over ~400 tests
+N_TESTS = 11  # effects screened: the search's calibrated test splits α over them
 
 
 def make_case(
@@ -88,7 +89,9 @@ def delta_bic(ctx, states, prop):
 
 
 def passing(ctx, states, props):
-    return [p for p in props if p.p_value < ALPHA and delta_bic(ctx, states, p) < -10]
+    """The proposals the search's calibrated test accepts (white noise: LR = 2 Δlog L)."""
+    cal = Calibration(N_TESTS)
+    return [p for p in props if cal.passes(p, 2.0 * total_gain(ctx, states, p), 1.0, 0.0)]
 
 
 def keys(ctx, prop):

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from jaxdefl.diagnose._base import Context, Harmonic, Series, State, loglik
+from jaxdefl.diagnose._search import Calibration
 from jaxdefl.diagnose.effects.shared_fits import tap_response
 from jaxdefl.fit.motion import motion_artefact_response
 
@@ -119,7 +120,7 @@ def make_case(
     return ctx, states
 
 
-N_TESTS = 11  # the search's Bonferroni: effects tested in a round
+N_TESTS = 11  # effects screened: the search's calibrated test splits α over them
 
 
 def delta_bic(ctx, states, prop) -> float:
@@ -131,9 +132,11 @@ def delta_bic(ctx, states, prop) -> float:
 
 
 def passing(ctx, states, props):
-    """The proposals the search would accept, best first."""
+    """The proposals the search's calibrated test accepts, best (lowest ΔBIC) first."""
+    cal = Calibration(N_TESTS)
     ok = [(delta_bic(ctx, states, p), k) for k, p in enumerate(props)]
-    ok = [(d, k) for d, k in ok if d < -10 and props[k].p_value * N_TESTS < 0.01]
+    ok = [(d, k) for d, k in ok if cal.passes(props[k], (props[k].n_params * math.log(
+        sum(s.n for s in ctx.series)) - d), 1.0, 0.0)]
     return [props[k] for _, k in sorted(ok)]
 
 

@@ -227,6 +227,17 @@ class Proposal:
         shape: {series index: factor} when the term is one signal times a known factor per series
             (a mode shape, signs included), so that noise shared by the plates of a frame is
             weighed against that pattern (`_correlation`); None: the same term on every series.
+        trials: the look-elsewhere factor of the proposal's statistic: how many independent
+            alternatives the effect's scan chose it from (frequencies × axes × kinds, jump
+            times, orders, candidate series a subset was picked from); 1 for a term of known form.
+        scan_params: how many of ``n_params`` the scan fixed (a frequency, a jump time, a time
+            constant): they are counted in ``trials``, not as χ² degrees of freedom.
+        inflation: how many times more the statistic varies than under white noise where the
+            search's likelihood does not model it (a noise-level term under AR(1) noise: its
+            squared residuals are correlated); the search divides 2 Δlog L by it.
+        The search accepts the proposal when its likelihood-ratio statistic 2 Δlog L exceeds
+        the χ² critical value at α / (effects screened × trials) with n_params − scan_params
+        degrees of freedom (`_search.Calibration`).
     """
 
     effect: str
@@ -242,6 +253,9 @@ class Proposal:
     detail: dict = field(default_factory=dict)
     refine: Callable[[], Proposal | None] | None = None
     shape: dict[int, float] | None = None
+    trials: float = 1.0
+    scan_params: int = 0
+    inflation: float = 1.0
 
 
 @dataclass(frozen=True)

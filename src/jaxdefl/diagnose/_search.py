@@ -6,11 +6,17 @@ and proposes (cheaply: grids, FFTs, linear fits); proposals are scored by
     ΔBIC = −2 Δlog L + k log N     (N: all samples of the record, k: parameters added)
 
 with log L from `_base.loglik` (so mean terms and noise models are scored alike). The best
-proposal is refitted in full (its ``refine``, optimistix), scored again, and accepted when
-ΔBIC < −10 (very strong evidence, Kass & Raftery), its signature's p-value survives Bonferroni
-over the effects tested in the round (α = 0.01), and the likelihood-equivalent RMS of the
-series it touches goes down. Rounds continue until nothing passes. Then the residuals of every
-series are tested for whiteness (`_whiteness`); what fails is reported as unexplained, located.
+proposal is refitted in full (its ``refine``, optimistix), scored again, and accepted by a
+calibrated test (`Calibration`): its likelihood-ratio statistic 2 Δlog L (under the search's noise
+model: AR(1)-aware for mean terms, frame-common noise discounted by its design effect) exceeds
+the null's critical value at the family-wise level α = 0.05 split over the effects screened,
+with the look-elsewhere effect of the effect's own scan (`Proposal.trials`); its signature's
+p-value survives the same level; and the likelihood-equivalent RMS of the series it touches goes
+down. BIC chooses between competing explanations (the lowest ΔBIC that passes goes first) and is
+reported; it no longer decides detection: with 10⁵ samples its k log N penalty asks for 35-45 χ²
+units where the test at α = 0.05/11 asks for 12-25. Rounds continue until nothing passes. Then
+the residuals of every series are tested for whiteness (`_whiteness`); what fails is reported as
+unexplained, located.
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
+from scipy import stats
 from threadpoolctl import threadpool_limits
 
 from .._signals import check_interrupt
@@ -37,10 +44,20 @@ from .unnamed import MAX_TERMS, UnnamedTerm, apply_term, best_term, colored_gain
 # warm-up it explained 84 % of (held-out benchmark), and a step can only tie a generic step
 GENERIC_FIRST_RATIO = 1.1
 
-__all__ = ["Diagnosis", "run_diagnosis", "diagnose", "DELTA_BIC_MAX", "ALPHA", "MAX_EFFECTS"]
+__all__ = [
+    "Diagnosis",
+    "run_diagnosis",
+    "diagnose",
+    "Calibration",
+    "DELTA_BIC_MAX",
+    "ALPHA",
+    "ALPHA_NAMED",
+    "MAX_EFFECTS",
+]
 
-DELTA_BIC_MAX = -10.0
-ALPHA = 0.01
+DELTA_BIC_MAX = -10.0  # very strong evidence (Kass & Raftery): the open world's bar
+ALPHA = 0.01  # the residual tests' level (`Diagnosis.unexplained`)
+ALPHA_NAMED = 0.05  # family-wise false-alarm rate of a record's named effects
 MAX_EFFECTS = 8
 # Residual RMS below which a table is taken for noise-free (0.1 µm: far below any range camera's
 # or laser sensor's noise; a simulation's truth written with 6 decimals sits near 3e-7 mm).
@@ -54,6 +71,47 @@ class Accepted:
     rms_before: float
     rms_after: float
     before: dict[int, State]
+    lr: float = math.nan
+    lr_critical: float = math.nan
+
+
+@dataclass
+class Calibration:
+    """The acceptance test of named effects, calibrated for one search.
+
+    Under the nominal model, the likelihood-ratio statistic 2 Δlog L of a term of known form with
+    k linear parameters is χ²_k when the noise model is right: `_score` computes it against AR(1)
+    noise for mean terms (`unnamed.colored_gain`) and discounts noise shared by the plates of a
+    frame (`_correlation`), so coloured and frame-common noise do not inflate it. A proposal is
+    the best of its effect's scan: the maximum of ``trials`` such statistics (frequencies, jump
+    times, orders, series), whose tail is at most ``trials`` times one's (Bonferroni, the
+    look-elsewhere effect; `Proposal.trials` holds each effect's count, its scanned nonlinear
+    parameters go there, not into k). With ``n_tests`` effects screened, the critical value is
+    the χ²_k quantile at 1 − α / (n_tests · trials): at most α of the records without any effect
+    get one named. Critical values are cached per (effect, k, trials) for this search.
+    """
+
+    n_tests: int
+    alpha: float = ALPHA_NAMED
+    cache: dict = field(default_factory=dict)
+
+    def critical(self, p: Proposal) -> float:
+        dof = max(int(p.n_params) - int(p.scan_params), 1)
+        key = (p.effect, dof, float(p.trials))
+        c = self.cache.get(key)
+        if c is None:
+            level = self.alpha / (max(self.n_tests, 1) * max(float(p.trials), 1.0))
+            c = self.cache[key] = float(stats.chi2.isf(level, dof))
+        return c
+
+    def passes(self, p: Proposal, lr: float, rms0: float, rms1: float) -> bool:
+        """The statistic beyond its critical value, the signature's p-value at the same level
+        and the RMS of the touched series down."""
+        return (
+            lr > self.critical(p)
+            and rms1 < rms0
+            and p.p_value * max(self.n_tests, 1) < self.alpha
+        )
 
 
 @dataclass
@@ -153,6 +211,8 @@ class Diagnosis:
                     **_where(ctx, p.series, p.t_start, p.t_end, p.band_hz),
                     "parameters": _jsonable(p.parameters),
                     "delta_bic": a.delta_bic,
+                    "lr": a.lr,
+                    "lr_critical": a.lr_critical,
                     "rms_before_mm": a.rms_before,
                     "rms_after_mm": a.rms_after,
                     "p_value": p.p_value,
@@ -270,8 +330,9 @@ def _jsonable(x):
 
 def _score(
     ctx: Context, states: list[State], p: Proposal, n_total: int, corr: FrameCorrelation | None = None
-) -> tuple[float, float, float]:
-    """(ΔBIC, RMS before, RMS after) of a proposal; RMS likelihood-equivalent over its series.
+) -> tuple[float, float, float, float]:
+    """(ΔBIC, RMS before, RMS after, LR = 2 Δlog L) of a proposal; RMS likelihood-equivalent
+    over its series.
 
     With ``corr``, each axis' share of Δlog L is divided by its design effect: noise shared by
     the plates of a frame is not evidence for a term shared by the plates (`_correlation`).
@@ -293,10 +354,10 @@ def _score(
         dll[i] = b - a
         n += ctx.series[i].n
     if not (math.isfinite(ll0) and math.isfinite(ll1)) or n == 0:
-        return math.inf, math.nan, math.nan
+        return math.inf, math.nan, math.nan, -math.inf
     gain = ll1 - ll0 if corr is None else corr.discount(ctx, p, dll)
     dbic = -2.0 * gain + p.n_params * math.log(n_total)
-    return dbic, rms_equivalent(ll0, n), rms_equivalent(ll1, n)
+    return dbic, rms_equivalent(ll0, n), rms_equivalent(ll1, n), 2.0 * gain / max(p.inflation, 1.0)
 
 
 def _rebase(p: Proposal, base: list[State], states: list[State]) -> Proposal:
@@ -313,10 +374,6 @@ def _rebase(p: Proposal, base: list[State], states: list[State]) -> Proposal:
             )
         new[i] = st.with_(**kw)
     return dataclasses.replace(p, states=new)
-
-
-def _passes(dbic: float, rms0: float, rms1: float, p_value: float, n_tests: int) -> bool:
-    return dbic < DELTA_BIC_MAX and rms1 < rms0 and p_value * n_tests < ALPHA
 
 
 # One BLAS thread: the diagnosis' products are many small GEMMs and dots over one series, where
@@ -386,7 +443,7 @@ def run_diagnosis(
     open_world = settings.open_world and not noise_free
     bases: dict = {}  # the open world's spline bases, for this search
     rounds: list[list[dict]] = []
-    n_tests = max(len(usable), 1)
+    calib = Calibration(max(len(usable), 1))
     # Proposals of every effect, with the states they were made on. After an effect is accepted
     # the others are re-scored on the new states by re-applying their change (`_rebase`), and
     # only the best one is proposed afresh: a round costs one effect's screening, not eleven.
@@ -418,28 +475,29 @@ def run_diagnosis(
                     if base is states or all(base[i] is states[i] for i in p.series)
                     else _rebase(p, base, states)
                 )
-                scored.append((*_score(ctx, states, q, n_total, corr), eid))
-        rounds.append([{"effect": e, "delta_bic": d} for d, _, _, e in scored])
-        scored.sort(key=lambda x: x[0])
+                d, _, _, lr = _score(ctx, states, q, n_total, corr)
+                scored.append((d, lr, calib.critical(q), eid))
+        rounds.append([{"effect": e, "delta_bic": d, "lr": lr, "lr_critical": c} for d, lr, c, e in scored])
+        scored.sort(key=lambda x: x[0])  # BIC chooses between the explanations that pass
         chosen = None
         tried = set()
-        for dbic, _, _, eid in scored:
-            if eid in tried or not dbic < DELTA_BIC_MAX:
+        for _, lr, crit, eid in scored:
+            if eid in tried or not lr > crit:
                 continue
             tried.add(eid)
             if not current(eid):
                 screen(eid)  # propose again on the current states: the exact proposal
             for p, _ in sorted(cache[eid], key=lambda x: _score(ctx, states, x[0], n_total, corr)[0]):
-                d, r0, r1 = _score(ctx, states, p, n_total, corr)
-                if not _passes(d, r0, r1, p.p_value, n_tests):
+                d, r0, r1, lr = _score(ctx, states, p, n_total, corr)
+                if not calib.passes(p, lr, r0, r1):
                     continue
                 if p.refine is not None:
                     q = p.refine()
                     if q is not None:
-                        d2, q0, q1 = _score(ctx, states, q, n_total, corr)
-                        if _passes(d2, q0, q1, q.p_value, n_tests):
-                            d, r0, r1, p = d2, q0, q1, q
-                chosen = Accepted(p, d, r0, r1, {i: states[i] for i in p.series})
+                        d2, q0, q1, lr2 = _score(ctx, states, q, n_total, corr)
+                        if calib.passes(q, lr2, q0, q1):
+                            d, r0, r1, lr, p = d2, q0, q1, lr2, q
+                chosen = Accepted(p, d, r0, r1, {i: states[i] for i in p.series}, lr, calib.critical(p))
                 break
             if chosen is not None:
                 break

@@ -21,7 +21,7 @@ from .shared_fits import Carriers, chi2_p_value, one_sided, param, scan_p_value
 
 __all__ = ["ModulationEffect", "modulation_band", "P_MAX", "KINDS"]
 
-P_MAX = 1e-3  # weaker signatures cannot pass the search's Bonferroni (α = 0.01 over ~10 effects)
+P_MAX = 5e-3  # weaker signatures cannot pass the search's level (α = 0.05 over ~10 effects)
 F_MAX_HZ = 0.2
 KINDS = 2
 
@@ -120,12 +120,12 @@ class ModulationEffect(Effect):
                     f_pk, p_pk, n_pk = car.refine_peak(grid, q, float(freq[j]), df)
                     if one_sided(p_pk, car.power_at(self.twin, f_pk)):
                         return out  # a line on one side of f0 (extra_periodic), not a modulation
-                    prop = self._sinusoidal(ctx, states, car, f_pk, n_pk, q, p_sin)
+                    prop = self._sinusoidal(ctx, states, car, f_pk, n_pk, q, p_sin, n_ind)
                     if prop is not None:
                         out.append(prop)
         return out
 
-    def _proposal(self, ctx, kept, new, gains, n_params, p_value, report) -> Proposal:
+    def _proposal(self, ctx, kept, new, gains, n_params, p_value, report, trials, scan_params=0) -> Proposal:
         parameters, band, explanation, detail = report
         detail["loglik_gain"] = {ctx.series[i].key: float(g) for i, g in gains.items()}
         return Proposal(
@@ -140,6 +140,8 @@ class ModulationEffect(Effect):
             band_hz=band,
             explanation=explanation,
             detail=detail,
+            trials=trials,
+            scan_params=scan_params,
         )
 
     def _linear(self, ctx, states, car, x0, sx, p_value) -> Proposal | None:
@@ -152,9 +154,9 @@ class ModulationEffect(Effect):
         plates = sorted({ctx.series[i].plate for i in kept})
         value, sigma = float(res.theta[0]), math.sqrt(max(res.cov[0, 0], 0.0))
         report = self.linear_report(ctx, value, sigma, plates)
-        return self._proposal(ctx, kept, new, gains, 1, p_value, report)
+        return self._proposal(ctx, kept, new, gains, 1, p_value, report, KINDS)
 
-    def _sinusoidal(self, ctx, states, car, f_pk, n_pk, q, p_value) -> Proposal | None:
+    def _sinusoidal(self, ctx, states, car, f_pk, n_pk, q, p_value, n_ind) -> Proposal | None:
         theta0 = np.array([2 * n_pk.real / q, -2 * n_pk.imag / q, f_pk])
         m0 = max(math.hypot(theta0[0], theta0[1]), 1e-12)  # steps: the depth, a tenth of 1/duration
         res = car.fit(self.sinusoidal_term, theta0, np.array([m0, m0, 0.1 / ctx.duration_s]))
@@ -166,4 +168,5 @@ class ModulationEffect(Effect):
             return None
         plates = sorted({ctx.series[i].plate for i in kept})
         report = self.sinusoidal_report(ctx, res.theta, res.cov, plates)
-        return self._proposal(ctx, kept, new, gains, 3, p_value, report)
+        # the modulation frequency was scanned over n_ind independent values
+        return self._proposal(ctx, kept, new, gains, 3, p_value, report, KINDS * max(n_ind, 1.0), 1)

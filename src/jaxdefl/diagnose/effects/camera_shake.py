@@ -164,6 +164,7 @@ class CameraShake(Effect):
             states=sh.states,
             n_params=n_par,
             p_value=p_value,
+            trials=len(grid) * n_axes,  # knot spacings × axes
             parameters={
                 "rms_mm": param(rms, rms / math.sqrt(max(stat, 1.0))),
                 "corner_hz": param(corner),

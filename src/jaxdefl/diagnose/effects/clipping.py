@@ -98,6 +98,7 @@ class Clipping(Effect):
                 states={i: fits[i][0] for i in series},
                 n_params=2 * len(series),
                 p_value=p,
+                trials=n_grid * len(idx),  # the grid × the series picked
                 parameters={
                     "level_mm": param(level_mm, None),
                     "level": param(c, None),

@@ -39,6 +39,7 @@ import numpy as np
 from .._base import Context, Effect, Proposal, State, keep_series, lstsq, peak_offset
 from .._varpro import fit_shared
 from .screening import (
+    P_SCREEN,
     bonferroni,
     chi2_sf,
     combined_p,
@@ -50,6 +51,7 @@ from .screening import (
     residual,
     screen_grid,
     shared_amplitude,
+    subset_trials,
     updated,
     weights,
 )
@@ -58,6 +60,7 @@ __all__ = ["Drift", "EFFECT"]
 
 N_GRID = 24
 MAX_DEGREE = 3
+MODES = 3  # per-series and common exponentials, polynomial: the look-elsewhere of the shapes
 
 
 def _columns(theta, t, aux):
@@ -130,10 +133,10 @@ class Drift(Effect):
                 math.log(grid[1] / grid[0])
             )
         sel = [i for j, i in enumerate(idx) if stat[j, g] > logn[j]]
-        prop = self._linear(ctx, states, sel, nus, math.exp(log_tau), None, p_value)
+        prop = self._linear(ctx, states, sel, nus, math.exp(log_tau), None, p_value, len(idx))
         if prop is None:
             return None, common
-        prop.refine = lambda: self._refined(ctx, states, prop, nus, p_value)
+        prop.refine = lambda: self._refined(ctx, states, prop, nus, p_value, len(idx))
         return prop, common
 
     def _common(self, ctx, states, idx, nus, grid, beta, info, n_axes) -> Proposal | None:
@@ -150,10 +153,9 @@ class Drift(Effect):
             return None
         c = (beta * info).sum(axis=0) ** 2 / np.maximum(info.sum(axis=0), 1e-300)
         g = int(np.argmax(c))
-        n_tot = sum(ctx.series[i].n for i in idx)
-        if c[g] <= 2 * math.log(n_tot):
-            return None
         p_value = bonferroni(float(chi2_sf(c[g], 1)), N_GRID * n_axes)
+        if p_value >= P_SCREEN:
+            return None
         prop = self._common_at(ctx, states, idx, nus, float(grid[g]), None, p_value)
         if prop is not None:
             lo, hi = math.log(grid[max(g - 1, 0)]), math.log(grid[min(g + 1, grid.size - 1)])
@@ -191,9 +193,10 @@ class Drift(Effect):
             "all drift by {amp:+.3f} mm",
             "the camera warming up shifts its range for the whole image alike.",
             {"mode": "common"},
+            MODES * N_GRID * 3,  # τ grid, axes
         )
 
-    def _linear(self, ctx, states, sel, nus, tau, sig_tau, p_value) -> Proposal | None:
+    def _linear(self, ctx, states, sel, nus, tau, sig_tau, p_value, n_candidates) -> Proposal | None:
         """The exponential at a given τ on each series (linear amplitude + nuisance); the series
         that pay for their amplitude make the proposal."""
         new, amps, sds = {}, {}, {}
@@ -208,9 +211,9 @@ class Drift(Effect):
                 new[i], amps[i], sds[i] = cand, float(beta[0]), math.sqrt(max(float(cov[0, 0]), 0.0))
         if not new:
             return None
-        return self._proposal(ctx, new, amps, sds, tau, sig_tau, p_value)
+        return self._proposal(ctx, new, amps, sds, tau, sig_tau, p_value, n_candidates)
 
-    def _refined(self, ctx, states, prop, nus, p_value) -> Proposal | None:
+    def _refined(self, ctx, states, prop, nus, p_value, n_candidates) -> Proposal | None:
         """τ by variable projection (optimistix) on the proposal's series, then the states again."""
         sel = prop.series
         tau0 = float(prop.parameters["tau_s"]["value"])
@@ -226,12 +229,12 @@ class Drift(Effect):
         if not (0.002 * dur <= tau <= 10 * dur):
             return None
         sig_tau = tau * math.sqrt(max(float(fit.theta_cov[0, 0]), 0.0))
-        out = self._linear(ctx, states, sel, nus, tau, sig_tau, p_value)
+        out = self._linear(ctx, states, sel, nus, tau, sig_tau, p_value, n_candidates)
         if out is not None:
             out.n_params = 1 + len(out.series)
         return out
 
-    def _proposal(self, ctx, new, amps, sds, tau, sig_tau, p_value) -> Proposal:
+    def _proposal(self, ctx, new, amps, sds, tau, sig_tau, p_value, n_candidates) -> Proposal:
         kept = sorted(new)
         a = np.array([amps[i] for i in kept])
         sa = np.array([sds[i] for i in kept])
@@ -242,6 +245,7 @@ class Drift(Effect):
             "drift by {amp:+.3f} mm",
             "the camera warming up (or its mount settling) adds a slowly vanishing offset.",
             {"amplitudes_mm": {ctx.series[i].key: amps[i] for i in kept}},
+            MODES * N_GRID * subset_trials(len(kept), n_candidates),
         )
 
     # -- polynomial --------------------------------------------------------------------------
@@ -317,6 +321,7 @@ class Drift(Effect):
                 "or a settling mount."
             ),
             detail={"amplitudes_mm": {ctx.series[i].key: amps[i] for i in kept}},
+            trials=MODES * MAX_DEGREE * subset_trials(len(kept), len(idx)),
         )
 
 
@@ -334,6 +339,7 @@ def _exponential_proposal(
     what: str,
     why: str,
     detail: dict,
+    trials: float,
 ) -> Proposal:
     """An exponential warm-up's proposal: amplitude and τ with their σ's, the span 3τ, the band
     below 1/(2πτ) and its explanation (``what`` formatted with the amplitude, then ``why``)."""
@@ -354,4 +360,6 @@ def _exponential_proposal(
             f"decaying with a time constant of {t / 60:.1f} min: {why}"
         ),
         detail=detail,
+        trials=trials,
+        scan_params=1,  # τ
     )

@@ -45,7 +45,7 @@ from .._base import (
     regress_offset,
 )
 from .._varpro import fit_shared
-from .screening import shared_amplitude
+from .screening import shared_amplitude, subset_trials
 
 __all__ = ["ExtraPeriodic", "EFFECT", "local_median", "line_band", "OVERSAMPLE", "LOCAL_BINS"]
 
@@ -135,7 +135,7 @@ class ExtraPeriodic(Effect):
                 off = peak_offset(stat[jj - 1], stat[jj], stat[jj + 1])
                 f_peak = freq[jj] + off * (freq[1] - freq[0])
                 if kind == "coherent":
-                    lines.append((p, axis, idx, f_peak))
+                    lines.append((p, axis, idx, f_peak, 6 * m_freq))
                 if best is None or p < best[0]:
                     best = (p, f_peak)
         out = [q for q in (self._common(ctx, states, *line) for line in lines) if q is not None]
@@ -153,6 +153,7 @@ class ExtraPeriodic(Effect):
         if not fits:
             return out
         kept = sorted(fits)
+        trials = 6 * m_freq * subset_trials(len(kept), len(ctx.series))
         prop = self._proposal(
             ctx,
             states,
@@ -163,11 +164,12 @@ class ExtraPeriodic(Effect):
             [fits[i][0] for i in kept],
             [fits[i][2] for i in kept],
             p_value,
+            trials,
         )
-        prop.refine = lambda: self._refine(ctx, states, kept, f_peak, p_value)
+        prop.refine = lambda: self._refine(ctx, states, kept, f_peak, p_value, trials)
         return out + [prop]
 
-    def _common(self, ctx, states, p_value, axis, idx, f_peak) -> Proposal | None:
+    def _common(self, ctx, states, p_value, axis, idx, f_peak, trials) -> Proposal | None:
         """The line with one cosine and one sine amplitude shared by the series of an axis (the
         scene moves as one body: 3 parameters, against 1 + 2 S for amplitudes per series).
         The frequency is refined on a fine grid about the periodogram's peak (the coherent sum's
@@ -211,9 +213,10 @@ class ExtraPeriodic(Effect):
             ctx, fit.series, fit.states, 3, p_value, f_hat, sigma_f, half, (amp, amp_sig),
             f"moves {where} alike by about {amp:.3f} mm along {axis}",
             {"mode": "common", "amplitude_axis": axis},
+            trials,
         )
 
-    def _refine(self, ctx, states, kept, f_peak, p_value) -> Proposal | None:
+    def _refine(self, ctx, states, kept, f_peak, p_value, trials) -> Proposal | None:
         ts, rs, ws, nus = [], [], [], []
         for i in kept:
             s, st = ctx.series[i], states[i]
@@ -229,10 +232,10 @@ class ExtraPeriodic(Effect):
         sigma_f = float(math.sqrt(max(fit.theta_cov[0, 0], 0.0)))
         means = [states[i].mean + fit.fitted[j] for j, i in enumerate(kept)]
         return self._proposal(
-            ctx, states, kept, float(fit.theta[0]), sigma_f, fit.beta_cov, fit.beta, means, p_value
+            ctx, states, kept, float(fit.theta[0]), sigma_f, fit.beta_cov, fit.beta, means, p_value, trials
         )
 
-    def _proposal(self, ctx, states, kept, f_hat, sigma_f, covs, betas, means, p_value) -> Proposal:
+    def _proposal(self, ctx, states, kept, f_hat, sigma_f, covs, betas, means, p_value, trials) -> Proposal:
         new_states = {}
         amps, amp_sig = [], []
         for j, i in enumerate(kept):
@@ -266,6 +269,7 @@ class ExtraPeriodic(Effect):
                 "median_amplitude_by_axis_mm": {ax: float(np.median(v)) for ax, v in by_axis.items()},
                 "amplitude_axis": main,
             },
+            trials,
         )
 
 
@@ -284,6 +288,7 @@ def _line_proposal(
     amplitude: tuple[float, float],
     moves: str,
     detail: dict,
+    trials: float,
 ) -> Proposal:
     """An extra line's proposal over the whole record: frequency and amplitude with σ's, the band
     f ± ``half`` and its explanation (``moves`` says what moves how much)."""
@@ -306,4 +311,6 @@ def _line_proposal(
             "floor that the nominal model leaves out."
         ),
         detail=detail,
+        trials=trials,  # frequencies × statistics × axes (× series picked)
+        scan_params=1,  # the frequency
     )

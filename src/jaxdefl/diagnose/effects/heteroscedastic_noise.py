@@ -31,7 +31,17 @@ import math
 import numpy as np
 
 from .._base import Context, Effect, Proposal, State, keep_series, lstsq
-from .screening import combined_p, gain, median_signed, open_series, param, residual, updated
+from .screening import (
+    combined_p,
+    gain,
+    long_run_factor,
+    median_signed,
+    open_series,
+    param,
+    residual,
+    subset_trials,
+    updated,
+)
 
 __all__ = ["HeteroscedasticNoise", "EFFECT"]
 
@@ -129,9 +139,15 @@ class HeteroscedasticNoise(Effect):
             return []
         fits = {kind: {} for kind in KINDS}
         stat = {kind: np.zeros(len(idx)) for kind in KINDS}
+        infl = np.ones(len(idx))
         for j, i in enumerate(idx):
             st = states[i]
             r = residual(ctx, i, st)
+            # noise correlated from frame to frame (AR(1), ρ) correlates the squared residuals
+            # as ρ²ᵏ: a variance statistic varies (1 + ρ²)/(1 − ρ²) times more than white noise's
+            lr = long_run_factor(ctx, i, r)
+            rho = (lr - 1.0) / (lr + 1.0)
+            infl[j] = (1.0 + rho * rho) / (1.0 - rho * rho)
             inl = st.inlier
             v = (r[inl] / st.scale[inl]) ** 2
             for kind in KINDS:
@@ -144,7 +160,7 @@ class HeteroscedasticNoise(Effect):
                 key = np.clip((frac * N_BINS[kind]).astype(np.int64), 0, N_BINS[kind] - 1)
                 theta, cov, two_gain = fit_scale(*_binned(xi, v, key, N_BINS[kind]))
                 fits[kind][i] = (theta, cov, x)
-                stat[kind][j] = two_gain
+                stat[kind][j] = two_gain / infl[j]
         out = []
         for kind in KINDS:
             k = 2 if kind == "phase" else 1
@@ -156,12 +172,12 @@ class HeteroscedasticNoise(Effect):
                 dof_total=k * len(idx),
                 n_scan_total=len(KINDS),
             )
-            prop = self._proposal(ctx, states, idx, kind, k, stat[kind], fits[kind], p_value)
+            prop = self._proposal(ctx, states, idx, kind, k, stat[kind], fits[kind], p_value, infl)
             if prop is not None:
                 out.append(prop)
         return out
 
-    def _proposal(self, ctx, states, idx, kind, k, stat, fits, p_value) -> Proposal | None:
+    def _proposal(self, ctx, states, idx, kind, k, stat, fits, p_value, infl) -> Proposal | None:
         new, thetas, covs = {}, {}, {}
         for j, i in enumerate(idx):
             if stat[j] <= k * math.log(ctx.series[i].n):
@@ -172,7 +188,7 @@ class HeteroscedasticNoise(Effect):
             w = np.where(st.inlier, 1.0 / scale**2, 0.0)
             _, _, fitted = lstsq(ctx.nuisance(i), residual(ctx, i, st), w)
             cand = updated(st, self.id, k, mean=st.mean + fitted, scale=scale)
-            if keep_series(gain(ctx, i, st, cand), k, ctx.series[i].n):
+            if keep_series(gain(ctx, i, st, cand) / infl[j], k, ctx.series[i].n):
                 new[i], thetas[i], covs[i] = cand, theta, cov
         if not new:
             return None
@@ -220,6 +236,8 @@ class HeteroscedasticNoise(Effect):
             states=new,
             n_params=k * len(kept),
             p_value=p_value,
+            trials=len(KINDS) * subset_trials(len(kept), len(idx)),  # kinds × series picked
+            inflation=float(max(infl[idx.index(i)] for i in kept)),
             parameters=params,
             t_start=0.0,
             t_end=float(ctx.duration_s),

@@ -11,13 +11,15 @@ split at every frame, the weighted likelihood-ratio statistic of a mean change (
 a fixed split), summed over the series (χ²_S) for a common jump, and its sparse version
 (Σ max(T_s − log n, 0)) for a jump on a few series. The p-value is the largest single-series
 statistic Bonferroni-corrected over series × candidate splits, or the summed statistic corrected
-over the candidate splits, whichever is smaller (doubled): conservative, since neighbouring splits
-are strongly correlated. The jump time is refined to the frame on the series that keep it. σ̂²
-is the long-run variance (`screening.long_run_factor`): AR(1)-like noise wanders like steps.
+over the candidate splits, whichever is smaller (doubled); the splits are counted as the scan's
+effective number of independent ones (`screening.changepoint_trials`, Siegmund's approximation:
+neighbouring splits are nearly the same test: thousands of splits count as ~100). The jump time
+is refined to the frame on the series that keep it. σ̂² is the long-run variance
+(`screening.long_run_factor`): AR(1)-like noise wanders like steps.
 
 Common mode: the same scan with one size shared by the series of an axis (Σ_s b_s/σ_s² over
-Σ_s M_s/σ_s² of the CUSUM pieces: χ²_1 at a fixed split, Bonferroni over splits × axes): the
-camera shifting every plate alike, too little on each plate alone. Both proposals go to the
+Σ_s M_s/σ_s² of the CUSUM pieces: χ²_1 at a fixed split, corrected over the effective splits ×
+axes): the camera shifting every plate alike, too little on each plate alone. Both proposals go to the
 search; BIC decides.
 
 Model term: y += δ_s H(t − t_j), t_j shared by the series it touches, δ_s per series: 1 + S
@@ -37,7 +39,9 @@ import numpy as np
 
 from .._base import Context, Effect, Proposal, State, keep_series
 from .screening import (
+    P_SCREEN,
     bonferroni,
+    changepoint_trials,
     chi2_sf,
     combined_p,
     gain,
@@ -46,6 +50,7 @@ from .screening import (
     param,
     project_out,
     shared_amplitude,
+    subset_trials,
     updated,
     weights,
 )
@@ -114,7 +119,7 @@ class LevelJump(Effect):
             if prop is not None:
                 out.append(prop)
         logn = np.array([math.log(ctx.series[i].n) for i in idx])
-        n_cand = hi - lo
+        n_cand = changepoint_trials(EDGE, hi - lo)  # effective splits
         total = stat.sum(axis=0)
         sparse = np.maximum(stat - logn[:, None], 0.0).sum(axis=0)
         p_value = combined_p(
@@ -156,6 +161,7 @@ class LevelJump(Effect):
                 new,
                 1 + len(kept),
                 p_value,
+                2 * n_cand * subset_trials(len(kept), len(idx)),  # splits, common or per series
                 (t_j, sig_t, size, size_sigma),
                 f"The measured position of {where} steps by {size:+.3f} mm at t = {t_j:.2f} s "
                 f"and stays there: {who}"
@@ -175,10 +181,10 @@ class LevelJump(Effect):
         with np.errstate(divide="ignore", invalid="ignore"):
             c = np.where(cm > 0, cb * cb / cm, 0.0)
         j = int(np.argmax(c))
-        n_tot = sum(ctx.series[i].n for i in idx)
-        if c[j] <= 2 * math.log(n_tot):
+        n_splits = changepoint_trials(EDGE, c.size)  # effective splits
+        p_value = bonferroni(float(chi2_sf(c[j], 1)), n_splits * n_axes)
+        if p_value >= P_SCREEN:
             return None
-        p_value = bonferroni(float(chi2_sf(c[j], 1)), c.size * n_axes)
         m = lo + j
         fit = shared_amplitude(
             ctx, states, idx, lambda i: (ctx.series[i].k > m).astype(float)[:, None], None, self.id
@@ -202,6 +208,7 @@ class LevelJump(Effect):
             fit.states,
             2,
             p_value,
+            2 * n_splits * n_axes,  # splits × axes, common or per series
             (t_j, sig_t, size, size_sigma),
             f"All of {where} step by {size:+.3f} mm at t = {t_j:.2f} s and stay there: the camera "
             "changed its levels at once — a structured-light re-calibration or an integration-time "
@@ -209,7 +216,9 @@ class LevelJump(Effect):
             {"mode": "common"},
         )
 
-    def _proposal(self, ctx, series, states, n_params, p_value, jump, explanation, detail) -> Proposal:
+    def _proposal(
+        self, ctx, series, states, n_params, p_value, trials, jump, explanation, detail
+    ) -> Proposal:
         """A jump's proposal: ``jump`` = (t_j, σ_t, size, σ_size); it lasts to the record's end."""
         t_j, sig_t, size, size_sigma = jump
         return Proposal(
@@ -224,6 +233,8 @@ class LevelJump(Effect):
             band_hz=None,
             explanation=explanation,
             detail=detail,
+            trials=trials,
+            scan_params=1,  # the jump time
         )
 
     def _at(self, ctx: Context, states: list[State], idx: list[int], m: int, margin: float):

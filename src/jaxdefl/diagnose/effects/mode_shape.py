@@ -36,7 +36,7 @@ import numpy as np
 from .._base import Context, Effect, Proposal, State, loglik, masked_fourier
 from .._varpro import fit_shared
 from .extra_periodic import LOCAL_BINS, OVERSAMPLE, line_band, local_median
-from .screening import param, shared_amplitude
+from .screening import param, scanned, shared_amplitude
 
 __all__ = ["ModeShape", "EFFECT", "ORDERS", "GAPS", "plate_positions", "mode_shapes"]
 
@@ -120,6 +120,7 @@ class ModeShape(Effect):
             p = -math.expm1(m_freq * math.log1p(-math.exp(-z))) if z > 0 else 1.0
             p = min(1.0, n_shapes * p)
             prop = self._proposal(ctx, states, idx, n, float(GAPS[gi]), phi[gi], float(freq[j]), p, freq)
+            prop = scanned(prop, m_freq * n_shapes, 1)  # frequencies × shapes; the frequency
             if prop is not None:
                 out.append(prop)
         return out

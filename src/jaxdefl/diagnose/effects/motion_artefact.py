@@ -41,7 +41,7 @@ from .shared_fits import (
 
 __all__ = ["MotionArtefact", "EFFECT"]
 
-P_MAX = 1e-3  # weaker signatures cannot pass the search's Bonferroni (α = 0.01 over ~10 effects)
+P_MAX = 5e-3  # weaker signatures cannot pass the search's level (α = 0.05 over ~10 effects)
 
 
 class MotionArtefact(TiedEffect):

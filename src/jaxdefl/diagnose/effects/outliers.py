@@ -27,7 +27,7 @@ import numpy as np
 from scipy import stats
 
 from .._base import Context, Effect, Proposal, State, keep_series, lstsq
-from .screening import bonferroni, gain, param, residual, touched, updated
+from .screening import bonferroni, gain, param, residual, subset_trials, touched, updated
 
 __all__ = ["Outliers", "EFFECT"]
 
@@ -181,6 +181,7 @@ class Outliers(Effect):
                 states=new,
                 n_params=2 * len(kept),
                 p_value=p_value,
+                trials=len(THRESHOLDS) * subset_trials(len(kept), len(p_tail)),  # thresholds × series
                 parameters={"fraction": param(frac, frac_sig), "scale_mm": param(scale, scale_sig)},
                 t_start=0.0,
                 t_end=float(ctx.duration_s),

@@ -294,7 +294,7 @@ class Quantization(Effect):
                 best = cand
         if best is None:
             return []
-        return [self._proposal(ctx, best, p_value)]
+        return [self._proposal(ctx, best, p_value, float(nus.size))]  # the step's grid
 
     def _refine(self, ctx, states, idx, bins, spans, q0, d_nu) -> dict | None:
         """(q, φ_s) on the exact staircase near q0: q shared, the staircase's phase φ_s per series.
@@ -351,7 +351,7 @@ class Quantization(Effect):
         score = 2 * sum(kept_gain.values()) - n_params * logn_all
         return dict(score=score, q=q, sig_q=sig_q, offsets=levels, new=new, kept=kept, n_params=n_params)
 
-    def _proposal(self, ctx: Context, best: dict, p_value: float) -> Proposal:
+    def _proposal(self, ctx: Context, best: dict, p_value: float, trials: float) -> Proposal:
         kept, q = best["kept"], best["q"]
         offs = np.array([best["offsets"][i] for i in kept])
         # a circular median of the offsets on the step's circle
@@ -372,6 +372,8 @@ class Quantization(Effect):
             states=best["new"],
             n_params=best["n_params"],
             p_value=p_value,
+            trials=trials,
+            scan_params=1,  # the step
             parameters={
                 "step_mm": param(q, best["sig_q"]),
                 "offset_mm": param(o, sig_o),

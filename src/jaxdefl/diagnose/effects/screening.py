@@ -32,7 +32,52 @@ __all__ = [
     "median_signed",
     "SharedAmplitude",
     "shared_amplitude",
+    "P_SCREEN",
+    "subset_trials",
+    "changepoint_trials",
+    "scanned",
 ]
+
+# A signature weaker than this cannot pass the search's calibrated test (α = 0.05 over ~10
+# effects, `_search.Calibration`): screens propose up to it, the search decides.
+P_SCREEN = 5e-3
+
+
+def subset_trials(n_kept: int, n_candidates: int) -> float:
+    """The look-elsewhere factor of picking the series a per-series term is kept on: under no
+    effect the likeliest pick is one series of ``n_candidates`` (Bonferroni over them); a term
+    kept on all candidates was not picked."""
+    return 1.0 if n_kept >= n_candidates else float(n_candidates)
+
+
+def scanned(prop, trials: float, scan_params: int):
+    """``prop`` (and the refit its ``refine`` returns) with its scan's look-elsewhere factor
+    and the parameters the scan fixed (`Proposal.trials`, `Proposal.scan_params`)."""
+
+    def mark(q):
+        if q is not None:
+            q.trials, q.scan_params = float(trials), int(scan_params)
+        return q
+
+    if prop is not None:
+        mark(prop)
+        if prop.refine is not None:
+            prop.refine = (lambda f: lambda: mark(f()))(prop.refine)
+    return prop
+
+
+def changepoint_trials(edge: float, n_splits: int, u: float = 25.0) -> float:
+    """The effective number of independent splits of a mean-change scan over the fractions
+    [edge, 1 − edge] of a record: neighbouring splits are nearly the same test. Siegmund's
+    approximation of the maximum of the standardised CUSUM (a Brownian bridge over √(s(1 − s))),
+    P(max > u) ≈ √u φ(√u) · 2 log((1 − edge)/edge) + 4 φ(√u)/√u, over one split's χ²_1 tail, at
+    u = 25 (above the critical values the search uses: the ratio grows with u, so this errs on
+    the safe side); at most the number of splits. Checked by simulation: 7000 splits, edge 0.01,
+    P(max > 15) 0.0087 simulated against 0.0081."""
+    b = math.sqrt(u)
+    phi = math.exp(-0.5 * u) / math.sqrt(2 * math.pi)
+    tail = b * phi * 2.0 * math.log((1.0 - edge) / edge) + 4.0 * phi / b
+    return float(min(max(tail / float(stats.chi2.sf(u, 1)), 1.0), max(n_splits, 1)))
 
 
 def residual(ctx: Context, i: int, st: State) -> np.ndarray:

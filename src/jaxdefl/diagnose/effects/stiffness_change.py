@@ -45,7 +45,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._base import Context, Effect, Proposal, State
-from .screening import bonferroni, chi2_sf
+from .screening import bonferroni, chi2_sf, scanned
 from .shared_fits import Carriers, param
 
 __all__ = ["StiffnessChange", "EFFECT"]
@@ -130,7 +130,7 @@ class StiffnessChange(Effect):
         for variant in (v for v in VARIANTS if crit[v] >= best - 10.0):
             prop = self._variant(ctx, states, car, scan, variant)
             if prop is not None:
-                out.append(prop)
+                out.append(scanned(prop, scan["n_scan"] * len(VARIANTS), 1))  # change times × variants
         return out
 
     # -- the scan over split times ------------------------------------------------------------
