@@ -106,7 +106,13 @@ harmonics 25-45 % lower in the two loaded pairs but about the same at load 4.5 (
 1.8-2.0 s), where its steady time is the periodogram, the projection evaluations (p = 1: the
 solver's own work was small) and the residual statistics. From the quiet 13:36 figures (18.1x
 and 17.5x) the damped model should now clear 20x (~22-24x); the harmonics' margin is not
-shown. Not yet measured on a quiet machine.
+shown.
+
+16:02, on a quiet machine (nothing else running; load 2.7 -> 2.7 with the benchmark itself; the
+loop 12-16 ms a window for harmonics, 7.1-7.4 for damped, as quiet before), main at 3c4bc11 with
+every merge of the session: harmonics 40.5, 29.6, 26.6x (median 29.6x; jaxdefl 0.95-1.21 s a
+round, 1.50-1.58 s at 13:36), lines 34.4, 29.8, 28.2x (29.8x; 0.99-1.25 s), damped 23.1, 21.0,
+23.1x (23.1x; 0.74-0.79 s, 0.92-1.00 s at 13:36). The 20x target is met by all three models.
 
 What changed: (1) optimistix solves the variable projection's Gauss-Newton on a residual of
 p + 1 numbers (f̃ = [L⁻¹Jᵀf, (|f|² - |L⁻¹Jᵀf|²)^½], J̃ = [Lᵀ; 0], JᵀJ = LLᵀ: the same steps and
