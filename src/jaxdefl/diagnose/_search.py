@@ -59,6 +59,7 @@ DELTA_BIC_MAX = -10.0  # very strong evidence (Kass & Raftery): the open world's
 ALPHA = 0.01  # the residual tests' level (`Diagnosis.unexplained`)
 ALPHA_NAMED = 0.05  # family-wise false-alarm rate of a record's named effects
 MAX_EFFECTS = 8
+FINALISTS = 2  # effects refined before BIC chooses one in a round
 # Residual RMS below which a table is taken for noise-free (0.1 µm: far below any range camera's
 # or laser sensor's noise; a simulation's truth written with 6 decimals sits near 3e-7 mm).
 NOISE_FLOOR_MM = 1e-4
@@ -481,6 +482,7 @@ def run_diagnosis(
         scored.sort(key=lambda x: x[0])  # BIC chooses between the explanations that pass
         chosen = None
         tried = set()
+        finalists: list[Accepted] = []
         for _, lr, crit, eid in scored:
             if eid in tried or not lr > crit:
                 continue
@@ -497,10 +499,15 @@ def run_diagnosis(
                         d2, q0, q1, lr2 = _score(ctx, states, q, n_total, corr)
                         if calib.passes(q, lr2, q0, q1):
                             d, r0, r1, lr, p = d2, q0, q1, lr2, q
-                chosen = Accepted(p, d, r0, r1, {i: states[i] for i in p.series}, lr, calib.critical(p))
+                finalists.append(Accepted(p, d, r0, r1, {i: states[i] for i in p.series}, lr, calib.critical(p)))
                 break
-            if chosen is not None:
+            # BIC chooses among the FINALISTS refined, not their screening proposals: a line's
+            # coarse proposal near f0 scores far below its refined fit, and a neighbour's
+            # (a mode on half of the plates) would otherwise go first
+            if len(finalists) == FINALISTS:
                 break
+        if finalists:
+            chosen = min(finalists, key=lambda a: a.delta_bic)
         # The open world competes: a generic term far better than the named candidate (a free
         # decay read as a noise level that changes, say) goes first, as unnamed. Far better means
         # a better mean than a noise-structure effect's (a decaying mode makes the residual's

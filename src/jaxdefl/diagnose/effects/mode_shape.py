@@ -11,7 +11,8 @@ above the frame rate aliases to its folded frequency).
 Signature: the residuals' Fourier coefficients of the z series (normalised: unit power under
 white noise, 2× zero-padded), combined with the weights φ_p/σ_p of a shape φ (matched filter:
 Exp(1) power under the null, whatever the signs across the plates), for the shapes sin(nπ ξ),
-n = 1..3, ξ = the plates' positions along the span with the supports a gap g beyond the end plates
+n = 2, 3 (the modes whose plates move in opposition; a line in the first mode's shape, alike in
+sign on every plate, is `extra_periodic`'s: one name for one shape), ξ = the plates' positions along the span with the supports a gap g beyond the end plates
 (g on a grid of 0-20 % of the plates' extent; positions from the x series' offsets, else equally
 spaced plates). Each statistic is divided by its running median over the spectrum (coloured noise
 and noise shared by the plates of a frame raise the null's level, a line does not), away from the
@@ -40,7 +41,7 @@ from .screening import param, scanned, shared_amplitude
 
 __all__ = ["ModeShape", "EFFECT", "ORDERS", "GAPS", "plate_positions", "mode_shapes"]
 
-ORDERS = (1, 2, 3)
+ORDERS = (2, 3)  # the first mode's shape is the load's deflection shape: `extra_periodic`'s line
 GAPS = np.linspace(0.0, 0.2, 9)  # support beyond the end plates, fraction of the plates' extent
 
 
