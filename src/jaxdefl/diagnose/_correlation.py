@@ -44,6 +44,7 @@ class FrameCorrelation:
 
     index: dict[int, tuple[str, int]]
     matrix: dict[str, np.ndarray]
+    n_frames: int = 0  # frames behind the estimate (0: unknown, no eigenvalue rule)
 
     def mean_offdiagonal(self, axis: str) -> float:
         r = self.matrix[axis]
@@ -51,7 +52,8 @@ class FrameCorrelation:
         return float((r.sum() - m) / (m * (m - 1))) if m > 1 else 0.0
 
     def design_effect(self, series: list[int], shape: dict[int, float] | None = None) -> dict[str, float]:
-        """Per axis, d = 1ᵀR1 / m over the given series of that axis (≥ 1); for a term with a
+        """Per axis, d = λ_max(R) over the given series of that axis (≥ 1; = 1ᵀR1 / m for
+        equicorrelated noise); for a term with a
         factor φ per series (`Proposal.shape`), d = φᵀRφ / φᵀφ (an antisymmetric pattern is not
         mimicked by noise common to the frame: d stays 1)."""
         cols: dict[str, list[int]] = {}
@@ -63,6 +65,20 @@ class FrameCorrelation:
         out = {}
         for axis, c in cols.items():
             r = self.matrix[axis][np.ix_(c, c)]
+            if shape is None:
+                # the term's pattern across the plates is not known (its size per plate follows
+                # the plate's own motion, its sign the side of the camera the plate is on). A
+                # common range error moves plates either side of the camera's axis in opposite x
+                # directions: correlations of both signs, a mean near 0, yet as much shared noise
+                # as on z. R's largest eigenvalue (the worst pattern) is taken when it stands
+                # above what independent noise gives a sample correlation (the Marchenko-Pastur
+                # edge (1 + √(m/n))²), else the equal-terms value.
+                m = len(c)
+                eq = float(r.sum()) / m
+                lam = float(np.linalg.eigvalsh(r)[-1]) if m > 1 else 1.0
+                edge = (1.0 + np.sqrt(m / max(self.n_frames, 1))) ** 2
+                out[axis] = max(1.0, eq, lam if lam > edge else 1.0)
+                continue
             w = np.asarray(wts[axis])
             out[axis] = max(1.0, float(w @ r @ w) / max(float(w @ w), 1e-300))
         return out
@@ -108,4 +124,4 @@ def frame_correlation(ctx: Context, states: list[State]) -> FrameCorrelation:
         r = np.clip(r, -1.0, 1.0)
         np.fill_diagonal(r, 1.0)
         matrix[axis] = r
-    return FrameCorrelation(index, matrix)
+    return FrameCorrelation(index, matrix, n_frames)
