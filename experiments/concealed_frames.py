@@ -279,7 +279,11 @@ def main(argv=None):
     alpha = 0.05 / len(EFFECT_IDS)
     s95 = oracle_signal(0.95, alpha)
     eff = cases[cases.effect != "control"]
-    curve = eff.pivot_table(index="effect", columns="target_s", values="detected", aggfunc="mean")
+    curve = (
+        eff.pivot_table(index="effect", columns="target_s", values="detected", aggfunc="mean")
+        if len(eff)
+        else pd.DataFrame()
+    )
     curve.to_csv(args.out / "curve.csv")
     ctl = cases[cases.effect == "control"]
     print(f"\nframe-level detection ({'held out: ' + args.held_out if args.held_out else 'named and located'}),"
