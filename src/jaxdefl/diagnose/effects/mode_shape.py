@@ -71,6 +71,17 @@ def _term(theta, t, aux):
     return phi * (a * jnp.cos(arg) + b * jnp.sin(arg))
 
 
+def _weighted_residual(ctx: Context, states: list[State], i: int):
+    """Series ``i``'s weights (inliers over their scale²), residual, weighted-mean-free residual
+    and that residual's weighted variance."""
+    s, st = ctx.series[i], states[i]
+    w = np.where(st.inlier, 1.0 / st.scale**2, 0.0)
+    r = s.y - st.mean
+    rc = r - np.sum(w * r) / max(np.sum(w), 1e-300)
+    s2 = float(np.sum(w * rc * rc)) / max(float(np.sum(w)), 1e-300) or 1e-300
+    return w, r, rc, s2
+
+
 class ModeShape(Effect):
     id = "mode_shape"
     meaning = "another bending mode of the beam: every plate moving in the mode's shape sin(n pi x/L)"
@@ -132,11 +143,8 @@ class ModeShape(Effect):
         parts = []
         info = 0.0
         for i in idx:
-            s, st = ctx.series[i], states[i]
-            w = np.where(st.inlier, 1.0 / st.scale**2, 0.0)
-            r = s.y - st.mean
-            rc = r - np.sum(w * r) / max(np.sum(w), 1e-300)
-            s2 = float(np.sum(w * rc * rc)) / max(float(np.sum(w)), 1e-300) or 1e-300
+            s = ctx.series[i]
+            w, r, rc, s2 = _weighted_residual(ctx, states, i)
             parts.append((s.t, shape[i] * w * rc / s2))
             info += shape[i] ** 2 * float(np.sum(w)) / s2
         step = freq[1] - freq[0]
@@ -171,11 +179,8 @@ class ModeShape(Effect):
         lo, ext = float(x.min()), max(float(x.max() - x.min()), 1e-9)
         ts, rs, ws, nus = [], [], [], []
         for i in idx:
-            s, st = ctx.series[i], states[i]
-            w = np.where(st.inlier, 1.0 / st.scale**2, 0.0)
-            r = s.y - st.mean
-            rc = r - np.sum(w * r) / max(np.sum(w), 1e-300)
-            s2 = float(np.sum(w * rc * rc)) / max(float(np.sum(w)), 1e-300) or 1e-300
+            s = ctx.series[i]
+            w, r, rc, s2 = _weighted_residual(ctx, states, i)
             ts.append(s.t)
             rs.append(r)
             ws.append(w / s2)
