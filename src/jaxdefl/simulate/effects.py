@@ -75,7 +75,7 @@ import numpy as np
 import pandas as pd
 
 from .config import SimConfig, config_from_dict
-from .injection import make_spec, motion_terms, shake_displacement
+from .injection import make_spec, motion_modulations, shake_displacement
 from .lds import frame_clock, truth_table
 from .writer import simulate_trajectories
 
@@ -339,18 +339,7 @@ def _modulations(base: CleanRecording, effects: Sequence[Mapping]):
                 params["t_ref_s"] = base.t_mid - base.t_first
             specs.append(make_spec(eid, params))
     ids = {sp.id for sp in specs}
-
-    def motion(t):
-        return motion_terms(tuple(specs), np.asarray(t, np.float64) - base.t_first, base.f0)
-
-    def gain(t):
-        m = motion(t)
-        return m.gain * m.amplitude
-
-    def shift(t):
-        m = motion(t)
-        return m.shift + m.load_phase
-
+    gain, shift, _ = motion_modulations(tuple(specs), base.t_first, base.f0)
     am = gain if ids & {"amplitude_modulation", "stiffness_change"} else None
     fm = shift if ids & {"frequency_modulation", "stiffness_change"} else None
     return am, fm
