@@ -178,14 +178,14 @@ def test_frame_common_noise_discounts_a_term_by_its_pattern_across_the_plates():
 
     m, rho = 8, 0.6
     r = np.full((m, m), rho) + (1 - rho) * np.eye(m)
-    corr = FrameCorrelation({i: ("z", i) for i in range(m)}, {"z": r})
+    corr = FrameCorrelation(("z",) * m, r)
     series = list(range(m))
-    assert corr.design_effect(series)["z"] == pytest.approx(1 + (m - 1) * rho)
+    assert corr.design_effect(series) == pytest.approx(1 + (m - 1) * rho)
     anti = {i: (1.0 if i < m // 2 else -1.0) for i in series}
-    assert corr.design_effect(series, anti)["z"] == 1.0
+    assert corr.design_effect(series, anti) == 1.0
     phi = 0.4 + np.sin(np.pi * (np.arange(m) + 0.5) / m)  # a first-mode-like hump on an offset
     rng = np.random.default_rng(0)
     noise = rng.multivariate_normal(np.zeros(m), r, size=200_000)
     ratio = np.var(noise @ phi) / (phi @ phi)
-    d = corr.design_effect(series, dict(enumerate(phi)))["z"]
+    d = corr.design_effect(series, dict(enumerate(phi)))
     assert d > 2 and d == pytest.approx(ratio, rel=0.02)

@@ -232,7 +232,7 @@ class Diagnosis:
             latest[e["id"]] = e
         nominal = self._summary(self.nominal, self.tests_nominal)
         if self.corr is not None:
-            axes = sorted(self.corr.matrix)
+            axes = sorted(set(self.corr.axes))
             nominal["frame_correlation"] = {a: self.corr.mean_offdiagonal(a) for a in axes}
         nominal["series"] = [
             {
@@ -335,8 +335,8 @@ def _score(
     """(ΔBIC, RMS before, RMS after, LR = 2 Δlog L) of a proposal; RMS likelihood-equivalent
     over its series.
 
-    With ``corr``, each axis' share of Δlog L is divided by its design effect: noise shared by
-    the plates of a frame is not evidence for a term shared by the plates (`_correlation`).
+    With ``corr``, Δlog L is divided by the series' design effect: noise shared by the plates
+    of a frame, or by a plate's axes, is not evidence for a term they share (`_correlation`).
     """
     ll0 = ll1 = 0.0
     n = 0
@@ -356,7 +356,7 @@ def _score(
         n += ctx.series[i].n
     if not (math.isfinite(ll0) and math.isfinite(ll1)) or n == 0:
         return math.inf, math.nan, math.nan, -math.inf
-    gain = ll1 - ll0 if corr is None else corr.discount(ctx, p, dll)
+    gain = ll1 - ll0 if corr is None else corr.discount(dll, p.shape)
     dbic = -2.0 * gain + p.n_params * math.log(n_total)
     return dbic, rms_equivalent(ll0, n), rms_equivalent(ll1, n), 2.0 * gain / max(p.inflation, 1.0)
 
@@ -430,7 +430,7 @@ def run_diagnosis(
 
     n_total = sum(s.n for s in ctx.series)
     corr = frame_correlation(ctx, nominal)
-    for axis in sorted(corr.matrix):
+    for axis in sorted(set(corr.axes)):
         rho = corr.mean_offdiagonal(axis)
         if rho > 0.05:
             notes.append(
@@ -438,6 +438,18 @@ def run_diagnosis(
                 "frame-to-frame differences of the residuals): evidence for effects alike on "
                 "several plates is discounted by the design effect 1 + (m − 1)ρ"
             )
+    same_plate = [
+        abs(corr.matrix[i, j])
+        for i, a in enumerate(ctx.series)
+        for j, b in enumerate(ctx.series)
+        if i < j and a.plate == b.plate
+    ]
+    if same_plate and float(np.mean(same_plate)) > 0.5:
+        notes.append(
+            f"a plate's axes share their noise (mean |ρ| = {np.mean(same_plate):.2f} between the "
+            "axes of a plate: a range error moves the centroid along its line of sight): an "
+            "effect's evidence on a plate is counted once, not once per axis"
+        )
     states = list(nominal)
     accepted: list[Accepted] = []
     terms: list[UnnamedTerm] = []

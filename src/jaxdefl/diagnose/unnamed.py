@@ -215,13 +215,12 @@ class _Noise:
         return _ar1_of(self.ctx.series[i], self.states[i], mean)[0]
 
     def gain(self, means: dict[int, np.ndarray]) -> float:
-        """Δlog L of new means of a term over its series, each axis' share divided by the
-        frame correlation's design effect (`_correlation`) when the search has one."""
+        """Δlog L of new means of a term over its series, divided by the frame
+        correlation's design effect (`_correlation`) when the search has one."""
         dll = {i: self.loglik(i, m) - self.base(i) for i, m in means.items()}
         if self.corr is None:
             return sum(dll.values())
-        d = self.corr.design_effect(list(dll))
-        return sum(v / d[self.ctx.series[i].axis] for i, v in dll.items())
+        return self.corr.discount(dll)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -295,8 +294,7 @@ def _score(ctx, noise, states, corr, cand, n_total) -> float:
     for i in cand.series:
         dll[i] = noise.loglik(i, cand.means[i]) - noise.base(i)
     if corr is not None:
-        d = corr.design_effect(cand.series)
-        gain = sum(v / d[ctx.series[i].axis] for i, v in dll.items())
+        gain = corr.discount(dll)
     else:
         gain = sum(dll.values())
     return -2.0 * gain + cand.n_params * math.log(n_total)
@@ -718,8 +716,7 @@ def _gls_covariance(ctx, states, c, blocks, n_shared, corr=None) -> np.ndarray:
         off += k
     cov = np.linalg.pinv(m, rcond=1e-12, hermitian=True)
     if corr is not None and n_shared:
-        d = corr.design_effect([b[0] for b in blocks])
-        f = math.sqrt(max(d.values()))
+        f = math.sqrt(corr.design_effect([b[0] for b in blocks]))
         cov[:n_shared, :] *= f
         cov[:, :n_shared] *= f
     return cov
