@@ -171,10 +171,10 @@ def test_the_whole_search_names_the_effect_not_its_neighbour(eid, neighbour):
 
 def test_frame_common_noise_discounts_a_term_by_its_pattern_across_the_plates():
     """Kish's design effect of a term φ on equicorrelated plates (ρ): wᵀRw/wᵀw, i.e. 1 + (m − 1)ρ
-    for a term alike on every plate, 1 − ρ (kept at 1: never credited) for an antisymmetric one,
-    and for any pattern the variance of the φ-weighted sum of correlated noise over that of
-    independent noise (checked by sampling)."""
-    from jaxdefl.diagnose._correlation import FrameCorrelation
+    for a term alike on every plate, 1 − ρ for an antisymmetric one (the common noise cancels in
+    it: credited, down to D_MIN), and for any pattern the variance of the φ-weighted sum of
+    correlated noise over that of independent noise (checked by sampling)."""
+    from jaxdefl.diagnose._correlation import D_MIN, FrameCorrelation
 
     m, rho = 8, 0.6
     r = np.full((m, m), rho) + (1 - rho) * np.eye(m)
@@ -182,10 +182,36 @@ def test_frame_common_noise_discounts_a_term_by_its_pattern_across_the_plates():
     series = list(range(m))
     assert corr.design_effect(series) == pytest.approx(1 + (m - 1) * rho)
     anti = {i: (1.0 if i < m // 2 else -1.0) for i in series}
-    assert corr.design_effect(series, anti) == 1.0
+    assert corr.design_effect(series, anti) == pytest.approx(1 - rho)
+    strong = FrameCorrelation(("z",) * m, np.full((m, m), 0.99) + 0.01 * np.eye(m))
+    assert strong.design_effect(series, anti) == D_MIN
     phi = 0.4 + np.sin(np.pi * (np.arange(m) + 0.5) / m)  # a first-mode-like hump on an offset
     rng = np.random.default_rng(0)
     noise = rng.multivariate_normal(np.zeros(m), r, size=200_000)
     ratio = np.var(noise @ phi) / (phi @ phi)
     d = corr.design_effect(series, dict(enumerate(phi)))
     assert d > 2 and d == pytest.approx(ratio, rel=0.02)
+
+
+def test_a_known_pattern_s_likelihood_ratio_over_its_design_effect_is_chi_square_in_common_noise():
+    """The series-by-series fit of one amplitude in a known pattern φ, scored as if the series
+    were independent, gives LR = d · χ²₁ under frame-common noise (d = φᵀRφ/φᵀφ): dividing by d
+    calibrates it whether d is above 1 (a pattern alike on the plates) or below (antisymmetric)."""
+    from jaxdefl.diagnose._correlation import FrameCorrelation
+
+    m, rho, n, reps = 7, 0.75, 400, 2000
+    r = np.full((m, m), rho) + (1 - rho) * np.eye(m)
+    corr = FrameCorrelation(("z",) * m, r, n)
+    rng = np.random.default_rng(5)
+    g = np.cos(2 * np.pi * 0.071 * np.arange(n))  # the term's time course
+    chol = np.linalg.cholesky(r)
+    for phi in (np.ones(m), np.linspace(-1, 1, m), np.sin(2 * np.pi * (np.arange(m) + 0.5) / m)):
+        d = corr.design_effect(list(range(m)), dict(enumerate(phi)))
+        lr = np.empty(reps)
+        for k in range(reps):
+            e = rng.standard_normal((n, m)) @ chol.T  # unit variance per series, correlated
+            a = (g @ e @ phi) / ((g @ g) * (phi @ phi))  # least squares over the series
+            lr[k] = a * a * (g @ g) * (phi @ phi)  # 2 Δlog L with σ = 1, series independent
+        ratio = lr / d
+        assert np.mean(ratio) == pytest.approx(1.0, abs=0.1)
+        assert np.mean(ratio > 3.841) == pytest.approx(0.05, abs=0.02)

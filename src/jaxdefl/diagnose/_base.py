@@ -389,7 +389,13 @@ class Effect(abc.ABC):
             return self.plausible * ctx.duration_s / math.sqrt(12)
         raise ValueError(f"plausible_unit: unknown unit {u!r}")
 
-    def expected_delta_bic(self, ctx: Context) -> float:
+    def gate_design_effect(self, ctx: Context, corr) -> float:
+        """The smallest design effect (`_correlation`) the effect's term can have on this
+        record's noise: its evidence at a plausible size is divided by it. 1 unless the term
+        has a known pattern across the series (an effect with one overrides this)."""
+        return 1.0
+
+    def expected_delta_bic(self, ctx: Context, design_effect: float = 1.0) -> float:
         """ΔBIC an effect of plausible size would reach on this record: −Σ n_s (rms_s/σ_s)² +
         k log N over the series, σ_s each series' noise (`Context.noise_sigma`). The evidence
         grows as SNR² × samples: a short clean record is told, a long noisy one may not be."""
@@ -400,15 +406,17 @@ class Effect(abc.ABC):
             sig = ctx.noise_sigma(i)
             if sig > 0 and math.isfinite(sig):
                 signal += s.n * (self.plausible_rms(ctx, i) / sig) ** 2
-        return -signal + self.gate_params * math.log(max(n_total, 2))
+        return -signal / design_effect + self.gate_params * math.log(max(n_total, 2))
 
-    def cannot_tell(self, ctx: Context) -> str | None:
-        """Why this effect cannot be told on this record, or None when it can."""
+    def cannot_tell(self, ctx: Context, corr=None) -> str | None:
+        """Why this effect cannot be told on this record, or None when it can; ``corr``: the
+        noise's correlation across the series of a frame (`_correlation.FrameCorrelation`), for
+        an effect whose evidence depends on its pattern (`gate_design_effect`)."""
         if self.needs_reference and not ctx.reference:
             return "needs a reference (--reference LDS.csv) on at least one plate"
         if len(ctx.plates) < self.min_plates:
             return f"needs at least {self.min_plates} plates, the table has {len(ctx.plates)}"
-        dbic = self.expected_delta_bic(ctx)
+        dbic = self.expected_delta_bic(ctx, 1.0 if corr is None else self.gate_design_effect(ctx, corr))
         if not dbic < GATE_DELTA_BIC:
             return (
                 f"not enough evidence: an effect of plausible size would reach ΔBIC {dbic:.0f} on "

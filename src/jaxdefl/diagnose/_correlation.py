@@ -31,10 +31,13 @@ import numpy as np
 
 from ._base import Context, Proposal, State
 
-__all__ = ["FrameCorrelation", "frame_correlation"]
+__all__ = ["D_MIN", "FrameCorrelation", "frame_correlation"]
 
 # Pairs with fewer common differences than this get no correlation (ρ = 0).
 _MIN_PAIRS = 50
+# The smallest design effect credited to a term of known pattern (at most 1/D_MIN times the
+# independent-noise evidence).
+D_MIN = 0.15
 
 
 @dataclass(frozen=True)
@@ -59,10 +62,10 @@ class FrameCorrelation:
         return float((r.sum() - m) / (m * (m - 1))) if m > 1 else 0.0
 
     def design_effect(self, series: list[int], shape: dict[int, float] | None = None) -> float:
-        """d over the given series, axes together (≥ 1): for a term with a factor φ per series
-        (`Proposal.shape`), d = φᵀRφ / φᵀφ (an antisymmetric pattern is not mimicked by noise
-        common to the frame: d stays 1); for a term whose pattern is not known, R's largest
-        eigenvalue (the worst pattern; = 1ᵀR1 / m for equicorrelated noise)."""
+        """d over the given series, axes together: for a term with a factor φ per series
+        (`Proposal.shape`), d = φᵀRφ / φᵀφ (≥ D_MIN; below 1 for a pattern in which noise common
+        to the frame cancels, as in an antisymmetric mode); for a term whose pattern is not known,
+        R's largest eigenvalue (the worst pattern; = 1ᵀR1 / m for equicorrelated noise; ≥ 1)."""
         c = sorted(set(series))
         r = self.matrix[np.ix_(c, c)]
         if shape is None:
@@ -77,8 +80,13 @@ class FrameCorrelation:
             lam = float(np.linalg.eigvalsh(r)[-1]) if m > 1 else 1.0
             edge = (1.0 + np.sqrt(m / max(self.n_frames, 1))) ** 2
             return max(1.0, eq, lam if lam > edge else 1.0)
+        # A known pattern φ: the series-by-series fit's amplitude has variance d times the
+        # independent-noise one, so Δlog L / d is calibrated whether d is above or below 1 (an
+        # antisymmetric mode in frame-common noise: the common part cancels in φ, d = 1 − ρ,
+        # and the term carries more evidence than independent noise would give it). Floored:
+        # R is estimated, and a pattern it calls nearly noise-free is not trusted beyond D_MIN.
         w = np.asarray([float(shape.get(i, 0.0)) for i in c])
-        return max(1.0, float(w @ r @ w) / max(float(w @ w), 1e-300))
+        return max(D_MIN, float(w @ r @ w) / max(float(w @ w), 1e-300))
 
     def discount(self, dll: dict[int, float], shape: dict[int, float] | None = None) -> float:
         """Σ Δlog L over a term's series (per-series ``dll``) divided by their design effect."""

@@ -416,8 +416,9 @@ def run_diagnosis(
             f"the residuals about the nominal model are {np.median(rms):.1e} mm RMS (median over "
             "series): a noise-free table (a simulation's truth, rounded on writing)"
         )
+    corr = frame_correlation(ctx, nominal)
     for eid, eff in library.items():
-        why = eff.cannot_tell(ctx)
+        why = eff.cannot_tell(ctx, corr)
         if why is None and noise_free:
             why = (
                 f"the table carries no measurement noise (residual RMS below {NOISE_FLOOR_MM:g} mm): "
@@ -429,7 +430,6 @@ def run_diagnosis(
             cannot_tell.append({"id": eid, "reason": why})
 
     n_total = sum(s.n for s in ctx.series)
-    corr = frame_correlation(ctx, nominal)
     for axis in sorted(set(corr.axes)):
         rho = corr.mean_offdiagonal(axis)
         if rho > 0.05:

@@ -93,6 +93,19 @@ class ModeShape(Effect):
         about a/2 over the plates and time), on the z series (the bending plane) only."""
         return self.plausible / 2 if ctx.series[i].axis == "z" else 0.0
 
+    def gate_design_effect(self, ctx: Context, corr) -> float:
+        """The smallest d of the shapes tried on the z series: in noise common to the frame an
+        antisymmetric mode loses the common part (d ≈ 1 − ρ)."""
+        idx = ctx.indices("z")
+        if len(idx) < 2:
+            return 1.0
+        x = plate_positions(ctx, idx)
+        return min(
+            corr.design_effect(idx, dict(zip(idx, phi, strict=True)))
+            for n in ORDERS
+            for phi in mode_shapes(x, n)
+        )
+
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
         idx = ctx.indices("z")
         if len({ctx.series[i].plate for i in idx}) < self.min_plates:
