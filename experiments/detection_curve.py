@@ -13,10 +13,12 @@ nominal model absorbs (`effect_strength`; no floor: `concealed_effects.py` keeps
 the user's hints only (`concealed_effects.run_case`'s blind call); a case counts as detected when
 the injected id is reported on at least half of its plates (`concealed_effects.score_effect`).
 Controls: the same recordings without an effect; a control is flagged when anything is reported.
-They cycle through three noise kinds (`CONTROL_KINDS`): as drawn (white, half of the ToF records
+They cycle through four noise kinds (`CONTROL_KINDS`): as drawn (white, half of the ToF records
 with frame-common noise), AR(1) noise added with ρ drawn in 0.3-0.8 (`concealed_effects.add_ar1_noise`:
-its marginal σ twice the white one), and frame-common noise forced (a ToF record, 40-85 % of the
-variance shared by the plates of a frame).
+its marginal σ twice the white one), frame-common noise forced (a ToF record, 40-85 % of the
+variance shared by the plates of a frame), and that plus line-of-sight noise (80-99 % of each
+axis' variance the plate's range error along its ray: x, y and z of a plate correlated as the
+extracted SR4000 frames have them, |ρ| 0.9-1.0).
 
 The best possible detector of an effect knows its form up to its size: its log-likelihood ratio
 is then χ²₁ with noncentrality S under white Gaussian noise, so at a false-alarm rate α it
@@ -63,7 +65,7 @@ from jaxdefl.simulate.effects import (  # noqa: E402
 
 DIAGNOSE = "jaxdefl.diagnose:diagnose"
 TARGET = 0.90
-CONTROL_KINDS = ("white", "ar1", "frame_common")
+CONTROL_KINDS = ("white", "ar1", "frame_common", "line_of_sight")
 
 
 def oracle_signal(power: float, alpha: float) -> float:
@@ -80,7 +82,7 @@ def make_case_at(seed: int, effect_id: str | None, signal: float, minutes: float
     noise of kind ``noise`` (`CONTROL_KINDS`)."""
     rng = np.random.default_rng([int(seed), 7100])
     sensor = reference = None
-    if noise == "frame_common":
+    if noise in ("frame_common", "line_of_sight"):
         sensor = "tof"
     if effect_id in STRUCTURED_LIGHT_ONLY:
         sensor = "structured_light"
@@ -90,8 +92,10 @@ def make_case_at(seed: int, effect_id: str | None, signal: float, minutes: float
         reference = True
     spec = random_spec(rng, minutes=minutes, sensor=sensor, reference=reference)
     own = np.random.default_rng([int(seed), 7101])  # the noise kind's own draws
-    if noise == "frame_common":
+    if noise in ("frame_common", "line_of_sight"):
         spec = dataclasses.replace(spec, frame_common=round(float(own.uniform(0.4, 0.85)), 3))
+    if noise == "line_of_sight":
+        spec = dataclasses.replace(spec, line_of_sight=round(float(own.uniform(0.8, 0.99)), 3))
     base = CleanRecording(spec, seed)
     effects = []
     if effect_id is not None:
@@ -134,6 +138,7 @@ def score_one(r: dict) -> dict:
         "noise": job.get("noise", "white"),
         "ar1_rho": truth["recording"].get("ar1_rho", 0.0),
         "frame_common": truth["recording"].get("frame_common", 0.0),
+        "line_of_sight": truth["recording"].get("line_of_sight", 0.0),
         "reported": ";".join(ids),
         "seconds": round(r["seconds"], 2),
         "error": r["error"],

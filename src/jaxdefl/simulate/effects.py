@@ -152,6 +152,10 @@ class RecordingSpec:
         frame_common: share of each plate's noise variance common to all plates of a frame (a
             ToF camera's frame-wide range error: the simulator's per-frame error, thesis Tables
             6.2/6.17); 0: independent plates.
+        line_of_sight: share of each axis' noise variance that is the plate's range error seen
+            along its line of sight (a ToF plate's x, y and z come from the same ranges along
+            the same rays: the extracted SR4000 frames give |ρ| 0.9-1.0 between a plate's axes,
+            the sign that of the ray's component); 0: independent axes.
     """
 
     sensor: Literal["tof", "structured_light"] = "tof"
@@ -166,6 +170,7 @@ class RecordingSpec:
     noisy_plate: int = 0
     noisy_factor: float = 1.8
     frame_common: float = 0.0
+    line_of_sight: float = 0.0
 
     def sigma_mm(self) -> dict[str, float]:
         if self.noise_mm is not None:
@@ -301,6 +306,14 @@ class CleanRecording:
             common = np.random.default_rng([self.seed, 7002]).standard_normal((t.size, 1, 3))
             c = spec.frame_common
             self.eps = math.sqrt(1.0 - c) * self.eps + math.sqrt(c) * common
+        if spec.line_of_sight > 0:  # one range error per plate, along the ray to the plate
+            ray = np.sign(self.static)  # (plate, axis): the camera at the origin, z along its axis
+            ray[ray == 0] = 1.0
+            ray = ray * ray[:, 2:3]  # signs relative to z's
+            r = self.eps[..., 2:3]  # the range error: the z draw, its frame-common part included
+            own = np.random.default_rng([self.seed, 7003]).standard_normal(self.eps.shape)
+            c = spec.line_of_sight
+            self.eps = math.sqrt(1.0 - c) * own + math.sqrt(c) * r * ray[None]
 
     def motion(self, t: np.ndarray, am=None, fm=None) -> np.ndarray:
         """(frame, plate, axis) clean positions at true epoch times t, with the load's AM / FM."""
@@ -931,6 +944,7 @@ def make_recording(
             "n_plates": spec.n_plates,
             "dropout_prob": spec.dropout_prob,
             "frame_common": spec.frame_common,
+            "line_of_sight": spec.line_of_sight,
             "reference": spec.reference,
             "lds_plates": list(spec.lds_plates),
             "session": spec.session,
