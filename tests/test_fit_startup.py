@@ -12,8 +12,9 @@ from pathlib import Path
 SRC = Path(__file__).resolve().parents[1] / "src"
 
 # One process: the periodogram's mask kernel on a fixed batch, through `persistent_jit` and
-# through the plain `jax.jit` of the same function; prints whether they agree bit for bit and
-# whether `jax.export.export` (the trace) was called.
+# through the plain `jax.jit` of the same function (in the float64 scope `persistent_jit` runs
+# its kernels in); prints whether they agree bit for bit and whether `jax.export.export` (the
+# trace) was called.
 SCRIPT = """
 import sys
 import numpy as np
@@ -21,12 +22,14 @@ import jax.export
 traced = []
 real = jax.export.export
 jax.export.export = lambda *a, **k: (traced.append(1), real(*a, **k))[1]
+from jaxdefl._jax import float64
 from jaxdefl.spectral import lomb
 rng = np.random.default_rng(0)
 masks = (rng.random((4, 40)) > 0.2).astype(np.float64)
 kw = dict(n_fft=int(sys.argv[1]), j_lo=1, j_hi=20)
 a = np.asarray(lomb._mask_terms(masks, **kw))
-b = np.asarray(lomb._mask_terms.jitted(masks, **kw))
+with float64():
+    b = np.asarray(lomb._mask_terms.jitted(masks, **kw))
 print(np.array_equal(a, b), len(traced))
 """
 

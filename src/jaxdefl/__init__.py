@@ -1,8 +1,8 @@
 """jaxdefl: dynamic deflection of structures from range cameras."""
 
-# JAX is set up (float64, compilation cache) by `jaxdefl._jax`, imported by every module that
-# builds kernels: importing the package alone stays light, so the CLI starts (and installs its
-# signal handlers) before JAX is loaded.
+# Importing the package alone stays light (no JAX), so the CLI starts (and installs its signal
+# handlers) before JAX is loaded; importing any module changes nothing in JAX: the library
+# computes in float64 inside its own calls and the CLI sets it up for its process (`jaxdefl._jax`).
 from ._errors import ConfigError, InputError, JaxdeflError, ParameterError
 
 __version__ = "0.1.0"

@@ -1,9 +1,20 @@
-"""JAX set-up shared by every kernel.
+"""JAX set-up shared by every kernel; importing it changes nothing in the JAX process.
 
-- float64 everywhere: timestamps can be epoch seconds.
+- float64: timestamps can be epoch seconds. A library call computes in float64 inside its own
+  scope, `float64()` (a context manager and decorator: `jax.enable_x64`, this thread only), so
+  a process that imports jaxdefl keeps its own JAX precision. Arrays made inside a scope stay
+  float64, but JAX operations on them outside it compute in float32: every function that enters
+  JAX from numpy runs under `float64()` and hands numpy back (or arrays that only another scope
+  reads); a thread of its own opens its own scope. The one-window kernels (`fit_harmonic`,
+  `lomb_direct`, ...) compute in their caller's precision: their batched callers run them under
+  `float64()`, and a kernel called directly wants `float64()` or `setup()` around it.
+- `setup()`, for a process that is jaxdefl's own (the CLI): float64 for the whole process and
+  the compilation cache at once.
 - a persistent compilation cache (``$JAXDEFL_CACHE_DIR``, default ``~/.cache/jaxdefl/jax``;
-  set it to an empty string to disable): the CLI is a fresh process each time, and compiling
-  the batched kernels costs seconds that the cache turns into milliseconds on later runs.
+  set it to an empty string to disable), made when a scope is first entered (or by `setup`):
+  the CLI is a fresh process each time, and compiling the batched kernels costs seconds that
+  the cache turns into milliseconds on later runs. A compilation cache the process configured
+  itself is kept.
 - `persistent_jit`: the compilation cache skips XLA's compile, not JAX's trace of the Python
   kernel (over a second for the Gauss-Newton fit, in every fresh process). The kernels of the
   fit path are therefore also kept traced (`jax.export`, one file per shape bucket in
@@ -18,6 +29,7 @@ import os
 import pickle
 import sys
 import threading
+from contextlib import contextmanager
 from dataclasses import replace
 from functools import partial
 from pathlib import Path
@@ -25,19 +37,54 @@ from pathlib import Path
 import jax
 import numpy as np
 
-jax.config.update("jax_enable_x64", True)
+__all__ = ["float64", "jax", "persistent_jit", "setup"]
 
-_default_cache = os.path.join(os.path.expanduser("~"), ".cache", "jaxdefl", "jax")
-_cache = os.environ.get("JAXDEFL_CACHE_DIR", _default_cache)
-if _cache:
-    try:
-        os.makedirs(_cache, exist_ok=True)
-        jax.config.update("jax_compilation_cache_dir", _cache)
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
-    except OSError:  # a read-only home: run without the cache
-        _cache = ""
+_DEFAULT_CACHE = os.path.join(os.path.expanduser("~"), ".cache", "jaxdefl", "jax")
+_cache: str | None = None  # the cache directory once configured; "" without a cache
+_cache_lock = threading.Lock()
 
-__all__ = ["jax", "persistent_jit"]
+
+def _configured_cache() -> str:
+    """The cache directory (made and handed to JAX's compilation cache on the first call), or ""
+    when ``$JAXDEFL_CACHE_DIR`` is empty or the directory cannot be made."""
+    global _cache
+    if _cache is None:
+        with _cache_lock:
+            if _cache is None:
+                path = os.environ.get("JAXDEFL_CACHE_DIR", _DEFAULT_CACHE)
+                if path:
+                    try:
+                        os.makedirs(path, exist_ok=True)
+                    except OSError:  # a read-only home: run without the cache
+                        path = ""
+                if path and jax.config.jax_compilation_cache_dir is None:
+                    jax.config.update("jax_compilation_cache_dir", path)
+                    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.2)
+                _cache = path
+    return _cache
+
+
+def setup() -> None:
+    """Float64 for every JAX computation of this process and the compilation cache, now.
+
+    For a process that is jaxdefl's own (the command line); idempotent. A library caller needs
+    neither: every call computes in its own `float64()` scope.
+    """
+    jax.config.update("jax_enable_x64", True)
+    _configured_cache()
+
+
+@contextmanager
+def float64():
+    """JAX computes in float64 inside (``with float64():`` or ``@float64()``), on this thread.
+
+    The compilation cache is configured on first use. What leaves the scope should be numpy:
+    JAX operations on a float64 array outside any scope compute in float32.
+    """
+    _configured_cache()
+    with jax.enable_x64(True):
+        yield
+
 
 _fingerprint: str | None = None
 
@@ -60,7 +107,8 @@ def _code_fingerprint() -> str:
             except PackageNotFoundError:
                 h.update(dist.encode())
         dev = jax.devices()[0]
-        h.update(f"{sys.version}|{dev.platform}|{dev.device_kind}|{jax.config.jax_enable_x64}".encode())
+        # every kernel is traced under `float64()`, whatever the process' own setting
+        h.update(f"{sys.version}|{dev.platform}|{dev.device_kind}|x64".encode())
         try:
             with open("/proc/cpuinfo", "rb") as f:
                 h.update(next((ln for ln in f if ln.startswith(b"flags")), b""))
@@ -72,7 +120,8 @@ def _code_fingerprint() -> str:
 
 class _PersistentJit:
     """A `jax.jit` kernel whose traced form (`jax.export.Exported`) is kept on disk per argument
-    shapes, dtypes and static arguments; called exactly as the jitted function."""
+    shapes, dtypes and static arguments; called exactly as the jitted function, in a `float64()`
+    scope (its arrays go on to numpy or to another kernel)."""
 
     def __init__(self, fun, static_argnames: tuple[str, ...]):
         self.jitted = jax.jit(fun, static_argnames=static_argnames)
@@ -83,6 +132,10 @@ class _PersistentJit:
         self.__wrapped__ = fun
 
     def __call__(self, *args, **static):
+        with float64():
+            return self._call(args, static)
+
+    def _call(self, args, static):
         if not _cache:
             return self.jitted(*args, **static)
         args = tuple(a if hasattr(a, "shape") else np.asarray(a) for a in args)

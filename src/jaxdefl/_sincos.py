@@ -13,8 +13,6 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
-from . import _jax  # noqa: F401  (float64 set-up)
-
 __all__ = ["sincos"]
 
 _TWO_OVER_PI = 0.63661977236758134308
@@ -47,7 +45,8 @@ def _estrin(c, z, z2, z4):
 
 
 def sincos(x):
-    """(sin x, cos x) elementwise for float64 ``x``."""
+    """(sin x, cos x) elementwise for float64 ``x`` (a kernel: its callers run under
+    `jaxdefl._jax.float64`)."""
     n = jnp.round(x * _TWO_OVER_PI)
     r = ((x - n * _PIO2_1) - n * _PIO2_2) - n * _PIO2_3
     z = r * r

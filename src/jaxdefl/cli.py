@@ -75,6 +75,7 @@ def fit(
     flags = _flag_values(locals(), FIT_FLAGS)
     with _flag_names(FIT_FLAGS):
         settings = FitSettings(**flags)  # every setting is checked before any input is read
+        _jax_setup()
         from . import pipeline
 
         pipeline.fit_file(traj, out, settings, reference=reference)
@@ -168,6 +169,7 @@ def run(
 
     with _flag_names(RUN_FLAGS):
         settings = RunSettings(**_flag_values(locals(), RUN_FLAGS))  # before any input is read
+        _jax_setup()
         from . import pipeline
 
         pipeline.run_file(config, out, settings)
@@ -204,6 +206,7 @@ def diagnose(
 
     with _flag_names(DIAGNOSE_FLAGS):
         settings = DiagnoseSettings(**_flag_values(locals(), DIAGNOSE_FLAGS))  # before any input is read
+        _jax_setup()
         from . import pipeline
 
         pipeline.diagnose_file(traj, out, settings, reference=reference, config=config, figures=figures)
@@ -230,6 +233,7 @@ def reconcile(
 
     with _flag_names(RECONCILE_FLAGS):
         settings = ReconcileSettings(**_flag_values(locals(), RECONCILE_FLAGS))  # before any input is read
+        _jax_setup()
         from . import pipeline
 
         pipeline.reconcile_file(recording, config, out, settings, reference=reference)
@@ -275,6 +279,7 @@ def monitor(
 
     with _flag_names(MONITOR_FLAGS):
         s = MonitorSettings(**_flag_values(locals(), MONITOR_FLAGS))  # before any input is read
+        _jax_setup()
         from .monitor.run import run_monitor
         from .monitor.sources import open_source, simulated_source
 
@@ -299,9 +304,19 @@ def demo(
     seed: Annotated[int, typer.Option(help="Random seed.")] = 1,
 ) -> None:
     """Run the main job on the built-in default (Experiment II, 3 Hz, SR4000 at 20 Hz) to a report."""
+    _jax_setup()
     from . import pipeline
 
     pipeline.demo(out, duration_s=duration, seed=seed)
+
+
+def _jax_setup() -> None:
+    """Float64 and the compilation cache for the whole process (`jaxdefl._jax.setup`), by the
+    commands whose stages run JAX, once their settings are checked: --help, a bad flag, `extract`
+    and `simulate` (its ToF renderer has a scope of its own) never load JAX."""
+    from ._jax import setup
+
+    setup()
 
 
 def _flag_values(given: dict, flags: dict[str, str]) -> dict:

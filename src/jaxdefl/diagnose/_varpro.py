@@ -26,7 +26,7 @@ import lineax as lx
 import numpy as np
 import optimistix as optx
 
-from .. import _jax  # noqa: F401
+from .._jax import float64
 from .._shapes import bucket, pow2_at_least
 
 __all__ = ["SharedFit", "fit_shared", "pad_series"]
@@ -150,6 +150,7 @@ def _solver(columns_fn: Callable | None, term_fn: Callable | None, max_steps: in
     return solve
 
 
+@float64()
 def fit_shared(
     columns_fn: Callable,
     theta0: np.ndarray,

@@ -36,7 +36,7 @@ import numpy as np
 import pandas as pd
 
 from .._errors import ConfigError
-from .._jax import persistent_jit
+from .._jax import float64, persistent_jit
 from .._sincos import sincos
 from ..series import Windows
 from ..spectral import Periodogram, lomb_peaks
@@ -405,6 +405,7 @@ def _values(p, t, *, spec):
     return jax.vmap(lambda pp, tt: _value(spec, pp, tt))(p, t)
 
 
+@float64()
 def model_values(
     spec: SignalModel, params: np.ndarray, t: np.ndarray, origin_s: np.ndarray | None = None
 ) -> np.ndarray:

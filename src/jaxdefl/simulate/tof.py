@@ -283,8 +283,6 @@ def phase_from_samples(c):
     """Amplitude (eq. 3.6) and phase in [0, 2 pi) (eq. 3.7, four-quadrant) from samples (..., 4)."""
     import jax.numpy as jnp
 
-    from .. import _jax  # noqa: F401  (float64 set-up)
-
     re = c[..., 0] - c[..., 2]
     im = c[..., 3] - c[..., 1]
     amp = jnp.sqrt(re * re + im * im) / 2
@@ -302,8 +300,6 @@ def _kernel(correlated: bool = True):
         return _KERNELS[name]
     import jax
     import jax.numpy as jnp
-
-    from .. import _jax  # noqa: F401  (float64 set-up)
 
     def one_frame(key, defl, dx, dy, m):
         # defl, dx, dy: (4,) at the four tap times
@@ -351,30 +347,34 @@ def _kernel(correlated: bool = True):
 
 
 def device_model_of(tm: ToFModel) -> dict:
+    """The arrays of ``tm`` on the device, as `render_tof` reads them (only it, in its scope)."""
     import jax.numpy as jnp
 
-    return dict(
-        k=jnp.float32(tm.k_rad_per_mm),
-        bg_base=jnp.asarray(tm.bg_base),
-        bg_gain=jnp.asarray(tm.bg_gain),
-        pbase=jnp.asarray(tm.plate_base),
-        pgain=jnp.asarray(tm.plate_gain),
-        pidx=jnp.asarray(tm.plate_idx),
-        foot=jnp.asarray(tm.plate_foot, jnp.float32),
-        occ=jnp.asarray(tm.plate_occ),
-        edges=jnp.asarray(tm.plate_edges, jnp.float32),
-        pcam=jnp.asarray(np.repeat(tm.camera_xy_mm, 2), jnp.float32),
-        pdepth=jnp.float32(tm.plate_depth_mm),
-        pshape=jnp.asarray(tm.plate_shape, jnp.float32),
-        sigma_c=jnp.float32(tm.sigma_c),
-        B=jnp.asarray(tm.offset_b),
-        scatter=jnp.complex64(tm.scattering),
-        corr_c0=jnp.float32(tm.sigma_corr_mm * math.sqrt(1.0 - tm.corr_spatial)),
-        corr_c1=jnp.float32(tm.sigma_corr_mm * math.sqrt(tm.corr_spatial / 2.0)),
-        corr_basis=jnp.asarray(
-            tm.corr_basis if tm.corr_basis is not None else np.zeros((2, tm.bg_base.shape[0]), np.float32)
-        ),
-    )
+    from .._jax import float64
+
+    with float64():
+        return dict(
+            k=jnp.float32(tm.k_rad_per_mm),
+            bg_base=jnp.asarray(tm.bg_base),
+            bg_gain=jnp.asarray(tm.bg_gain),
+            pbase=jnp.asarray(tm.plate_base),
+            pgain=jnp.asarray(tm.plate_gain),
+            pidx=jnp.asarray(tm.plate_idx),
+            foot=jnp.asarray(tm.plate_foot, jnp.float32),
+            occ=jnp.asarray(tm.plate_occ),
+            edges=jnp.asarray(tm.plate_edges, jnp.float32),
+            pcam=jnp.asarray(np.repeat(tm.camera_xy_mm, 2), jnp.float32),
+            pdepth=jnp.float32(tm.plate_depth_mm),
+            pshape=jnp.asarray(tm.plate_shape, jnp.float32),
+            sigma_c=jnp.float32(tm.sigma_c),
+            B=jnp.asarray(tm.offset_b),
+            scatter=jnp.complex64(tm.scattering),
+            corr_c0=jnp.float32(tm.sigma_corr_mm * math.sqrt(1.0 - tm.corr_spatial)),
+            corr_c1=jnp.float32(tm.sigma_corr_mm * math.sqrt(tm.corr_spatial / 2.0)),
+            corr_basis=jnp.asarray(
+                tm.corr_basis if tm.corr_basis is not None else np.zeros((2, tm.bg_base.shape[0]), np.float32)
+            ),
+        )
 
 
 def render_tof(
@@ -395,19 +395,24 @@ def render_tof(
     import jax
     import jax.numpy as jnp
 
+    from .._jax import float64
+
     kern = _kernel(correlated=tm.sigma_corr_mm > 0)
-    m = device_model if device_model is not None else device_model_of(tm)
-    base = jax.random.PRNGKey(seed)
-    n = len(frame_index)
-    rng_out = np.empty((n, tm.bg_base.shape[0]), np.float32)
-    amp_out = np.empty_like(rng_out)
-    for s in range(0, n, block):
-        e = min(n, s + block)
-        pad = block - (e - s)
-        fi = np.pad(frame_index[s:e], (0, pad), mode="edge")
-        keys = jax.vmap(lambda i: jax.random.fold_in(base, i))(jnp.asarray(fi, jnp.uint32))
-        args = [np.pad(a[s:e], ((0, pad), (0, 0)), mode="edge").astype(np.float32) for a in (defl, dx, dy)]
-        r, a = kern(keys, *args, m)
-        rng_out[s:e] = np.asarray(r)[: e - s]
-        amp_out[s:e] = np.asarray(a)[: e - s]
+    with float64():  # the draws and complex phasors as in a float64 process (the CLI)
+        m = device_model if device_model is not None else device_model_of(tm)
+        base = jax.random.PRNGKey(seed)
+        n = len(frame_index)
+        rng_out = np.empty((n, tm.bg_base.shape[0]), np.float32)
+        amp_out = np.empty_like(rng_out)
+        for s in range(0, n, block):
+            e = min(n, s + block)
+            pad = block - (e - s)
+            fi = np.pad(frame_index[s:e], (0, pad), mode="edge")
+            keys = jax.vmap(lambda i: jax.random.fold_in(base, i))(jnp.asarray(fi, jnp.uint32))
+            args = [
+                np.pad(a[s:e], ((0, pad), (0, 0)), mode="edge").astype(np.float32) for a in (defl, dx, dy)
+            ]
+            r, a = kern(keys, *args, m)
+            rng_out[s:e] = np.asarray(r)[: e - s]
+            amp_out[s:e] = np.asarray(a)[: e - s]
     return rng_out, amp_out

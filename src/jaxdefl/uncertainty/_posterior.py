@@ -30,8 +30,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .. import _jax  # noqa: F401
 from .._errors import ConfigError
+from .._jax import float64
 from .._signals import check_interrupt
 from .._sincos import sincos
 from ..fit import Estimates, frame_positions
@@ -264,6 +264,7 @@ def sample_posteriors(
     )
 
 
+@float64()
 def _run_emcee(log_prob, data, x0, seeds, n_steps):
     """One `emcee.EnsembleSampler` per window, all stepping together, one JAX call per round.
 
@@ -279,6 +280,7 @@ def _run_emcee(log_prob, data, x0, seeds, n_steps):
     asked: list = [None] * b
     answers: list = [None] * b
 
+    @float64()  # the barrier's action runs on a sampler's thread: a scope of its own
     def evaluate():
         lp = _eval_windows(log_prob, jnp.asarray(np.stack(asked)), batch)
         answers[:] = list(np.asarray(lp))
