@@ -13,7 +13,7 @@ white noise, 2× zero-padded), combined with the weights φ_p/σ_p of a shape φ
 Exp(1) power under the null, whatever the signs across the plates), for the shapes sin(nπ ξ),
 n = 2, 3 (the modes whose plates move in opposition; a line in the first mode's shape, alike in
 sign on every plate, is `extra_periodic`'s: one name for one shape), ξ = the plates' positions along the span with the supports a gap g beyond the end plates
-(g on a grid of 0-20 % of the plates' extent; positions from the x series' offsets, else equally
+(g on a grid of 0-80 % of the plates' extent: the camera may see the middle of the span only; positions from the x series' offsets, else equally
 spaced plates). Each statistic is divided by its running median over the spectrum (coloured noise
 and noise shared by the plates of a frame raise the null's level, a line does not), away from the
 loading's harmonics and sidebands (`extra_periodic.line_band`); the peak's p-value is corrected
@@ -42,7 +42,9 @@ from .screening import param, scanned, shared_amplitude
 __all__ = ["ModeShape", "EFFECT", "ORDERS", "GAPS", "plate_positions", "mode_shapes"]
 
 ORDERS = (2, 3)  # the first mode's shape is the load's deflection shape: `extra_periodic`'s line
-GAPS = np.linspace(0.0, 0.2, 9)  # support beyond the end plates, fraction of the plates' extent
+# Supports beyond the end plates, fraction of the plates' extent: up to 0.8 — a camera that sees
+# the middle seven of thirteen plates has its supports 0.67 of the extent beyond the end ones.
+GAPS = np.linspace(0.0, 0.8, 9)
 
 
 def plate_positions(ctx: Context, idx: list[int]) -> np.ndarray:
@@ -131,12 +133,12 @@ class ModeShape(Effect):
             v = phi / np.asarray(sd)[None, :]  # matched weights φ/σ
             v = v / np.linalg.norm(v, axis=1, keepdims=True)
             stats = np.abs(v @ coef) ** 2  # (gap, freq): Exp(1) under white noise
-            # the null's level (the noise's colour and its share common to the plates) varies little
-            # with the gap: one running median per mode, of the middle gap's statistic
-            level = local_median(np.where(allowed, stats[len(GAPS) // 2], np.nan)) / math.log(2.0)
+            # the null's level (the noise's colour and its share common to the plates) depends on
+            # the gap: a wide gap makes the third mode a hump alike in sign on the plates, which
+            # frame-common noise fills, where a narrow one is not; one running median per shape
             best = None
             for gi in range(len(GAPS)):
-                z = stats[gi] / level
+                z = stats[gi] / (local_median(np.where(allowed, stats[gi], np.nan)) / math.log(2.0))
                 j = int(np.argmax(np.where(allowed, z, -np.inf)))
                 if best is None or z[j] > best[0]:
                     best = (float(z[j]), gi, j)
@@ -213,7 +215,7 @@ class ModeShape(Effect):
             term_fn=_term,
             bounds=(
                 np.array([f_hat - 2 * step, 0.0, -np.inf, -np.inf]),
-                np.array([f_hat + 2 * step, 0.3, np.inf, np.inf]),
+                np.array([f_hat + 2 * step, float(GAPS[-1]), np.inf, np.inf]),
             ),
             known_scale=True,
         )
