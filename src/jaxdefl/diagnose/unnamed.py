@@ -13,7 +13,9 @@ generic terms, each chosen by BIC:
 - ``envelope``: a smooth complex envelope u(t) of the loading line, shared by the series that
   carry the motion: y += a_s Re[u(t) e^{i arg_s(t)}], u a cubic B-spline with K interior knots
   (K by BIC), or an exponential e^{−λ(t − t_ref)} (a free decay: ζ reported).
-- ``trend``: a slow additive cubic B-spline in time per series (K by BIC), its constant free.
+- ``trend``: a slow additive cubic B-spline in time per series (K by BIC), its constant free;
+  or one common to an axis' series (a camera's sway), which may go finer (`COMMON_KNOTS`, down
+  to 4 loading periods a knot span): it pays its coefficients once for the axis.
 
 Evidence. The noise of the residual is modelled as AR(1) on the frame clock, ρ estimated per
 series from the lag-1 autocorrelation of the residual's first differences (−(1 − ρ)/2 for
@@ -595,7 +597,9 @@ def _trend(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> li
     """A slow additive B-spline (K knots by BIC), optionally with a step at the common change
     point, or that step alone: per series (series that pay for it), one shape shared by the
     series with a scale each (rank one: a support that settles), or one motion common to the
-    series of an axis (a camera that warms up or moves: the same millimetres on every plate)."""
+    series of an axis (a camera that warms up or moves: the same millimetres on every plate),
+    that one also at the finer `COMMON_KNOTS` (a camera's sway: power up to a few loading
+    periods)."""
     k_max = int(min(MAX_KNOTS, max(0, ctx.f0_hz * ctx.duration_s / 4.0 - 1)))
     t_c = _change_point(ctx, states)
     logn = math.log(n_total)
