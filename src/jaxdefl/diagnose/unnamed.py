@@ -676,13 +676,16 @@ def _trend(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> li
             dbic = -2 * noise.gain({i: sh_means[i] for i in kept}) + k_par * logn
             offer(dbic, kept, {i: sh_means[i] for i in kept}, k_par, dict(info, form="shared", shape=v))
     # the common motion at finer knots, down to 4 loading periods a knot span, while BIC keeps
-    # improving (two finer grids without a better ΔBIC end it); their bases are built here and
-    # not cached (an axis' series at 128 knots hold a few hundred MB)
+    # improving (two finer grids without a better ΔBIC end it); their bases are built when fitted
+    # and not cached (a record's series at 128 knots would hold a few hundred MB)
     k_fine = int(max(0, ctx.f0_hz * ctx.duration_s / 4.0 - 1))
     prev, worse = math.inf, 0
     for knots in (k for k in COMMON_KNOTS if k <= k_fine):
-        fine = {i: _bspline(s.t, 0.0, ctx.duration_s, knots)[:, 1:] for i, s in enumerate(ctx.series)}
-        dbic = common(fine.__getitem__, knots + 3, 0, {"knots": knots, "step_s": None})
+
+        def fine(i, knots=knots):
+            return _bspline(ctx.series[i].t, 0.0, ctx.duration_s, knots)[:, 1:]
+
+        dbic = common(fine, knots + 3, 0, {"knots": knots, "step_s": None})
         worse = worse + 1 if dbic >= prev else 0
         prev = min(prev, dbic)
         if worse >= 2:
