@@ -283,3 +283,30 @@ def test_a_held_out_jump_under_common_noise_is_modelled_unnamed_not_named_a_drif
     par = u["parameters"]
     assert par["form"] == "common" and par["step_at_s"]["value"] == pytest.approx(70.0, abs=1.0)
     assert abs(par["swing_mm"]["value"] - 0.25) < 3 * par["swing_mm"]["sigma"] < 0.1
+
+
+def test_a_held_out_camera_shake_is_one_common_trend_at_fine_knots_not_named_lines():
+    # a 0.3-mm RMS first-order low-pass sway (corner 0.02 Hz) of the camera, the same on six
+    # plates, 150 s at 20 Hz: with camera_shake out of the registry it is one unnamed trend common
+    # to the plates at knots finer than the per-series grid (12 knots left its faster part to
+    # named extra_periodic lines, level jumps and a drift), and no vocabulary name
+    from jaxdefl.diagnose.effects import EFFECT_IDS
+    from jaxdefl.diagnose.unnamed import KNOTS
+
+    rng = np.random.default_rng(1)
+    t = np.arange(0.0, 150.0, 1.0 / 20)
+    u = lfilter([1.0], [1.0, -math.exp(-2 * math.pi * 0.02 / 20)], rng.standard_normal(t.size))
+    u = 0.3 * (u - u.mean()) / u.std()
+    rows = []
+    for p in range(1, 7):
+        y = 30.0 + (1.0 + 0.3 * p) * np.cos(2 * np.pi * 2.1 * t + p) + u + 0.3 * rng.standard_normal(t.size)
+        rows.append(pd.DataFrame({"t": T0 + t, "plate": p, "z": y}))
+    traj = pd.concat(rows, ignore_index=True)
+    d = diagnose(traj, effects=tuple(e for e in EFFECT_IDS if e != "camera_shake"))
+    assert d["effects"] == [], [e["id"] for e in d["effects"]]
+    (term,) = d["unnamed"]
+    par = term["parameters"]
+    assert term["kind"] == "trend" and par["form"] == "common" and par["knots"] > max(KNOTS)
+    assert term["plates"] == [1, 2, 3, 4, 5, 6] and term["delta_bic"] < -10
+    swing = par["swing_mm"]
+    assert 0 < swing["sigma"] < 0.1 and swing["value"] == pytest.approx(np.ptp(u), rel=0.15)

@@ -13,7 +13,9 @@ generic terms, each chosen by BIC:
 - ``envelope``: a smooth complex envelope u(t) of the loading line, shared by the series that
   carry the motion: y += a_s Re[u(t) e^{i arg_s(t)}], u a cubic B-spline with K interior knots
   (K by BIC), or an exponential e^{−λ(t − t_ref)} (a free decay: ζ reported).
-- ``trend``: a slow additive cubic B-spline in time per series (K by BIC), its constant free.
+- ``trend``: a slow additive cubic B-spline in time per series (K by BIC), its constant free;
+  or one common to an axis' series (a camera's sway), which may go finer (`COMMON_KNOTS`, down
+  to 4 loading periods a knot span): it pays its coefficients once for the axis.
 
 Evidence. The noise of the residual is modelled as AR(1) on the frame clock, ρ estimated per
 series from the lag-1 autocorrelation of the residual's first differences (−(1 − ρ)/2 for
@@ -67,6 +69,9 @@ LOCAL_BINS = 25
 LINE_ALPHA = 0.01
 # interior knots tried (BIC picks among them, up to what the record can carry)
 KNOTS = (0, 1, 2, 3, 5, 8, 12)
+# finer knots for the trend common to an axis' series (a camera's sway has power up to a few
+# loading periods): it pays its coefficients once for the axis, not once per series
+COMMON_KNOTS = (16, 24, 32, 48, 64, 96, 128)
 # the chosen term is refined only when its screening already shows evidence (a refit moves ΔBIC
 # by a few units, not from nothing to −10); a refit costs a compilation per shape
 REFINE_BELOW = 0.0
@@ -592,7 +597,9 @@ def _trend(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> li
     """A slow additive B-spline (K knots by BIC), optionally with a step at the common change
     point, or that step alone: per series (series that pay for it), one shape shared by the
     series with a scale each (rank one: a support that settles), or one motion common to the
-    series of an axis (a camera that warms up or moves: the same millimetres on every plate)."""
+    series of an axis (a camera that warms up or moves: the same millimetres on every plate),
+    that one also at the finer `COMMON_KNOTS` (a camera's sway: power up to a few loading
+    periods)."""
     k_max = int(min(MAX_KNOTS, max(0, ctx.f0_hz * ctx.duration_s / 4.0 - 1)))
     t_c = _change_point(ctx, states)
     logn = math.log(n_total)
@@ -610,6 +617,22 @@ def _trend(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> li
         nonlocal best
         if best is None or dbic < best[0]:
             best = (dbic, kept, means, k_par, info)
+
+    def common(cols_of, k_own, extra, info) -> float:
+        """Offers the motion common to each axis' series (the axes where it pays); its ΔBIC."""
+        co_means, co_kept, k_co = {}, [], extra
+        for idx in by_axis.values():
+            _, m_ax, _ = _shared_fit(ctx, states, idx, cols_of)
+            g_ax = noise.gain(m_ax)  # noise common to the plates is no evidence for it
+            if 2 * g_ax > k_own * logn + 6.0:
+                co_kept += idx
+                co_means.update(m_ax)
+                k_co += k_own
+        if not co_kept:
+            return math.inf
+        dbic = -2 * noise.gain(co_means) + k_co * logn
+        offer(dbic, co_kept, co_means, k_co, dict(info, form="common"))
+        return dbic
 
     for knots, step in shapes:
         cols, betas, means, gains = {}, {}, {}, {}
@@ -634,17 +657,7 @@ def _trend(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> li
             offer(dbic, kept, {i: means[i] for i in kept}, k_own * len(kept) + extra, dict(info, form="own"))
         # the common motion: per axis one set of coefficients for all its series (each series'
         # offset and harmonic still free)
-        co_means, co_kept, k_co = {}, [], extra
-        for idx in by_axis.values():
-            _, m_ax, _ = _shared_fit(ctx, states, idx, cols.__getitem__)
-            g_ax = noise.gain(m_ax)  # noise common to the plates is no evidence for it
-            if 2 * g_ax > k_own * logn + 6.0:
-                co_kept += idx
-                co_means.update(m_ax)
-                k_co += k_own
-        if co_kept:
-            dbic = -2 * noise.gain(co_means) + k_co * logn
-            offer(dbic, co_kept, co_means, k_co, dict(info, form="common"))
+        common(cols.__getitem__, k_own, extra, info)
         if k_own < 2:
             continue
         # the shared shape: the first right singular vector of the noise-scaled coefficients
@@ -662,6 +675,21 @@ def _trend(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> li
             k_par = k_own - 1 + len(kept) + extra
             dbic = -2 * noise.gain({i: sh_means[i] for i in kept}) + k_par * logn
             offer(dbic, kept, {i: sh_means[i] for i in kept}, k_par, dict(info, form="shared", shape=v))
+    # the common motion at finer knots, down to 4 loading periods a knot span, while BIC keeps
+    # improving (two finer grids without a better ΔBIC end it); their bases are built when fitted
+    # and not cached (a record's series at 128 knots would hold a few hundred MB)
+    k_fine = int(max(0, ctx.f0_hz * ctx.duration_s / 4.0 - 1))
+    prev, worse = math.inf, 0
+    for knots in (k for k in COMMON_KNOTS if k <= k_fine):
+
+        def fine(i, knots=knots):
+            return _bspline(ctx.series[i].t, 0.0, ctx.duration_s, knots)[:, 1:]
+
+        dbic = common(fine, knots + 3, 0, {"knots": knots, "step_s": None})
+        worse = worse + 1 if dbic >= prev else 0
+        prev = min(prev, dbic)
+        if worse >= 2:
+            break
     if best is None:
         return []
     _, kept, means, k_par, info = best
