@@ -89,6 +89,38 @@ def test_diagnosed_effects_become_effect_tables_the_simulator_accepts():
     assert cfg.effects == tuple(s for s in specs if s is not None)
 
 
+def test_a_range_effect_reported_on_each_axis_is_simulated_once():
+    # One range error moves a plate's centroid along its line of sight: the diagnosis may name
+    # the same warm-up (or jump) on x, y and z; injecting each would triple it.
+    def drift(amp):
+        return {
+            "id": "drift",
+            "plates": [1, 2, 3, 4],
+            "parameters": {
+                "amplitude_mm": {"value": amp},
+                "tau_s": {"value": 40.0},
+                "kind": {"value": "exponential"},
+            },
+        }
+
+    def jump(t):
+        return {
+            "id": "level_jump",
+            "plates": [2],
+            "parameters": {"t_jump_s": {"value": t}, "size_mm": {"value": 0.4}},
+        }
+
+    mapped = specs_from_diagnosis(
+        [drift(1.6), drift(-0.2), drift(0.4), jump(100.2), jump(100.4), jump(200.0)],
+        duration_s=300.0,
+        n_plates=4,
+    )
+    simulated = [s.id for s, _ in mapped if s is not None]
+    assert simulated == ["drift", "level_jump", "level_jump"]
+    assert [s.p("t_jump_s") for s, _ in mapped if s is not None and s.id == "level_jump"] == [100.2, 200.0]
+    assert all("simulated once" in why for s, why in mapped if s is None)
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize(
     "eid, seed, metric",

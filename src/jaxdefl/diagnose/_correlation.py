@@ -29,7 +29,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._base import Context, Proposal, State
+from ._base import Context, State
 
 __all__ = ["D_MIN", "FrameCorrelation", "frame_correlation"]
 
@@ -97,7 +97,7 @@ def frame_correlation(ctx: Context, states: list[State]) -> FrameCorrelation:
     """Correlation of first differences of the residuals ``y − mean`` of all series."""
     n_frames = max(int(s.k.max()) for s in ctx.series) + 1 if ctx.series else 0
     diffs = np.full((n_frames, len(ctx.series)), np.nan)
-    for c, (s, st) in enumerate(zip(ctx.series, states)):
+    for c, (s, st) in enumerate(zip(ctx.series, states, strict=True)):
         r = np.where(st.inlier, s.y - st.mean, np.nan)
         grid = np.full(n_frames + 1, np.nan)
         grid[s.k] = r

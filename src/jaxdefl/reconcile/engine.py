@@ -79,8 +79,12 @@ def specs_from_diagnosis(
     linear modulations there are about the record's middle (``t_ref_s`` = duration / 2); a
     polynomial drift becomes a warm-up with τ = the record's length, to be refitted. Range
     effects are sized in range through the calibration's gains; one seen on at least half of the
-    ``n_plates`` plates is taken for the whole image (a camera effect), else for its plates."""
+    ``n_plates`` plates is taken for the whole image (a camera effect), else for its plates.
+    A range effect is one error of the pixels' ranges, seen on every axis of a plate (the centroid
+    moves along its line of sight): the diagnosis may report it once per axis, and it is
+    simulated once (the first report; the others say so)."""
     out: list[tuple[EffectSpec | None, str]] = []
+    ranges: set = set()
     for e in effects:
         eid = e["id"]
         p = {k: _value(v) for k, v in e.get("parameters", {}).items()}
@@ -146,6 +150,12 @@ def specs_from_diagnosis(
         if any(v is None or not math.isfinite(float(v)) for v in params.values()):
             out.append((None, f"{eid}: a parameter was not estimated"))
             continue
+        if eid in ("drift", "level_jump"):
+            key = (eid, plates, round(float(params["t_jump_s"])) if eid == "level_jump" else None)
+            if key in ranges:
+                out.append((None, f"the same range {eid} as one above, seen on other axes: simulated once"))
+                continue
+            ranges.add(key)
         try:
             out.append((make_spec(eid, {k: float(v) for k, v in params.items()}, plates), "simulated"))
         except ConfigError as err:

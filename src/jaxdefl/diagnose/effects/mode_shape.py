@@ -12,9 +12,11 @@ Signature: the residuals' Fourier coefficients of the z series (normalised: unit
 white noise, 2× zero-padded), combined with the weights φ_p/σ_p of a shape φ (matched filter:
 Exp(1) power under the null, whatever the signs across the plates), for the shapes sin(nπ ξ),
 n = 2, 3 (the modes whose plates move in opposition; a line in the first mode's shape, alike in
-sign on every plate, is `extra_periodic`'s: one name for one shape), ξ = the plates' positions along the span with the supports a gap g beyond the end plates
-(g on a grid of 0-80 % of the plates' extent: the camera may see the middle of the span only; positions from the x series' offsets, else equally
-spaced plates). Each statistic is divided by its running median over the spectrum (coloured noise
+sign on every plate, is `extra_periodic`'s: one name for one shape), ξ = the plates' positions
+along the span with the supports a gap g beyond the end plates (g on a grid of 0-80 % of the
+plates' extent: the camera may see the middle of the span only; positions from the x series'
+offsets, else equally spaced plates). Each shape's statistic is divided by its own running
+median over the spectrum (coloured noise
 and noise shared by the plates of a frame raise the null's level, a line does not), away from the
 loading's harmonics and sidebands (`extra_periodic.line_band`); the peak's p-value is corrected
 for the independent frequencies scanned and the shapes tried.
