@@ -56,6 +56,12 @@ Measured (2 cores, 2026-11-25, load 1-2 unless said):
   7.1x), kernel 21.5x. Stages of the warm call, CPU/wall s: imports 1.05/0.85, read and validate
   0.25/0.21, windows 0.37/0.23, estimate 1.75/1.09, write 0.03/0.01: imports and the estimate
   stage alone (1.94 s wall) are twice the 0.95 s that 15x the loop would leave.
+- 2026-11-26 10:27, quiet (load 0.7): --help 0.156 s, cold 5.78 s, warm 2.865 s, kernel 0.412 + 0.618
+  s, loop 13.39 s: CLI 4.7x (CPU 7.7x), kernel 21.7x. 11:47-11:48 (load ~1), after float64 became a
+  scope (`jaxdefl._jax.setup` in the CLI): --help 0.200 / 0.214 s, warm 3.389 / 3.751 s, kernel
+  0.40 + 0.74 / 0.39 + 0.72 s, loop 13.92 / 14.97 s: 4.1x / 4.0x (CPU 7.0x). 15x is out of reach in
+  a fresh process: the loop leaves 0.89-1.0 s, less than the kernel's own steady state (1.03-1.14 s)
+  before `import jax` (0.5-0.7 s).
 """
 
 from __future__ import annotations
