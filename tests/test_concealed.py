@@ -577,8 +577,8 @@ def test_small_benchmark_meets_the_targets(tmp_path):
         {"case": 6, "kind": "single", "effects": ["timing_error"], "seed": 37},
         {"case": 7, "kind": "pair", "effects": ["level_jump", "outliers"], "seed": 38},
     ]
-    results = bench.run_benchmark(plan, minutes=15.0, log=None)
-    cases, conf, s, md = bench.write_outputs(tmp_path, results, {"minutes": 15})
+    results = bench.run_benchmark(plan, minutes=10.0, log=None)
+    cases, conf, s, md = bench.write_outputs(tmp_path, results, {"minutes": 10})
     assert s["errors"] == 0, cases.error.tolist()
     assert s["detected"] >= 0.9, md
     assert s["false_positive"] <= 0.05, md
