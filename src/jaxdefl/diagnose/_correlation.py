@@ -115,7 +115,8 @@ def frame_correlation(ctx: Context, states: list[State]) -> FrameCorrelation:
     # Not clipped pair by pair: independent noise gives pair estimates ±1/√n about 0, and
     # clipping their negative half would bias d upwards by ~0.4 (m − 1)/√n (10-30 % of the
     # evidence of a term common to a dozen plates in white noise). `design_effect` keeps
-    # d >= 1: negative correlation never credits evidence.
+    # d >= 1 for a term of unknown pattern (negative correlation never credits it evidence) and
+    # d >= D_MIN for a known pattern.
     r = np.clip(r, -1.0, 1.0)
     np.fill_diagonal(r, 1.0)
     return FrameCorrelation(tuple(s.axis for s in ctx.series), r, n_frames)
