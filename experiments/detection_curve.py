@@ -208,10 +208,13 @@ def plot(cases: pd.DataFrame, n_effects: int, path: Path) -> None:
     import matplotlib.pyplot as plt
     from scipy.stats import chi2, ncx2
 
+    eff = cases[cases["effect"] != "none"]
+    if eff.empty:  # a run of controls alone: no curve to draw
+        return
     fig, ax = plt.subplots(figsize=(7, 4.2), constrained_layout=True)
-    grid = np.geomspace(max(cases["signal_target"].min() / 2, 1), cases["signal_target"].max() * 2, 200)
+    grid = np.geomspace(max(eff["signal_target"].min() / 2, 1), eff["signal_target"].max() * 2, 200)
     ax.plot(grid, ncx2.sf(chi2.isf(0.05 / n_effects, 1), 1, grid), "k--", lw=1.5, label="known-form LRT")
-    for eid, g in cases[cases["effect"] != "none"].groupby("effect"):
+    for eid, g in eff.groupby("effect"):
         per = _points(g)
         ax.plot(per["s"], per["rate"], "o-", ms=3, label=eid)
     ax.set_xscale("log")
