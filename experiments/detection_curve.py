@@ -7,9 +7,14 @@ against the evidence injected, next to the best possible detector of that effect
 Each case is a random recording of `jaxdefl.simulate.effects.random_spec` (decoys: 9-13 plates,
 20/30 Hz, 3-30 % drop-outs, plates of other amplitudes, a noisier plate, half of the ToF records
 with frame-common noise) with ONE effect drawn by `draw_effect` and scaled so that its injected
-evidence is the grid value S = Σ n·rms²/σ² over the series it touches, after removing what the
-nominal model absorbs (`effect_strength`; no floor: `concealed_effects.py` keeps its own
-`SIGNAL_MIN` for its rates, this benchmark goes below it). The diagnosing call gets the tables and
+evidence is the grid value S: the best possible detector's, Σ_t δ_tᵀ Σ⁻¹ δ_t over the frames, δ_t
+the effect over all series after removing what the nominal model absorbs and Σ the recording's
+own noise covariance across plates and axes (`best_evidence`; the frame-level
+`concealed_frames.py` counts it the same way). On independent noise it is Σ n·rms²/σ² over the
+series the effect touches (`effect_strength`, printed as S_white); under frame-common noise an
+effect alike on the plates carries less (the common noise looks like it), one on a single plate
+more. No floor: `concealed_effects.py` keeps its own `SIGNAL_MIN` for its rates, this benchmark
+goes below it. The diagnosing call gets the tables and
 the user's hints only (`concealed_effects.run_case`'s blind call); a case counts as detected when
 the injected id is reported on at least half of its plates (`concealed_effects.score_effect`).
 Controls: the same recordings without an effect; a control is flagged when anything is reported.
@@ -21,7 +26,7 @@ axis' variance the plate's range error along its ray: x, y and z of a plate corr
 extracted SR4000 frames have them, |ρ| 0.9-1.0).
 
 The best possible detector of an effect knows its form up to its size: its log-likelihood ratio
-is then χ²₁ with noncentrality S under white Gaussian noise, so at a false-alarm rate α it
+(generalised least squares under the noise covariance) is then χ²₁ with noncentrality S, so at a false-alarm rate α it
 reaches power P at the S solving P(χ²₁(S) > χ²₁,1−α) = P. With the registry's detectors run
 together, α is 0.05 / (number of effects) per effect (5 % of controls flagged overall); the
 oracle's S at 95 % power is printed next to each curve (S95_oracle) together with our detection
@@ -57,6 +62,7 @@ from jaxdefl.simulate.effects import (  # noqa: E402
     STRUCTURED_LIGHT_ONLY,
     TOF_ONLY,
     CleanRecording,
+    best_evidence,
     draw_effect,
     effect_strength,
     make_recording,
@@ -100,7 +106,7 @@ def make_case_at(seed: int, effect_id: str | None, signal: float, minutes: float
     effects = []
     if effect_id is not None:
         # a negligible RMS target and the evidence as the floor: the magnitude is set by S alone
-        e = draw_effect(effect_id, base, rng, target_ratio=1e-6, signal_min=signal)
+        e = draw_effect(effect_id, base, rng, target_ratio=1e-6, signal_min=signal, evidence="best")
         effects.append(e)
     traj, lds, truth = make_recording(spec, effects, seed, base=base)
     if noise == "ar1":
@@ -108,7 +114,8 @@ def make_case_at(seed: int, effect_id: str | None, signal: float, minutes: float
         traj = add_ar1_noise(traj, truth, rho, seed)
         truth["recording"]["ar1_rho"] = rho
     for e, t in zip(effects, truth["effects"], strict=True):
-        t["signal"] = float(effect_strength(base, e)[1])
+        t["signal"] = float(best_evidence(base, e))
+        t["signal_white"] = float(effect_strength(base, e)[1])
     return traj, lds, truth
 
 
@@ -148,7 +155,14 @@ def score_one(r: dict) -> dict:
     e = truth["effects"][0]
     s = score_effect(e, reported, truth["recording"]["t_first"])
     wrong = any(i != e["id"] for i in ids)
-    return row | {"signal": e["signal"], "detected": s["detected"], "flagged": bool(reported), "wrong_name": wrong}
+    white = e.get("signal_white", e["signal"])
+    return row | {
+        "signal": e["signal"],
+        "signal_white": white,
+        "detected": s["detected"],
+        "flagged": bool(reported),
+        "wrong_name": wrong,
+    }
 
 
 def crossing(signals: np.ndarray, rates: np.ndarray, level: float) -> float:
@@ -260,7 +274,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     def save(r: dict) -> None:
         path(r["job"]).write_text(json.dumps(r, default=str))
         s = score_one(r)
-        print(f"{s['effect']:22s} S={r['job']['signal']:6g} ({s['signal']:7.1f}) -> {s['reported'] or '-':40s} "
+        print(f"{s['effect']:22s} S={r['job']['signal']:6g} ({s['signal']:7.1f}, white {s.get('signal_white', 0.0):7.1f}) -> {s['reported'] or '-':40s} "
               f"{'DETECTED' if s['detected'] else ''} {r['seconds']:5.1f} s {r['error'][:60]}", flush=True)
 
     if args.workers <= 1:
