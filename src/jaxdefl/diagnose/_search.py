@@ -214,6 +214,9 @@ class Diagnosis:
                     "delta_bic": a.delta_bic,
                     "lr": a.lr,
                     "lr_critical": a.lr_critical,
+                    # the test's degrees of freedom and look-elsewhere count (`Calibration`)
+                    "lr_dof": max(int(p.n_params) - int(p.scan_params), 1),
+                    "trials": float(p.trials),
                     "rms_before_mm": a.rms_before,
                     "rms_after_mm": a.rms_after,
                     "p_value": p.p_value,
