@@ -9,8 +9,11 @@ does not see it. Typical magnitudes: 0.01-0.5 mm at the antinode, 0.3 Hz to Nyqu
 above the frame rate aliases to its folded frequency).
 
 Signature: the residuals' Fourier coefficients of the z series (normalised: unit power under
-white noise, 2× zero-padded), combined with the weights φ_p/σ_p of a shape φ (matched filter:
-Exp(1) power under the null, whatever the signs across the plates), for the shapes sin(nπ ξ),
+white noise, 2× zero-padded), combined with the weights C⁻¹v of a shape φ, v = φ_p/σ_p and C the
+coefficients' covariance across the series (generalised least squares: noise shared by the plates
+of a frame is not mistaken for the mode, and a shape's part it does not mimic counts at its full
+precision; Exp(1) power over vᵀC⁻¹v under the null, whatever the signs across the plates), for
+the shapes sin(nπ ξ),
 n = 2, 3 (the modes whose plates move in opposition; a line in the first mode's shape, alike in
 sign on every plate, is `extra_periodic`'s: one name for one shape), ξ = the plates' positions
 along the span with the supports a gap g beyond the end plates (g on a grid of 0-80 % of the
@@ -25,7 +28,8 @@ Model: y_p += φ_n(ξ_p) (a cos 2π f t + b sin 2π f t) on the z series, one (a
 plates (the mode's amplitude and phase), f refined on a fine grid about the matched peak, each
 series' offset free: 4 parameters (f, a, b, g). One proposal per n; BIC chooses the mode, and
 chooses between a mode (one amplitude in a known shape) and `extra_periodic` (a line common to
-the plates, or free amplitudes per plate). Reported: ``mode`` (n), ``freq_hz``, ``amplitude_mm``
+the plates, or free amplitudes per plate). The search scores the term by the generalised
+least-squares statistic along it (`_correlation.gls_gain`), as the screen finds it. Reported: ``mode`` (n), ``freq_hz``, ``amplitude_mm``
 (at the antinode), ``phase_rad`` (a cos(2π f t_rel + ψ)); the shape per plate in the detail.
 """
 
@@ -37,6 +41,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._base import Context, Effect, Proposal, State, loglik, masked_fourier
+from .._correlation import D_MIN
 from .._varpro import fit_shared
 from .extra_periodic import LOCAL_BINS, OVERSAMPLE, line_band, local_median
 from .screening import param, scanned, shared_amplitude
@@ -129,12 +134,20 @@ class ModeShape(Effect):
             return []
         x = plate_positions(ctx, idx)
         n_shapes = len(ORDERS) * len(GAPS)
+        # the coefficients' covariance across the series (the noise shared by the plates of a
+        # frame, and each series' level about the lines): the matched filter is whitened by it,
+        # as the search scores a known pattern (`_correlation.gls_gain`)
+        cs = coef[:, allowed]
+        cov = np.real(cs @ cs.conj().T) / max(cs.shape[1], 1)
+        sdc = np.sqrt(np.maximum(np.diag(cov), 1e-300))
+        lam, vec = np.linalg.eigh(cov / np.outer(sdc, sdc))
+        inv = (vec / np.maximum(lam, D_MIN)) @ vec.T / np.outer(sdc, sdc)
         out = []
         for n in ORDERS:
             phi = mode_shapes(x, n)  # (gap, series)
             v = phi / np.asarray(sd)[None, :]  # matched weights φ/σ
-            v = v / np.linalg.norm(v, axis=1, keepdims=True)
-            stats = np.abs(v @ coef) ** 2  # (gap, freq): Exp(1) under white noise
+            w = v @ inv  # generalised least squares: w = C⁻¹v, Exp(1) power over vᵀC⁻¹v
+            stats = np.abs(w @ coef) ** 2 / np.maximum(np.sum(w * v, axis=1), 1e-300)[:, None]
             # the null's level (the noise's colour and its share common to the plates) depends on
             # the gap: a wide gap makes the third mode a hump alike in sign on the plates, which
             # frame-common noise fills, where a narrow one is not; one running median per shape
