@@ -33,8 +33,12 @@ outliers               a fraction ε of the samples of 1-3 plates get an error N
                        ``fraction``, ``scale_mm``.
 heteroscedastic_noise  σ_i = σ0 (1 + m u_i), u = cos(ω t_rel − φ − ψ) (kind "phase") or
                        (t − t_mid)/(duration/2) (kind "time"); ``modulation`` (m).
-quantization           z = q round((z_clean − o)/q) + o before the noise; ``step_mm``,
-                       ``offset_mm`` (structured-light recordings only).
+quantization           noise before rounding, as a disparity camera makes it: each z is the mean of
+                       P pixel readings o + q round((z_clean + e_i − o)/q), e_i ~ N(0, P σ²) (the
+                       unrounded mean has the series' noise σ, and that noise is not added again);
+                       its mean is the smoothed staircase `jaxdefl._lattice.smoothed_staircase`
+                       with dither σ√P; ``step_mm`` (q), ``offset_mm`` (o), ``pixels`` (P,
+                       default 1); structured-light recordings only.
 mode_shape             z_p += a sin(nπ x_p/L) cos(2π f t_rel + ψ), x_p the plate's position on the
                        span L; ``mode`` (n = 2 or 3: sign changes across the plates), ``freq_hz``,
                        ``amplitude_mm`` (a, at the antinode), ``phase_rad``.
@@ -74,6 +78,7 @@ from typing import Any, Literal
 import numpy as np
 import pandas as pd
 
+from .._lattice import smoothed_staircase
 from .config import SimConfig, config_from_dict
 from .injection import make_spec, motion_modulations, shake_displacement
 from .lds import frame_clock, truth_table
@@ -105,6 +110,7 @@ TOF_ONLY = frozenset({"motion_artefact"})  # four-phase sampling is a ToF proper
 SIGNAL_MIN = 200.0  # Σ n rms²/σ² over the affected series (aim: >= ~150, with a margin)
 RMS_RATIO_RANGE = (0.1, 0.6)  # effect RMS / raw noise σ of the touched series
 MODULATION_RANGE = (0.15, 0.4)  # heteroscedastic noise
+PIXELS_RANGE = (1, 3)  # quantization: pixels averaged per reading, integers in [1, 3)
 
 # Experiment II's days at 3 Hz: (day, cycles at start, f0 Hz, mid-span amplitude mm) of Table 6.16
 # (ToF days, LDS) and Table 6.24 (Kinect days), as in configs/exp2_{tof,kinect}_3hz.toml
@@ -415,17 +421,19 @@ def _render(base: CleanRecording, effects: Sequence[Mapping]) -> tuple[np.ndarra
     """(table times, camera positions with noise (frame, plate, axis), realised extras)."""
     t_tab, pos = _camera_clean(base, effects)
     extras: dict[str, Any] = {}
-    e = _by_id(effects, "quantization")
-    if e is not None:
-        q, o = float(e["parameters"]["step_mm"]), float(e["parameters"]["offset_mm"])
-        idx = np.asarray(e["plates"], int) - 1
-        pos[:, idx, 2] = q * np.round((pos[:, idx, 2] - o) / q) + o
     scale = np.ones_like(base.eps)
     e = _by_id(effects, "heteroscedastic_noise")
     if e is not None:
         idx = np.asarray(e["plates"], int) - 1
         scale[:, idx, 2] = 1.0 + float(e["parameters"]["modulation"]) * _het_u(base, e, t_tab)[:, None]
-    pos = pos + base.sigma[None] * scale * base.eps
+    noise = base.sigma[None] * scale * base.eps
+    e = _by_id(effects, "quantization")
+    if e is not None:  # the pixels' noise is the series' noise: rounded, not added again
+        for j in np.asarray(e["plates"], int) - 1:
+            sig_f = base.sigma[j, 2] * scale[:, j, 2]
+            pos[:, j, 2] = _quantised_readings(base, e, j, pos[:, j, 2], sig_f, noise[:, j, 2])
+            noise[:, j, 2] = 0.0
+    pos = pos + noise
     e = _by_id(effects, "outliers")
     if e is not None:
         rng = np.random.default_rng([base.seed, 7002])
@@ -441,6 +449,29 @@ def _render(base: CleanRecording, effects: Sequence[Mapping]) -> tuple[np.ndarra
             count += k
         extras["outlier_count"] = count
     return t_tab, pos, extras
+
+
+def _quantised_readings(
+    base: CleanRecording, e: Mapping, j: int, z_clean: np.ndarray, sig_f: np.ndarray, noise: np.ndarray
+) -> np.ndarray:
+    """(frame,) plate j's z as a disparity camera reads it: the mean of P pixel readings
+    o + q·round((z_clean + e_i − o)/q), the pixels' noise before the rounding.
+
+    The e_i are iid N(0, P σ_f²) given their mean ``noise`` (σ_f ``sig_f``, the frame's noise
+    level, ``noise`` its draw σ_f·ε of the recording without quantisation): e_i =
+    noise + σ_f √P (g_i − ḡ), g_i iid N(0, 1) from a stream of the recording's seed and the
+    plate (`CleanRecording` keeps its own draws), has exactly that law. So the unrounded mean is
+    the noise the recording has without quantisation (frame-common and line-of-sight parts
+    included), and a control and a quantised case differ by the rounding alone.
+    """
+    p = e["parameters"]
+    q, o, n_px = float(p["step_mm"]), float(p["offset_mm"]), int(p.get("pixels", 1))
+    if n_px < 1:
+        raise ValueError(f"quantization: pixels must be >= 1, got {n_px}")
+    g = np.random.default_rng([base.seed, 7004, j]).standard_normal((z_clean.size, n_px))
+    g -= g.mean(axis=1, keepdims=True)
+    e_px = noise[:, None] + (sig_f * math.sqrt(n_px))[:, None] * g
+    return np.mean(q * np.round((z_clean[:, None] + e_px - o) / q) + o, axis=1)
 
 
 def _het_u(base: CleanRecording, e: Mapping, t_tab: np.ndarray) -> np.ndarray:
@@ -529,10 +560,12 @@ def effect_strength(base: CleanRecording, e: Mapping) -> tuple[float, float]:
     t_tab, pos = _camera_clean(base, [e])
     # the camera against the truth at the table's own timestamps (what a reference would show)
     clean = base.motion(t_tab) if eid == "timing_error" else _camera_clean(base, [])[1]
-    if eid == "quantization":
+    if eid == "quantization":  # the deterministic part: the mean reading, smoothed by the pixels' noise
         q, o = float(p["step_mm"]), float(p["offset_mm"])
+        root_px = math.sqrt(int(p.get("pixels", 1)))
         pos = pos.copy()
-        pos[:, idx, 2] = q * np.round((pos[:, idx, 2] - o) / q) + o
+        for j in idx:
+            pos[:, j, 2] = smoothed_staircase(pos[:, j, 2], q, o, base.sigma[j, 2] * root_px)
     delta = (pos - clean)[:, idx][:, :, axes].reshape(n, -1)
     rms = _absorbed_rms(base, t_tab, delta, tied=eid in NEEDS_REFERENCE)
     with np.errstate(divide="ignore", invalid="ignore"):  # a noise-free recording: infinite ratio
@@ -742,15 +775,19 @@ def draw_effect(
     elif effect_id == "quantization":
         if spec.sensor != "structured_light":
             raise ValueError("quantization: only for structured-light recordings (spec.sensor)")
-        sig = float(np.median(base.sigma[:, 2]))
-        q = target * sig * math.sqrt(12.0)
         e = dict(
+            id=effect_id,
             kind="depth_steps",
-            parameters={"step_mm": q, "offset_mm": float(rng.uniform(0, q))},
+            parameters={"step_mm": 1.0, "offset_mm": 0.0, "pixels": int(rng.integers(*PIXELS_RANGE))},
             plates=everyone,
             axes=["z"],
         )
-        key = "step_mm"
+        e["parameters"]["step_mm"] = q = _quantization_step(base, e, target, signal_min)
+        if e["parameters"]["pixels"] > 1 and effect_strength(base, e)[0] < RMS_RATIO_RANGE[0]:
+            e["parameters"]["pixels"] = 1  # under the cap, more pixels smooth the steps away
+            e["parameters"]["step_mm"] = q = _quantization_step(base, e, target, signal_min)
+        e["parameters"]["offset_mm"] = float(rng.uniform(0, q))
+        return e
     elif effect_id == "mode_shape":
         e = dict(
             kind=f"mode_{int(rng.choice([2, 3], p=[0.7, 0.3]))}",
@@ -787,9 +824,41 @@ def draw_effect(
     elif key == "stiffness_change":  # a crack costs at most 30 % of the stiffness
         bounds = (0.0, 0.3)
     _fit_magnitude(base, e, key, target, signal_min, bounds)
-    if effect_id == "quantization":
-        e["parameters"]["offset_mm"] = float(rng.uniform(0, e["parameters"]["step_mm"]))
     return e
+
+
+def _quantization_step(base: CleanRecording, e: dict, target: float, signal_min: float) -> float:
+    """The smallest step q (mm) with r >= target and S >= signal_min, at most 0.9 × the largest
+    plate's peak-to-peak motion (a larger step puts the motion on one or two levels: no staircase
+    left to see, whatever its RMS); bisection in log q.
+
+    Not `_fit_magnitude`'s r ∝ q: the pixels' noise σ_px = σ√P smooths the staircase, its RMS
+    ∝ q exp(−2π²σ_px²/q²) for q ≲ 2σ_px (a log-slope 1 + 4π²σ_px²/q², dozens where q ~ σ_px),
+    so a multiplicative secant step overshoots and diverges. Below the cap r and S grow with q.
+    """
+    p = e["parameters"]
+    q_max = 0.9 * 2.0 * base.amp0 * float(np.max(np.abs(base.shape[np.asarray(e["plates"], int) - 1])))
+
+    def enough(q: float) -> bool:
+        p["step_mm"] = q
+        r, s = effect_strength(base, e)
+        return r >= target and s >= signal_min
+
+    lo = 0.5 * target * float(np.median(base.sigma[:, 2])) * math.sqrt(12.0)  # half the hard staircase's
+    while lo > 1e-3 and enough(lo):
+        lo *= 0.5
+    hi = min(2.0 * lo, q_max)
+    while hi < q_max and not enough(hi):
+        lo, hi = hi, min(2.0 * hi, q_max)
+    if hi == q_max and not enough(hi):
+        return q_max  # the cap wins: the effect is smaller than the target
+    for _ in range(16):
+        mid = math.sqrt(lo * hi)
+        if enough(mid):
+            hi = mid
+        else:
+            lo = mid
+    return hi
 
 
 def _clip_level(base: CleanRecording, e: dict, target: float, signal_min: float) -> dict:

@@ -35,6 +35,7 @@ import math
 
 import numpy as np
 
+from ..._lattice import dithered_round, smoothed_staircase
 from .._base import Context, Effect, Proposal, State, keep_series, lstsq
 from .screening import bonferroni, chi2_sf, gain, param, residual, touched, updated, weights
 
@@ -47,14 +48,36 @@ N_OFFSET = 48
 N_REFINE = 17
 N_INSIDE = 12
 N_OUTER = 3
+DITHERS = tuple(np.round(np.linspace(0.0, 0.5, 11), 3))  # the grid of σ_d / q
+N_TABLE = 512  # samples of a smoothed sawtooth's period (the grid's lookup)
 
 
 def saw(x: np.ndarray) -> np.ndarray:
     return x - np.round(x)
 
 
-def staircase(h: np.ndarray, q: float, o: float) -> np.ndarray:
-    return q * np.round((h - o) / q) + o
+def staircase(h: np.ndarray, q: float, o: float, dither: float = 0.0) -> np.ndarray:
+    """The mean reading at true value h: the staircase with levels o + k q smoothed by the
+    pixels' noise before rounding (`jaxdefl._lattice.smoothed_staircase`; dither 0: the hard one)."""
+    return smoothed_staircase(h, q, o, dither)
+
+
+class _Saws:
+    """The smoothed sawtooths x − E[round(x + sZ)] of the grid's s = σ_d/q, tabulated over one
+    period (linear interpolation: within ~1e-4 q for s >= 0.05; s = 0 is the exact sawtooth)."""
+
+    def __init__(self, dithers):
+        self.dithers = tuple(float(v) for v in dithers)
+        self.u = np.linspace(0.0, 1.0, N_TABLE + 1)
+        self.tables = [self.u - dithered_round(self.u, s) for s in self.dithers]
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        """(dither, *x.shape) smoothed sawtooths at x."""
+        frac = x - np.floor(x)
+        out = np.empty((len(self.dithers), *x.shape))
+        for k, (s, tab) in enumerate(zip(self.dithers, self.tables, strict=True)):
+            out[k] = saw(x) if s == 0.0 else np.interp(frac, self.u, tab)
+        return out
 
 
 class _Binned:
@@ -100,22 +123,23 @@ class _Binned:
         quad = (gss * bc * bc - 2 * gcs * bc * bs + gcc * bs * bs) / det
         return quad / self.s2
 
-    def staircase_gain(self, q: np.ndarray, o: np.ndarray) -> np.ndarray:
-        """(q, o) twice the log-likelihood gain (≈ −ΔRSS/σ̂²) of the exact staircase, binned."""
-        x = (self.H[None, None, :] - o[None, :, None]) / q[:, None, None]
-        d = -q[:, None, None] * saw(x)  # staircase − h
+    def staircase_gain(self, q: float, o: np.ndarray, saws: _Saws) -> np.ndarray:
+        """(o, dither) twice the log-likelihood gain (≈ −ΔRSS/σ̂²) of the smoothed staircase of
+        step q, levels o and σ_d/q = ``saws.dithers``, binned."""
+        x = (self.H[None, :] - o[:, None]) / q
+        d = -q * saws(x)  # (dither, o, bin): staircase − h
         flat = d.reshape(-1, self.H.size)
         dp = self.project(flat)
         # RSS(r − d⊥) − RSS(r) = −2 d⊥·R0 + Σ W d⊥²
         drss = -2 * dp @ self.R0 + np.sum(self.W * dp * dp, axis=1)
-        return (-drss / self.s2).reshape(q.size, o.size)
+        return (-drss / self.s2).reshape(len(saws.dithers), o.size).T
 
 
 def _inside(
-    ctx: Context, i: int, st: State, h: np.ndarray, q: float, phi: float
+    ctx: Context, i: int, st: State, h: np.ndarray, q: float, phi: float, dither: float
 ) -> tuple[np.ndarray, np.ndarray, float]:
     """The staircase of series i with its free nuisance refitted inside the rounding: (h', mean
-    = q·round((h' − φ)/q) + φ + c, the outer offset c).
+    = staircase(h', q, φ, σ_d) + c, the outer offset c).
 
     The nominal harmonic was fitted to the quantised data, so its amplitude and phase are biased
     by the staircase (by up to a fifth when the motion spans one or two steps). Refitting the
@@ -133,16 +157,20 @@ def _inside(
     d = 0.25 * q
 
     def rss(hh):
-        stair = staircase(hh, q, phi)
+        stair = staircase(hh, q, phi, dither)
         beta, _, fitted = lstsq(one, s.y - stair, w)
         return float(np.sum(w * (s.y - stair - fitted) ** 2)), stair + fitted, float(beta[0])
 
     best = (h, *rss(h))
     for _ in range(N_INSIDE):
         jac = np.stack(
-            [(staircase(h + d * c, q, phi) - staircase(h - d * c, q, phi)) / (2 * d) for c in nu.T], axis=1
+            [
+                (staircase(h + d * c, q, phi, dither) - staircase(h - d * c, q, phi, dither)) / (2 * d)
+                for c in nu.T
+            ],
+            axis=1,
         )
-        beta = lstsq(jac, s.y - staircase(h, q, phi), w)[0]
+        beta = lstsq(jac, s.y - staircase(h, q, phi, dither), w)[0]
         lam = 1.0
         while lam > 0.1:
             trial = h + lam * (nu @ beta)
@@ -158,20 +186,22 @@ def _inside(
     return best[0], best[2], best[3]
 
 
-def _joint(ctx: Context, states: list[State], use: list[int], h: dict, q: float, phi: dict):
-    """Gauss-Newton on the shared step q and every series' nuisance inside the rounding.
+def _joint(ctx: Context, states: list[State], use: list[int], h: dict, q: float, phi: dict, dither: float):
+    """Gauss-Newton on the shared step q and dither σ_d and every series' nuisance inside the
+    rounding.
 
     A step and the motion's amplitude scaled alike put the steps at the same instants; only the
     levels tell them apart, so the grid in q and the per-series refit (`_inside`) converge slowly
     along that valley, and a step off by 2 % leaves a periodic residual of levels (taken as
-    harmonic_distortion). Here both move at once: each series' levels are counted from the one
+    harmonic_distortion). Here all move at once: each series' levels are counted from the one
     nearest its motion (L_s ≡ φ_s mod q, so that q moves the few levels the motion crosses, not
     the ~10³ down to 0 mm), the derivatives are central differences over a quarter step at the
-    extreme level, the nuisance is eliminated series by series (Schur complement), and steps that
-    do not lower the summed weighted RSS are halved (the normal equations weigh each series by
-    1/σ̂², so that σ_q is the step's standard error).
+    extreme level (σ_d's over ±q/100, one-sided at 0), the nuisance is eliminated series by series
+    (Schur complement), and steps that do not lower the summed weighted RSS are halved (the normal
+    equations weigh each series by 1/σ̂², so that their inverse is the covariance of (q, σ_d)).
+    σ_d stays at 0 when it starts there: the staircase is flat in σ_d at 0 (the grid decides).
 
-    Returns (q, σ_q from the Gauss-Newton information, {i: (L_s, h', mean, outer offset)}).
+    Returns (q, σ_q, σ_d, its standard error (None at 0), {i: (L_s, h', mean, outer offset)}).
     """
     data = {}
     for i in use:
@@ -180,12 +210,14 @@ def _joint(ctx: Context, states: list[State], use: list[int], h: dict, q: float,
         w = weights(states[i])
         level = phi[i] + q * float(np.round((np.median(h[i]) - phi[i]) / q))
         data[i] = (s.y, w, nu, level)
+    free_d = dither > 0.0
+    n_shared = 2 if free_d else 1
 
-    def evaluate(hs, qq):
+    def evaluate(hs, qq, dd):
         out, chi = {}, 0.0
         for i in use:
             y, w, _, level = data[i]
-            stair = staircase(hs[i], qq, level)
+            stair = staircase(hs[i], qq, level, dd)
             c = float(np.sum(w * (y - stair)) / max(float(w.sum()), 1e-300))
             rss = float(np.sum(w * (y - stair - c) ** 2))
             s2 = rss / max(int((w > 0).sum()) - 1, 1) or 1e-300
@@ -193,10 +225,11 @@ def _joint(ctx: Context, states: list[State], use: list[int], h: dict, q: float,
             chi += rss
         return chi, out
 
-    chi, fit = evaluate(h, q)
-    info = 0.0
+    chi, fit = evaluate(h, q, dither)
+    info = np.zeros((n_shared, n_shared))
     for _ in range(N_INSIDE):
-        info = grad = 0.0
+        info = np.zeros((n_shared, n_shared))
+        grad = np.zeros(n_shared)
         parts = {}
         for i in use:
             y, w, nu, level = data[i]
@@ -205,43 +238,54 @@ def _joint(ctx: Context, states: list[State], use: list[int], h: dict, q: float,
             k_max = max(float(np.max(np.abs(np.round((hi - level) / q)))), 1.0)
             d, dq = 0.25 * q, 0.25 * q / k_max
             cols = [
-                (staircase(hi + d * c, q, level) - staircase(hi - d * c, q, level)) / (2 * d) for c in nu.T
+                (staircase(hi + d * c, q, level, dither) - staircase(hi - d * c, q, level, dither)) / (2 * d)
+                for c in nu.T
             ]
             jac = np.stack([*cols, np.ones_like(hi)], axis=1)
-            jq = (staircase(hi, q + dq, level) - staircase(hi, q - dq, level)) / (2 * dq)
-            r = y - staircase(hi, q, level)
+            shared = [(staircase(hi, q + dq, level, dither) - staircase(hi, q - dq, level, dither)) / (2 * dq)]
+            if free_d:
+                dd = 0.01 * q
+                lo = max(dither - dd, 0.0)
+                up = staircase(hi, q, level, lo + 2 * dd)
+                shared.append((up - staircase(hi, q, level, lo)) / (2 * dd))
+            jq = np.stack(shared, axis=1)
+            r = y - staircase(hi, q, level, dither)
             jw = jac * ww[:, None]
             a_inv = np.linalg.pinv(jw.T @ jac)
             b, g = jw.T @ r, jw.T @ jq
-            info += float(np.sum(ww * jq * jq) - g @ a_inv @ g)
-            grad += float(np.sum(ww * jq * r) - g @ a_inv @ b)
+            info += (jq * ww[:, None]).T @ jq - g.T @ a_inv @ g
+            grad += (jq * ww[:, None]).T @ r - g.T @ a_inv @ b
             parts[i] = (a_inv, b, g, nu)
-        step_q = grad / info if info > 0 else 0.0
+        step = np.linalg.pinv(info) @ grad
         lam = 1.0
         while lam > 0.1:
-            qn = q + lam * step_q
+            qn = q + lam * step[0]
+            dn = max(dither + lam * step[1], 0.0) if free_d else dither
             hn = {
-                i: h[i] + lam * (nu @ (a_inv @ (b - g * step_q))[: nu.shape[1]])
+                i: h[i] + lam * (nu @ (a_inv @ (b - g @ step))[: nu.shape[1]])
                 for i, (a_inv, b, g, nu) in parts.items()
             }
-            chi_n, fit_n = evaluate(hn, qn)
+            chi_n, fit_n = evaluate(hn, qn, dn)
             if chi_n < chi:
                 break
             lam *= 0.5
         else:
             break
         small = chi - chi_n <= 1e-9 * chi
-        q, h, chi, fit = qn, hn, chi_n, fit_n
+        q, dither, h, chi, fit = qn, dn, hn, chi_n, fit_n
         if small:
             break
-    sig_q = 1.0 / math.sqrt(info) if info > 0 else None
-    return q, sig_q, {i: (data[i][3], h[i], fit[i][0], fit[i][1]) for i in use}
+    cov = np.linalg.pinv(info)
+    sig_q = math.sqrt(cov[0, 0]) if cov[0, 0] > 0 else None
+    sig_d = math.sqrt(cov[1, 1]) if free_d and cov[1, 1] > 0 else None
+    return q, sig_q, dither, sig_d, {i: (data[i][3], h[i], fit[i][0], fit[i][1]) for i in use}
 
 
 class Quantization(Effect):
     id = "quantization"
     meaning = "depth measured in steps (structured-light disparity quantisation)"
     plausible, plausible_unit, gate_params = 0.3, "noise", 2  # a step of about σ (RMS q/√12)
+    dithers: tuple[float, ...] = DITHERS  # the grid of σ_d/q ((0.0,): the hard staircase alone)
 
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
         idx = []
@@ -297,13 +341,17 @@ class Quantization(Effect):
         return [self._proposal(ctx, best, p_value, float(nus.size))]  # the step's grid
 
     def _refine(self, ctx, states, idx, bins, spans, q0, d_nu) -> dict | None:
-        """(q, φ_s) on the exact staircase near q0: q shared, the staircase's phase φ_s per series.
+        """(q, σ_d, φ_s) on the smoothed staircase near q0: q and σ_d shared, the staircase's
+        phase φ_s per series.
 
-        The nominal offset is itself biased by the quantisation, so the staircase's phase is free
-        per series; the camera's absolute levels o_s = φ_s + c_s (c_s the refitted offset) should
-        then agree between plates. So is the nominal amplitude, and a step measured on a scaled
-        h is scaled alike: the grid and the refit of h inside the rounding (`_inside`) alternate
-        (``N_OUTER`` times), the grid binning the residual by the refitted h.
+        The grid runs over q, the levels' phase and σ_d/q (``dithers``, 0-0.5: beyond, the steps'
+        first harmonic is below exp(−2π²/4) ≈ 0.7 % of the hard staircase's). The nominal offset
+        is itself biased by the quantisation, so the staircase's phase is free per series; the
+        camera's absolute levels o_s = φ_s + c_s (c_s the refitted offset) should then agree
+        between plates. So is the nominal amplitude, and a step measured on a scaled h is scaled
+        alike: the grid and the refit of h inside the rounding (`_inside`) alternate
+        (``N_OUTER`` times), the grid binning the residual by the refitted h; `_joint` then
+        refines q, σ_d and every nuisance together.
         """
         fr = np.arange(N_OFFSET) / N_OFFSET  # fractions of q
         use = [i for i in idx if spans[i] > q0]
@@ -311,29 +359,31 @@ class Quantization(Effect):
             return None
         logn_all = math.log(sum(ctx.series[i].n for i in use))
         width = next(iter(bins.values())).width
+        saws = _Saws(self.dithers)
         h = {i: states[i].mean for i in use}
         q = q0
         for outer in range(N_OUTER):
             if outer:
                 bins = {i: _Binned(h[i], ctx.series[i].y - h[i], weights(states[i]), width) for i in use}
             qs = 1.0 / (1.0 / q + np.linspace(-d_nu, d_nu, N_REFINE))
-            gains = np.zeros((len(use), qs.size, N_OFFSET))
+            gains = np.zeros((len(use), qs.size, N_OFFSET, len(saws.dithers)))
             for j, i in enumerate(use):
                 for a, qa in enumerate(qs):
-                    gains[j, a] = bins[i].staircase_gain(np.array([qa]), fr * qa)[0]
-            per = gains.max(axis=2).sum(axis=0)
-            a = int(np.argmax(per))
+                    gains[j, a] = bins[i].staircase_gain(float(qa), fr * qa, saws)
+            per = gains.max(axis=2).sum(axis=0)  # (q, dither)
+            a, b = np.unravel_index(int(np.argmax(per)), per.shape)
             q = float(qs[a])
+            dither = saws.dithers[b] * q
             sig_q = None
             if 0 < a < qs.size - 1:
-                d2 = (per[a - 1] - 2 * per[a] + per[a + 1]) / ((qs[a + 1] - qs[a - 1]) / 2) ** 2
+                d2 = (per[a - 1, b] - 2 * per[a, b] + per[a + 1, b]) / ((qs[a + 1] - qs[a - 1]) / 2) ** 2
                 if d2 < 0:
                     sig_q = math.sqrt(2.0 / -d2)
             phi = {}
             for j, i in enumerate(use):
-                phi[i] = float(fr[int(np.argmax(gains[j, a]))] * q)
-                h[i] = _inside(ctx, i, states[i], h[i], q, phi[i])[0]
-        q, sig_joint, fits = _joint(ctx, states, use, h, q, phi)
+                phi[i] = float(fr[int(np.argmax(gains[j, a, :, b]))] * q)
+                h[i] = _inside(ctx, i, states[i], h[i], q, phi[i], dither)[0]
+        q, sig_joint, dither, sig_d, fits = _joint(ctx, states, use, h, q, phi, dither)
         sig_q = sig_joint if sig_joint is not None else sig_q
         new, kept_gain, levels = {}, {}, {}
         for i in use:
@@ -347,9 +397,19 @@ class Quantization(Effect):
         if not new:
             return None
         kept = sorted(new)
-        n_params = 1 + len(kept)
+        n_params = 2 + len(kept)  # q, σ_d and a phase per series
         score = 2 * sum(kept_gain.values()) - n_params * logn_all
-        return dict(score=score, q=q, sig_q=sig_q, offsets=levels, new=new, kept=kept, n_params=n_params)
+        return dict(
+            score=score,
+            q=q,
+            sig_q=sig_q,
+            dither=dither,
+            sig_dither=sig_d,
+            offsets=levels,
+            new=new,
+            kept=kept,
+            n_params=n_params,
+        )
 
     def _proposal(self, ctx: Context, best: dict, p_value: float, trials: float) -> Proposal:
         kept, q = best["kept"], best["q"]
@@ -377,13 +437,15 @@ class Quantization(Effect):
             parameters={
                 "step_mm": param(q, best["sig_q"]),
                 "offset_mm": param(o, sig_o),
+                "dither_mm": param(best["dither"], best["sig_dither"]),
             },
             t_start=0.0,
             t_end=float(ctx.duration_s),
             band_hz=None,
             explanation=(
-                f"The depth of {where} moves in steps of {q:.3f} mm (levels at {o:.3f} mm + k·{q:.3f} mm): "
-                "the structured-light camera measures disparity in fractions of a pixel, so a smooth "
+                f"The depth of {where} moves in steps of {q:.3f} mm (levels at {o:.3f} mm + k·{q:.3f} mm), "
+                f"smoothed by {best['dither']:.3f} mm of pixel noise before the rounding: the "
+                "structured-light camera measures disparity in fractions of a pixel, so a smooth "
                 "motion is recorded as a staircase."
             ),
             detail={
