@@ -2,10 +2,18 @@
 
 Physical meaning: a structured-light camera measures disparity in fractions of a pixel (1/8 px on
 a Kinect), so depth comes in steps that grow as z² (Δz = z² Δd / (b f): about 1 mm at 1 m and
-4-10 mm at 2-3 m for single pixels); a plate's centroid averages many pixels at different depths
-and keeps a residual step. The signal is quantised before the sensor noise is added, so the
-residual against a smooth model is a deterministic sawtooth of the position:
-y − h = −q·saw((h − o)/q), saw(x) = x − round(x).
+4-10 mm at 2-3 m for single pixels). Each pixel's reading is noisy *before* it is rounded: pixel i
+of a plate at depth z reads o + q·round((z + e_i − o)/q), e_i ~ N(0, σ_d²) (σ_d the pixel noise
+before rounding, the "dither"). The plate's centroid averages its pixels, so its mean is the
+dither-smoothed staircase (`jaxdefl._lattice.smoothed_staircase`)
+
+    m(h) = o + q·E[round((h − o)/q + (σ_d/q) Z)],  Z ~ N(0, 1),
+
+and its residual against a smooth model is a smoothed sawtooth of the position,
+m(h) − h = −q Σ_k (−1)^(k+1) exp(−2π²k²σ_d²/q²) sin(2πk (h − o)/q)/(πk): the hard staircase
+−q·saw((h − o)/q) for σ_d = 0, washed out as σ_d grows (the first harmonic by
+exp(−2π²σ_d²/q²): 45 % at σ_d = 0.2 q, 0.7 % at 0.5 q). The rounding noise of the pixels adds to
+the centroid's variance (≈ q²/(12 P) for P pixels once σ_d ≳ q/2), not to its mean.
 
 Signature test: the residual binned by the current model value h (z series, whatever the
 ``--sensor`` hint says: the data decide — a ToF camera's range comes in steps too, and a wrong
@@ -13,20 +21,27 @@ hint must not hide a staircase), then for every step q of a grid uniform in 1/q 
 along h, spaced a quarter of a cycle over the motion's span) the first harmonic of the sawtooth,
 cos and sin of 2π h/q, is regressed on the binned residual with the offset and h itself free (the
 harmonic's cosine is a function of h): a χ²_2 statistic per series, summed over the series for a
-common step. The p-value is the largest single-series statistic Bonferroni-corrected over series ×
-the grid, or the summed statistic (χ²_2S) corrected over the grid, whichever is smaller (doubled).
-Then q and the staircase's phase are refined on the exact staircase: the likelihood of y against
-q·round((h − φ_s)/q) + φ_s (no free amplitude). The phase is free per series because the nominal
-offset is itself biased by the quantisation; the camera's levels o_s = φ_s + c_s (c_s the refitted
-offset) come out alike on every plate when the levels are the camera's (reported: their circular
-mean).
+common step. The first harmonic is there whatever the dither (only its size changes), so the
+screen finds hard and smoothed staircases alike. The p-value is the largest single-series
+statistic Bonferroni-corrected over series × the grid, or the summed statistic (χ²_2S) corrected
+over the grid, whichever is smaller (doubled). Then q, the dither and the staircase's phase are
+refined on the smoothed staircase: the likelihood of y against staircase(h, q, φ_s, σ_d) (no free
+amplitude: the dither sets the steps' size), on a grid of q × phase × σ_d/q (0-0.5), then by
+Gauss-Newton on q, σ_d and the nuisance together (`_joint`). The phase is free per series because
+the nominal offset is itself biased by the quantisation; the camera's levels o_s = φ_s + c_s (c_s
+the refitted offset) come out alike on every plate when the levels are the camera's (reported:
+their circular mean).
 
-Model term: mean = q·round((h' − φ_s)/q) + φ_s + c_s, h' the current model with its free
-nuisance refitted inside the rounding (`_inside`: the nominal harmonic fitted to a staircase is
-biased), c_s the offset; q shared, φ_s per series (1 + S parameters). Only where the motion spans
-more than a step (q < 2A).
+Model term: mean = staircase(h', q, φ_s, σ_d) + c_s, h' the current model with its free nuisance
+refitted inside the rounding (`_inside`: the nominal harmonic fitted to a staircase is biased),
+c_s the offset; q and σ_d shared, φ_s per series (2 + S parameters). Only where the motion spans
+more than a step (q < 2A). Parameters: ``step_mm`` (q), ``offset_mm`` (the levels' circular
+mean, mod q), ``dither_mm`` (σ_d: the noise of a pixel before rounding, which is the centroid's
+noise times about √(pixels) when the pixels' noises are independent).
 
-Plausible magnitudes: q of 0.3-20 mm for structured light; its residual RMS is q/√12.
+Plausible magnitudes: q of 0.3-20 mm for structured light; σ_d from 0 to q/2 (beyond, the steps
+are gone); the term's residual RMS is q/√12 for σ_d = 0 and ≈ q exp(−2π²σ_d²/q²)/(π√2) above
+σ_d ≈ 0.2 q.
 """
 
 from __future__ import annotations
