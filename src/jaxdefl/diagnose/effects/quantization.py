@@ -257,7 +257,9 @@ def _joint(ctx: Context, states: list[State], use: list[int], h: dict, q: float,
                 for c in nu.T
             ]
             jac = np.stack([*cols, np.ones_like(hi)], axis=1)
-            shared = [(staircase(hi, q + dq, level, dither) - staircase(hi, q - dq, level, dither)) / (2 * dq)]
+            shared = [
+                (staircase(hi, q + dq, level, dither) - staircase(hi, q - dq, level, dither)) / (2 * dq)
+            ]
             if free_d:
                 dd = 0.01 * q
                 lo = max(dither - dd, 0.0)
