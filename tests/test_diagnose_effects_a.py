@@ -466,7 +466,7 @@ def test_quantization_does_not_depend_on_the_sensor_hint():
 
     ctx, states = make_case(_pixel_readings(6.0, 0.37, 4, 3), seed=7, n_plates=5, amplitude=6.0)
     ref = EFFECT.propose(ctx, states)
-    for sensor in ("tof", "structured_light", None):
+    for sensor in ("tof", "structured_light"):
         tof = dataclasses.replace(ctx, sensor=sensor)
         props = EFFECT.propose(tof, states)
         assert len(passing(tof, states, props)) == 1

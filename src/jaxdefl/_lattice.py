@@ -19,7 +19,7 @@ import math
 import numpy as np
 from scipy.special import ndtr
 
-__all__ = ["dithered_round", "smoothed_staircase"]
+__all__ = ["dithered_round", "dithered_round_var", "smoothed_staircase"]
 
 S_HARD = 1e-3  # below: the hard round (the smoothing is < Φ(−500) away from a step's edge)
 S_SMOOTH = 2.0  # above: x itself (the first harmonic is exp(−2π²·4) ≈ 6e-35 of q/π)
@@ -53,6 +53,30 @@ def dithered_round(x: np.ndarray, s: float) -> np.ndarray:
     for k in range(1, math.ceil(9.0 * s) + 2):
         out += ndtr((r - k + 0.5) / s) - ndtr((-r - k + 0.5) / s)
     return out
+
+
+def dithered_round_var(x: np.ndarray, s: float) -> np.ndarray:
+    """Var[round(x + s Z)], Z ~ N(0, 1), elementwise: the spread of one rounded reading.
+
+    With k = round(x + sZ) − n0 (n0 = round(x), r = x − n0), E[k²] = Σ_{j>=1} (2j − 1) [P(k >= j)
+    + P(k <= −j)] = Σ_j (2j − 1) [Φ((r − j + ½)/s) + Φ((−r − j + ½)/s)], and Var = E[k²] − E[k]².
+    0 for s below `S_HARD` (the hard round), s² + 1/12 above `S_SMOOTH` (Sheppard).
+    """
+    x = np.asarray(x, dtype=float)
+    if not s >= 0:
+        raise ValueError(f"s: expected a noise level >= 0, got {s}")
+    if s < S_HARD:
+        return np.zeros_like(x)
+    if s > S_SMOOTH:
+        return np.full_like(x, s * s + 1.0 / 12.0)
+    r = x - np.round(x)
+    m1 = np.zeros_like(x)
+    m2 = np.zeros_like(x)
+    for j in range(1, math.ceil(9.0 * s) + 2):
+        up, down = ndtr((r - j + 0.5) / s), ndtr((-r - j + 0.5) / s)
+        m1 += up - down
+        m2 += (2 * j - 1) * (up + down)
+    return m2 - m1 * m1
 
 
 def smoothed_staircase(h: np.ndarray, q: float, o: float, dither: float) -> np.ndarray:

@@ -12,8 +12,10 @@ dither-smoothed staircase (`jaxdefl._lattice.smoothed_staircase`)
 and its residual against a smooth model is a smoothed sawtooth of the position,
 m(h) − h = −q Σ_k (−1)^(k+1) exp(−2π²k²σ_d²/q²) sin(2πk (h − o)/q)/(πk): the hard staircase
 −q·saw((h − o)/q) for σ_d = 0, washed out as σ_d grows (the first harmonic by
-exp(−2π²σ_d²/q²): 45 % at σ_d = 0.2 q, 0.7 % at 0.5 q). The rounding noise of the pixels adds to
-the centroid's variance (≈ q²/(12 P) for P pixels once σ_d ≳ q/2), not to its mean.
+exp(−2π²σ_d²/q²): 45 % at σ_d = 0.2 q, 0.7 % at 0.5 q). The rounding also shapes the noise: a
+rounded reading's variance q² Var[round(x + (σ_d/q) Z)] (`dithered_round_var`) is small next to a
+level and largest halfway between two (for σ_d = 0.2 q: 0.02 q² against 0.25 q²), the centroid's
+that over P pixels; once σ_d ≳ q/2 it is flat, ≈ σ_d² + q²/12.
 
 Signature test: the residual binned by the current model value h (z series, whatever the
 ``--sensor`` hint says: the data decide — a ToF camera's range comes in steps too, and a wrong
@@ -34,10 +36,13 @@ their circular mean).
 
 Model term: mean = staircase(h', q, φ_s, σ_d) + c_s, h' the current model with its free nuisance
 refitted inside the rounding (`_inside`: the nominal harmonic fitted to a staircase is biased),
-c_s the offset; q and σ_d shared, φ_s per series (2 + S parameters). Only where the motion spans
-more than a step (q < 2A). Parameters: ``step_mm`` (q), ``offset_mm`` (the levels' circular
-mean, mod q), ``dither_mm`` (σ_d: the noise of a pixel before rounding, which is the centroid's
-noise times about √(pixels) when the pixels' noises are independent).
+c_s the offset; noise scale × √((1 − λ) + λ v(h')/v̄), v the rounded reading's variance profile
+and λ the share of the noise that is the pixels' before rounding (a grid 0-1 by likelihood; the
+rest is taken as added after the rounding); q, σ_d and λ shared, φ_s per series (3 + S
+parameters; 2 + S at σ_d = 0). Only where the motion spans more than a step (q < 2A).
+Parameters: ``step_mm`` (q), ``offset_mm`` (the levels' circular mean, mod q), ``dither_mm``
+(σ_d: the noise of a pixel before rounding, which is the centroid's noise times about √(pixels)
+when the pixels' noises are independent), ``rounded_noise_share`` (λ).
 
 Plausible magnitudes: q of 0.3-20 mm for structured light; σ_d from 0 to q/2 (beyond, the steps
 are gone); the term's residual RMS is q/√12 for σ_d = 0 and ≈ q exp(−2π²σ_d²/q²)/(π√2) above
@@ -50,7 +55,7 @@ import math
 
 import numpy as np
 
-from ..._lattice import dithered_round, smoothed_staircase
+from ..._lattice import dithered_round, dithered_round_var, smoothed_staircase
 from .._base import Context, Effect, Proposal, State, keep_series, lstsq
 from .screening import bonferroni, chi2_sf, gain, param, residual, touched, updated, weights
 
@@ -65,6 +70,7 @@ N_INSIDE = 12
 N_OUTER = 3
 DITHERS = tuple(np.round(np.linspace(0.0, 0.5, 11), 3))  # the grid of σ_d / q
 N_TABLE = 512  # samples of a smoothed sawtooth's period (the grid's lookup)
+SHARES = (0.0, 0.25, 0.5, 0.75, 1.0)  # the grid of the noise's share that is rounded pixel noise
 
 
 def saw(x: np.ndarray) -> np.ndarray:
@@ -402,19 +408,38 @@ class Quantization(Effect):
                 h[i] = _inside(ctx, i, states[i], h[i], q, phi[i], dither)[0]
         q, sig_joint, dither, sig_d, fits = _joint(ctx, states, use, h, q, phi, dither)
         sig_q = sig_joint if sig_joint is not None else sig_q
+        # the noise: a rounded reading spreads little next to a level and most between two
+        # (Var round(x + sZ): for s = 0.2, 0.02 at a level and 0.25 halfway), so where the
+        # noise is the pixels' before rounding its variance follows the staircase too; its share
+        # λ of the noise (the rest: added after the rounding) by likelihood
+        shares = SHARES if dither > 0 else (0.0,)
+        profile = {}
+        for i in use:
+            level, hh = fits[i][0], fits[i][1]
+            v = dithered_round_var((hh - level) / q, dither / q)
+            profile[i] = np.maximum(v / max(float(np.mean(v)), 1e-300), 0.01)
+        best_share, best_total, cands = 0.0, -math.inf, {}
+        for lam in shares:
+            trial = {}
+            for i in use:
+                st = states[i]
+                scale = st.scale * np.sqrt((1.0 - lam) + lam * profile[i])
+                cand = updated(st, self.id, 1, mean=fits[i][2], scale=scale)
+                trial[i] = (cand, gain(ctx, i, st, cand))
+            total = sum(g for _, g in trial.values())
+            if total > best_total:
+                best_share, best_total, cands = lam, total, trial
         new, kept_gain, levels = {}, {}, {}
         for i in use:
-            st = states[i]
-            phi, _, mean, offset = fits[i]
-            cand = updated(st, self.id, 1, mean=mean)
-            g = gain(ctx, i, st, cand)
+            phi, _, _, offset = fits[i]
+            cand, g = cands[i]
             if keep_series(g, 1, ctx.series[i].n):
                 new[i], kept_gain[i] = cand, g
                 levels[i] = float((phi + offset) % q)
         if not new:
             return None
         kept = sorted(new)
-        n_params = 2 + len(kept)  # q, σ_d and a phase per series
+        n_params = 2 + (len(shares) > 1) + len(kept)  # q, σ_d, the share λ, a phase per series
         score = 2 * sum(kept_gain.values()) - n_params * logn_all
         return dict(
             score=score,
@@ -422,6 +447,7 @@ class Quantization(Effect):
             sig_q=sig_q,
             dither=dither,
             sig_dither=sig_d,
+            share=best_share,
             offsets=levels,
             new=new,
             kept=kept,
@@ -455,6 +481,7 @@ class Quantization(Effect):
                 "step_mm": param(q, best["sig_q"]),
                 "offset_mm": param(o, sig_o),
                 "dither_mm": param(best["dither"], best["sig_dither"]),
+                "rounded_noise_share": param(best["share"]),
             },
             t_start=0.0,
             t_end=float(ctx.duration_s),
