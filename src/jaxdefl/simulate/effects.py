@@ -34,11 +34,13 @@ outliers               a fraction ε of the samples of 1-3 plates get an error N
 heteroscedastic_noise  σ_i = σ0 (1 + m u_i), u = cos(ω t_rel − φ − ψ) (kind "phase") or
                        (t − t_mid)/(duration/2) (kind "time"); ``modulation`` (m).
 quantization           noise before rounding, as a disparity camera makes it: each z is the mean of
-                       P pixel readings o + q round((z_clean + e_i − o)/q), e_i ~ N(0, P σ²) (the
-                       unrounded mean has the series' noise σ, and that noise is not added again);
-                       its mean is the smoothed staircase `jaxdefl._lattice.smoothed_staircase`
-                       with dither σ√P; ``step_mm`` (q), ``offset_mm`` (o), ``pixels`` (P,
-                       default 1); structured-light recordings only.
+                       P pixel readings o + q round((z_clean + e_i − o)/q), e_i ~ N(0, σ_d²), plus
+                       the rest of the series' noise after the rounding, N(0, σ² − σ_d²/P) (none
+                       for the default σ_d = σ√P: then the pixels' noise is the whole noise); the
+                       unrounded reading has the series' noise σ, not added twice. Its mean is the
+                       smoothed staircase `jaxdefl._lattice.smoothed_staircase`; ``step_mm`` (q),
+                       ``offset_mm`` (o), ``pixels`` (P, default 1), ``dither_mm`` (σ_d, optional;
+                       drawn: P 20-200, σ_d/q 0.12-0.25); structured-light recordings only.
 mode_shape             z_p += a sin(nπ x_p/L) cos(2π f t_rel + ψ), x_p the plate's position on the
                        span L; ``mode`` (n = 2 or 3: sign changes across the plates), ``freq_hz``,
                        ``amplitude_mm`` (a, at the antinode), ``phase_rad``.
@@ -61,7 +63,11 @@ amplitude envelope within ±25 %, a phase wobble within 0.5 rad. Noise-structure
 0.15-0.4; outliers 0.2-1 % of the samples at 4-12 σ. The reference-tied effects use the physical
 ranges: the taps spread over 0.4-1 frame period; timestamps late by 2-10 ms; a clock rate of
 20-200 ppm (either sign) but as small as the RMS target asks (20-40 ppm for 15-20 minutes: larger
-rates put the camera-LDS mismatch far above the raw noise).
+rates put the camera-LDS mismatch far above the raw noise). A quantization step is at most half
+the largest plate's peak-to-peak motion (the cap wins over the target); its pixels' noise is
+drawn apart from the series' noise: with σ = 1 mm and ≤ 5.2 mm of motion, the default σ_d = σ√P
+is ≥ 4.5 mm for P ≥ 20 and washes out every step that fits the motion, while P of 1-2 leaves
+readings on the lattice itself (a plate whose motion spans less than a step reads constant).
 
 Public surface: `EFFECT_IDS`, `RecordingSpec`, `CleanRecording`, `random_spec`, `draw_effect`,
 `make_recording`, `make_case`, `primary_parameters`, `effect_strength`.
@@ -110,7 +116,9 @@ TOF_ONLY = frozenset({"motion_artefact"})  # four-phase sampling is a ToF proper
 SIGNAL_MIN = 200.0  # Σ n rms²/σ² over the affected series (aim: >= ~150, with a margin)
 RMS_RATIO_RANGE = (0.1, 0.6)  # effect RMS / raw noise σ of the touched series
 MODULATION_RANGE = (0.15, 0.4)  # heteroscedastic noise
-PIXELS_RANGE = (1, 3)  # quantization: pixels averaged per reading, integers in [1, 3)
+# quantization: pixels averaged per reading (log-uniform), their noise before rounding σ_d / q
+PIXELS_RANGE = (20.0, 200.0)
+DITHER_RATIO_RANGE = (0.12, 0.25)
 
 # Experiment II's days at 3 Hz: (day, cycles at start, f0 Hz, mid-span amplitude mm) of Table 6.16
 # (ToF days, LDS) and Table 6.24 (Kinect days), as in configs/exp2_{tof,kinect}_3hz.toml
@@ -451,27 +459,46 @@ def _render(base: CleanRecording, effects: Sequence[Mapping]) -> tuple[np.ndarra
     return t_tab, pos, extras
 
 
+def _pixel_dither(base: CleanRecording, e: Mapping, j: int) -> float:
+    """σ_d (mm) of plate j's pixels before rounding: ``dither_mm``, default σ√P (the whole noise)."""
+    p = e["parameters"]
+    if "dither_mm" in p:
+        return float(p["dither_mm"])
+    return float(base.sigma[j, 2]) * math.sqrt(int(p.get("pixels", 1)))
+
+
 def _quantised_readings(
     base: CleanRecording, e: Mapping, j: int, z_clean: np.ndarray, sig_f: np.ndarray, noise: np.ndarray
 ) -> np.ndarray:
     """(frame,) plate j's z as a disparity camera reads it: the mean of P pixel readings
-    o + q·round((z_clean + e_i − o)/q), the pixels' noise before the rounding.
+    o + q·round((z_clean + e_i − o)/q), the pixels' noise e_i ~ N(0, σ_d²) before the rounding,
+    plus the rest of the series' noise after it (none when σ_d = σ√P, the default).
 
-    The e_i are iid N(0, P σ_f²) given their mean ``noise`` (σ_f ``sig_f``, the frame's noise
-    level, ``noise`` its draw σ_f·ε of the recording without quantisation): e_i =
-    noise + σ_f √P (g_i − ḡ), g_i iid N(0, 1) from a stream of the recording's seed and the
-    plate (`CleanRecording` keeps its own draws), has exactly that law. So the unrounded mean is
-    the noise the recording has without quantisation (frame-common and line-of-sight parts
-    included), and a control and a quantised case differ by the rounding alone.
+    ``noise`` = σ_f ε is the draw of the recording without quantisation (σ_f ``sig_f``, the
+    frame's level). It is split into independent parts before and after the rounding, with
+    ρ = σ_d²/(P σ_f²) (at most 1): the pixels' mean m = √ρ σ_f (√ρ ε + √(1 − ρ) u) and the rest
+    σ_f ε − m (uncorrelated with m: both variances add to σ_f²); then e_i = m + σ_d (g_i − ḡ),
+    u and g_i iid N(0, 1) from a stream of the recording's seed and the plate (`CleanRecording`
+    keeps its own draws), has exactly the law of P iid N(0, σ_d²) with mean m. So the unrounded
+    reading has the noise of the recording without quantisation (frame-common and line-of-sight
+    parts included), and a control and a quantised case differ by the rounding alone.
     """
     p = e["parameters"]
     q, o, n_px = float(p["step_mm"]), float(p["offset_mm"]), int(p.get("pixels", 1))
     if n_px < 1:
         raise ValueError(f"quantization: pixels must be >= 1, got {n_px}")
-    g = np.random.default_rng([base.seed, 7004, j]).standard_normal((z_clean.size, n_px))
+    dither = _pixel_dither(base, e, j)
+    rng = np.random.default_rng([base.seed, 7004, j])
+    u = rng.standard_normal(z_clean.size)
+    g = rng.standard_normal((z_clean.size, n_px))
     g -= g.mean(axis=1, keepdims=True)
-    e_px = noise[:, None] + (sig_f * math.sqrt(n_px))[:, None] * g
-    return np.mean(q * np.round((z_clean[:, None] + e_px - o) / q) + o, axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rho = np.where(sig_f > 0, np.minimum(dither**2 / (n_px * sig_f**2), 1.0), 1.0)
+    eps = base.eps[:, j, 2]
+    m = np.sqrt(rho) * sig_f * (np.sqrt(rho) * eps + np.sqrt(1.0 - rho) * u)
+    e_px = m[:, None] + dither * g
+    readings = np.mean(q * np.round((z_clean[:, None] + e_px - o) / q) + o, axis=1)
+    return readings + (noise - m)
 
 
 def _het_u(base: CleanRecording, e: Mapping, t_tab: np.ndarray) -> np.ndarray:
@@ -562,10 +589,9 @@ def effect_strength(base: CleanRecording, e: Mapping) -> tuple[float, float]:
     clean = base.motion(t_tab) if eid == "timing_error" else _camera_clean(base, [])[1]
     if eid == "quantization":  # the deterministic part: the mean reading, smoothed by the pixels' noise
         q, o = float(p["step_mm"]), float(p["offset_mm"])
-        root_px = math.sqrt(int(p.get("pixels", 1)))
         pos = pos.copy()
         for j in idx:
-            pos[:, j, 2] = smoothed_staircase(pos[:, j, 2], q, o, base.sigma[j, 2] * root_px)
+            pos[:, j, 2] = smoothed_staircase(pos[:, j, 2], q, o, _pixel_dither(base, e, j))
     delta = (pos - clean)[:, idx][:, :, axes].reshape(n, -1)
     rms = _absorbed_rms(base, t_tab, delta, tied=eid in NEEDS_REFERENCE)
     with np.errstate(divide="ignore", invalid="ignore"):  # a noise-free recording: infinite ratio
@@ -775,18 +801,17 @@ def draw_effect(
     elif effect_id == "quantization":
         if spec.sensor != "structured_light":
             raise ValueError("quantization: only for structured-light recordings (spec.sensor)")
+        pixels = int(round(_loguniform(rng, *PIXELS_RANGE)))
+        ratio = float(rng.uniform(*DITHER_RATIO_RANGE))
         e = dict(
             id=effect_id,
             kind="depth_steps",
-            parameters={"step_mm": 1.0, "offset_mm": 0.0, "pixels": int(rng.integers(*PIXELS_RANGE))},
+            parameters={"step_mm": 1.0, "offset_mm": 0.0, "pixels": pixels, "dither_mm": ratio},
             plates=everyone,
             axes=["z"],
         )
-        e["parameters"]["step_mm"] = q = _quantization_step(base, e, target, signal_min)
-        if e["parameters"]["pixels"] > 1 and effect_strength(base, e)[0] < RMS_RATIO_RANGE[0]:
-            e["parameters"]["pixels"] = 1  # under the cap, more pixels smooth the steps away
-            e["parameters"]["step_mm"] = q = _quantization_step(base, e, target, signal_min)
-        e["parameters"]["offset_mm"] = float(rng.uniform(0, q))
+        q = _quantization_step(base, e, target, signal_min, ratio)
+        e["parameters"] |= {"step_mm": q, "dither_mm": ratio * q, "offset_mm": float(rng.uniform(0, q))}
         return e
     elif effect_id == "mode_shape":
         e = dict(
@@ -827,20 +852,27 @@ def draw_effect(
     return e
 
 
-def _quantization_step(base: CleanRecording, e: dict, target: float, signal_min: float) -> float:
-    """The smallest step q (mm) with r >= target and S >= signal_min, at most 0.9 × the largest
-    plate's peak-to-peak motion (a larger step puts the motion on one or two levels: no staircase
-    left to see, whatever its RMS); bisection in log q.
+def _quantization_step(
+    base: CleanRecording, e: dict, target: float, signal_min: float, dither_ratio: float | None = None
+) -> float:
+    """The smallest step q (mm) with r >= target and S >= signal_min, at most half the largest
+    plate's peak-to-peak motion (a larger step puts the motion on one to three levels: a smooth
+    function of the position, i.e. harmonics of f0, with no staircase left to tell it by, whatever
+    its RMS); bisection in log q, the pixels' noise ``dither_mm`` kept at
+    ``dither_ratio`` × q when given.
 
-    Not `_fit_magnitude`'s r ∝ q: the pixels' noise σ_px = σ√P smooths the staircase, its RMS
-    ∝ q exp(−2π²σ_px²/q²) for q ≲ 2σ_px (a log-slope 1 + 4π²σ_px²/q², dozens where q ~ σ_px),
-    so a multiplicative secant step overshoots and diverges. Below the cap r and S grow with q.
+    Not `_fit_magnitude`'s r ∝ q: with a fixed pixel noise σ_d (σ√P by default) the staircase's
+    RMS is ∝ q exp(−2π²σ_d²/q²) for q ≲ 2σ_d (a log-slope 1 + 4π²σ_d²/q², dozens where
+    q ~ σ_d), so a multiplicative secant step overshoots and diverges. Below the cap r and S grow
+    with q.
     """
     p = e["parameters"]
-    q_max = 0.9 * 2.0 * base.amp0 * float(np.max(np.abs(base.shape[np.asarray(e["plates"], int) - 1])))
+    q_max = 0.5 * 2.0 * base.amp0 * float(np.max(np.abs(base.shape[np.asarray(e["plates"], int) - 1])))
 
     def enough(q: float) -> bool:
         p["step_mm"] = q
+        if dither_ratio is not None:
+            p["dither_mm"] = dither_ratio * q
         r, s = effect_strength(base, e)
         return r >= target and s >= signal_min
 

@@ -311,6 +311,8 @@ class Quantization(Effect):
     dithers: tuple[float, ...] = DITHERS  # the grid of σ_d/q ((0.0,): the hard staircase alone)
 
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
+        if any(touched(st, self.id) for st in states):
+            return []  # one camera, one lattice: a second step would fit what the first left
         idx = []
         for i in ctx.indices("z"):
             if touched(states[i], self.id) or ctx.series[i].n < 64:
@@ -383,6 +385,7 @@ class Quantization(Effect):
         logn_all = math.log(sum(ctx.series[i].n for i in use))
         width = next(iter(bins.values())).width
         saws = _Saws(self.dithers)
+        bins_all = bins
         h = {i: states[i].mean for i in use}
         q = q0
         for outer in range(N_OUTER):
@@ -408,6 +411,16 @@ class Quantization(Effect):
                 h[i] = _inside(ctx, i, states[i], h[i], q, phi[i], dither)[0]
         q, sig_joint, dither, sig_d, fits = _joint(ctx, states, use, h, q, phi, dither)
         sig_q = sig_joint if sig_joint is not None else sig_q
+        # the series whose motion spans less than a step read the same lattice: a part of the
+        # smoothed sawtooth, there too (left alone, it is a function of h, i.e. harmonics of f0)
+        one = _Saws((dither / q,))
+        for i in idx:
+            if i in use:
+                continue
+            phi_i = float(fr[int(np.argmax(bins_all[i].staircase_gain(q, fr * q, one)[:, 0]))] * q)
+            h_i, mean_i, c_i = _inside(ctx, i, states[i], states[i].mean, q, phi_i, dither)
+            fits[i] = (phi_i, h_i, mean_i, c_i)
+        use = list(idx)
         # the noise: a rounded reading spreads little next to a level and most between two
         # (Var round(x + sZ): for s = 0.2, 0.02 at a level and 0.25 halfway), so where the
         # noise is the pixels' before rounding its variance follows the staircase too; its share
