@@ -73,6 +73,7 @@ N_INSIDE = 12
 N_OUTER = 3
 DITHERS = tuple(np.round(np.linspace(0.0, 0.5, 11), 3))  # the grid of σ_d / q
 N_TABLE = 512  # samples of a smoothed sawtooth's period (the grid's lookup)
+GAINS = (1.0, 1.5, 2.0, 2.5, 3.0)  # starts of a short motion's amplitude (`_phase`)
 SHARES = (0.0, 0.25, 0.5, 0.75, 1.0)  # the grid of the noise's share that is rounded pixel noise
 
 
@@ -178,7 +179,7 @@ def _inside(
     nu = ctx.nuisance(i)
     w = weights(st)
     one = np.ones((s.n, 1))
-    d = 0.25 * q
+    d = 0.25 * q if dither <= 0 else min(0.25 * q, 0.5 * dither)  # smooth on the dither's scale
 
     def rss(hh):
         stair = staircase(hh, q, phi, dither)
@@ -208,6 +209,38 @@ def _inside(
         if float(np.max(np.abs(lam * (nu @ beta)))) < 1e-3 * q:
             break
     return best[0], best[2], best[3]
+
+
+def _phase(
+    ctx: Context, i: int, st: State, q: float, dither: float, phases: np.ndarray
+) -> tuple[float, np.ndarray, np.ndarray, float]:
+    """The staircase's phase on series i at a known step and dither: (φ, h', mean, outer offset).
+
+    A motion that spans less than a step reads mostly one or two levels, so the nominal harmonic
+    fitted to it is flattened (to half the amplitude and less), and inside the rounding a
+    flattened motion fits nearly as well as the true one (`_inside` stays there). So the start
+    is searched too: the motion scaled by ``GAINS`` about its mean × every phase, scored with the
+    nuisance refitted outside the rounding (linear); the best three are refined inside it.
+    """
+    s = ctx.series[i]
+    nu = ctx.nuisance(i)
+    w = weights(st)
+    centre = float(np.sum(w * st.mean) / max(float(w.sum()), 1e-300))
+    scored = []
+    for g in GAINS:
+        h0 = centre + g * (st.mean - centre)
+        for phi in phases:
+            stair = staircase(h0, q, float(phi), dither)
+            fitted = lstsq(nu, s.y - stair, w)[2]
+            scored.append((float(np.sum(w * (s.y - stair - fitted) ** 2)), h0, float(phi)))
+    scored.sort(key=lambda x: x[0])
+    best = None
+    for _, h0, phi in scored[:3]:
+        h_i, mean_i, c_i = _inside(ctx, i, st, h0, q, phi, dither)
+        r = float(np.sum(w * (s.y - mean_i) ** 2))
+        if best is None or r < best[0]:
+            best = (r, (phi, h_i, mean_i, c_i))
+    return best[1]
 
 
 def _joint(ctx: Context, states: list[State], use: list[int], h: dict, q: float, phi: dict, dither: float):
@@ -388,7 +421,6 @@ class Quantization(Effect):
         logn_all = math.log(sum(ctx.series[i].n for i in use))
         width = next(iter(bins.values())).width
         saws = _Saws(self.dithers)
-        bins_all = bins
         h = {i: states[i].mean for i in use}
         q = q0
         for outer in range(N_OUTER):
@@ -416,13 +448,9 @@ class Quantization(Effect):
         sig_q = sig_joint if sig_joint is not None else sig_q
         # the series whose motion spans less than a step read the same lattice: a part of the
         # smoothed sawtooth, there too (left alone, it is a function of h, i.e. harmonics of f0)
-        one = _Saws((dither / q,))
         for i in idx:
-            if i in use:
-                continue
-            phi_i = float(fr[int(np.argmax(bins_all[i].staircase_gain(q, fr * q, one)[:, 0]))] * q)
-            h_i, mean_i, c_i = _inside(ctx, i, states[i], states[i].mean, q, phi_i, dither)
-            fits[i] = (phi_i, h_i, mean_i, c_i)
+            if i not in use:
+                fits[i] = _phase(ctx, i, states[i], q, dither, fr * q)
         use = list(idx)
         # the noise: a rounded reading spreads little next to a level and most between two
         # (Var round(x + sZ): for s = 0.2, 0.02 at a level and 0.25 halfway), so where the
