@@ -40,9 +40,10 @@ c_s the offset; noise scale × √((1 − λ) + λ v(h')/v̄), v the rounded rea
 and λ the share of the noise that is the pixels' before rounding (a grid 0-1 by likelihood; the
 rest is taken as added after the rounding); q, σ_d and λ shared, φ_s per series (3 + S
 parameters; 2 + S at σ_d = 0). q and σ_d are fitted on the series whose motion spans more than
-a step (q < 2A); the others read the same lattice (their phase alone fitted: a part of a step is
-a smooth function of h, harmonics of f0 if left alone). One lattice per record: once accepted,
-no second step is proposed.
+a step (q < 2A); the others read the same lattice, their phase and nuisance fitted from searched
+starts (`_phase`: the rounding flattens their nominal harmonic; a part of a step is a smooth
+function of h, harmonics of f0 if left alone). One lattice per record: once accepted, no second
+step is proposed.
 Parameters: ``step_mm`` (q), ``offset_mm`` (the levels' circular mean, mod q), ``dither_mm``
 (σ_d: the noise of a pixel before rounding, which is the centroid's noise times about √(pixels)
 when the pixels' noises are independent), ``rounded_noise_share`` (λ).
