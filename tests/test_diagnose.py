@@ -198,6 +198,11 @@ def test_extra_periodic_is_located_and_improves_the_fit():
     assert e["band_hz"][0] < 1.37 < e["band_hz"][1]
     assert e["t_start"] == pytest.approx(traj["t"].min()) and e["t_end"] == pytest.approx(traj["t"].max())
     assert d["final"]["bic"] < d["nominal"]["bic"]
+    # the acceptance test as DIAG.json states it: a line's amplitude and phase (its frequency is
+    # scanned), χ²₂ at α / (effects screened · frequencies scanned)
+    assert e["lr_dof"] == 2 and e["trials"] > 100 and e["lr"] > e["lr_critical"]
+    crit = e["lr_critical"]  # χ²₂'s quantile at the level: exp(−crit / 2) = level
+    assert math.exp(-crit / 2) * e["trials"] < 0.05
     assert d["unexplained"] == []
 
 

@@ -429,11 +429,16 @@ def diagnose_file(
 # reconcile
 
 
+def _is_frames(recording: Path) -> bool:
+    """A frame recording (zarr, TUM, npz), not a trajectory table."""
+    return recording.suffix.lower() not in (".csv", ".parquet", ".pq", ".gz", ".txt")
+
+
 def _reconcile_input(recording: Path, segment: str | None, timestamps: str = "strict") -> pd.DataFrame:
     """A trajectory table as read, or a frame recording's extracted trajectories; one segment."""
     from .io import validate_trajectory
 
-    if recording.suffix.lower() in (".csv", ".parquet", ".pq", ".gz", ".txt"):
+    if not _is_frames(recording):
         df = read_trajectory(recording, timestamps=timestamps)
     else:
         from .frames import extract_recording
@@ -484,6 +489,8 @@ def reconcile_file(
     cfg = load_config(config, session)  # checked before anything is read or written
     outs = Outputs(inputs=[recording, config, reference])
     names = ("reconcile.json", "reconciled.toml", "report.md", "trajectories.png", "estimates.png")
+    if _is_frames(recording):
+        names += ("frames.png",)
     for name in names:
         outs.reserve(out / name, f"--out {out}: {name}")
     df = _reconcile_input(recording, settings.segment, timestamps)
@@ -500,6 +507,18 @@ def reconcile_file(
             on_step=lambda msg: status.update(f"reconcile: {msg} ..."),
             calibration=calibration,
         )
+    if _is_frames(recording):
+        # the frames level: the recording's first seconds against clips of the frame simulator
+        from .io.recording import open_recording
+        from .reconcile.frames import frame_levels
+        from .simulate.injection import FRAME_LEVELS
+
+        with console.status("reconcile: comparing the frames with the frame simulator's ..."):
+            frames_policy = "reclock" if timestamps == "reclock" else "strict"
+            shown = tuple(s for s in rec.specs if s.level in FRAME_LEVELS)
+            rec.levels[:0] = frame_levels(
+                open_recording(recording, timestamps=frames_policy), cfg, rec.f0_hz, shown, seed=seed
+            )
     base = Path(config).read_text()
     toml = (
         base.rstrip("\n")
@@ -532,7 +551,9 @@ def reconcile_file(
         outs.text(out / "reconcile.json", json.dumps(d, indent=2, default=float))
         outs.text(out / "reconciled.toml", toml)
         figs = []
-        for level in ("trajectories", "estimates"):
+        for level in ("frames", "trajectories", "estimates"):
+            if not any(r["level"] == level for r in rec.levels):
+                continue
             fig = plot_level(rec, level)
             outs.figure(out / f"{level}.png", fig, dpi=110)
             figs.append(f"{level}.png")

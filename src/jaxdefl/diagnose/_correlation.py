@@ -31,7 +31,7 @@ import numpy as np
 
 from ._base import Context, State
 
-__all__ = ["D_MIN", "FrameCorrelation", "frame_correlation"]
+__all__ = ["D_MIN", "FrameCorrelation", "frame_correlation", "gls_gain"]
 
 # Pairs with fewer common differences than this get no correlation (ρ = 0).
 _MIN_PAIRS = 50
@@ -91,6 +91,60 @@ class FrameCorrelation:
     def discount(self, dll: dict[int, float], shape: dict[int, float] | None = None) -> float:
         """Σ Δlog L over a term's series (per-series ``dll``) divided by their design effect."""
         return float(sum(dll.values())) / self.design_effect(list(dll), shape)
+
+
+def gls_gain(ctx: Context, states: list[State], new: dict[int, State]) -> float | None:
+    """Δlog L of a term of known pattern under the noise covariance of its series: the generalised
+    least-squares statistic along the term's change δ (``new`` against ``states``),
+
+        2 Δlog L = (Σ_t δ_tᵀ Σ⁻¹ r_t)² / Σ_t δ_tᵀ Σ⁻¹ δ_t,
+
+    δ_t and r_t the change and the residual of the term's series in frame t over their noise
+    scales, on the frames they all have, each series' AR(1) colour filtered out first (its ρ from
+    its residual, `unnamed.ar1_rho`), and Σ the covariance of those filtered residuals across the
+    series (estimated on them, so that the filter and the covariance agree; its correlation's
+    eigenvalues floored at `D_MIN`, as `FrameCorrelation.design_effect` floors d). For a fixed
+    direction it is χ²₁ under the null; a direction fitted by the effect (a mode's phase at a
+    scanned frequency and shape) keeps it below the χ²₂ of that frequency and shape, which the
+    acceptance test's degrees of freedom and trials cover. Unlike Δlog L / d it weighs the
+    part of the pattern that noise shared by the frame does not mimic at its full precision: a
+    mode with a component alike on every plate is told by its other part. None when it cannot be
+    formed (fewer than two series or 20 shared frames)."""
+    from .unnamed import ar1_rho
+
+    c = sorted(new)
+    if len(c) < 2:
+        return None
+    n_frames = max(int(ctx.series[i].k.max()) for i in c) + 1
+    res = np.full((n_frames, len(c)), np.nan)
+    dlt = np.full((n_frames, len(c)), np.nan)
+    for j, i in enumerate(c):
+        s, st = ctx.series[i], states[i]
+        ok = st.inlier & new[i].inlier
+        res[s.k[ok], j] = ((s.y - st.mean) / st.scale)[ok]
+        dlt[s.k[ok], j] = ((new[i].mean - st.mean) / st.scale)[ok]
+    keep = np.all(np.isfinite(res), axis=1)
+    k = np.flatnonzero(keep)
+    if k.size < 20:
+        return None
+    res, dlt = res[keep], dlt[keep]
+    gap = np.diff(k).astype(np.float64)
+    for j in range(len(c)):
+        rho = ar1_rho(res[:, j] - res[:, j].mean(), k)
+        if rho > 0:
+            rg = rho**gap  # unit-variance innovations: x_j − ρ^g x_{j−1} over √(1 − ρ^{2g})
+            root = np.sqrt(1.0 - rg * rg)
+            for x in (res, dlt):
+                x[:, j] = np.concatenate([x[:1, j], (x[1:, j] - rg * x[:-1, j]) / root])
+    centred = res - res.mean(axis=0)
+    sd = np.sqrt(np.mean(centred**2, axis=0))
+    if not np.all(sd > 0):
+        return None
+    lam, vec = np.linalg.eigh((centred / sd).T @ (centred / sd) / k.size)
+    inv = (vec / np.maximum(lam, D_MIN)) @ vec.T / np.outer(sd, sd)
+    dr = float(np.sum((dlt @ inv) * res))
+    dd = float(np.sum((dlt @ inv) * dlt))
+    return 0.5 * dr * dr / dd if dd > 0 else None
 
 
 def frame_correlation(ctx: Context, states: list[State]) -> FrameCorrelation:

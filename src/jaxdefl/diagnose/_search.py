@@ -35,7 +35,7 @@ from .._signals import check_interrupt
 from ..settings import DiagnoseSettings
 from ._base import Context, Proposal, State, loglik, rms_equivalent
 from ._context import build_context
-from ._correlation import FrameCorrelation, frame_correlation
+from ._correlation import FrameCorrelation, frame_correlation, gls_gain
 from ._whiteness import combined_p, residual_tests
 from .effects import load_effects
 from .unnamed import MAX_TERMS, UnnamedTerm, apply_term, best_term, colored_gain, search_unnamed
@@ -214,6 +214,9 @@ class Diagnosis:
                     "delta_bic": a.delta_bic,
                     "lr": a.lr,
                     "lr_critical": a.lr_critical,
+                    # the test's degrees of freedom and look-elsewhere count (`Calibration`)
+                    "lr_dof": max(int(p.n_params) - int(p.scan_params), 1),
+                    "trials": float(p.trials),
                     "rms_before_mm": a.rms_before,
                     "rms_after_mm": a.rms_after,
                     "p_value": p.p_value,
@@ -336,7 +339,9 @@ def _score(
     over its series.
 
     With ``corr``, Δlog L is divided by the series' design effect: noise shared by the plates
-    of a frame, or by a plate's axes, is not evidence for a term they share (`_correlation`).
+    of a frame, or by a plate's axes, is not evidence for a term they share (`_correlation`);
+    a term of known pattern across the series (``Proposal.shape``) is scored by the generalised
+    least-squares statistic along its change instead (`_correlation.gls_gain`).
     """
     ll0 = ll1 = 0.0
     n = 0
@@ -357,6 +362,11 @@ def _score(
     if not (math.isfinite(ll0) and math.isfinite(ll1)) or n == 0:
         return math.inf, math.nan, math.nan, -math.inf
     gain = ll1 - ll0 if corr is None else corr.discount(dll, p.shape)
+    if corr is not None and p.shape is not None:
+        # a known pattern: the generalised least-squares statistic under the frame's covariance
+        gls = gls_gain(ctx, states, p.states)
+        if gls is not None:
+            gain = gls
     dbic = -2.0 * gain + p.n_params * math.log(n_total)
     return dbic, rms_equivalent(ll0, n), rms_equivalent(ll1, n), 2.0 * gain / max(p.inflation, 1.0)
 

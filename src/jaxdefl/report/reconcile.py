@@ -17,7 +17,38 @@ _MEANING = {
     "frame_common": "residual shared by the plates of a frame",
     "outlier_rate": "samples beyond 4.5 σ",
     "envelope": "change of the harmonic over ten windows (modulations)",
+    "range_noise": "pixels' short-term range noise against their amplitude",
+    "valid_share": "share of valid pixel ranges against amplitude",
 }
+
+
+def _frames_lines(rec) -> list[str]:
+    """The frames level per amplitude bin: the recording's statistic over the simulation's."""
+    rows = [r for r in rec.levels if r["level"] == "frames" and r.get("recording")]
+    if not rows:
+        return []
+    out = [
+        "",
+        "## Frames: the recording's pixels over the frame simulator's, by amplitude decile",
+        "",
+        "| metric | " + " | ".join(f"d{k + 1}" for k in range(len(rows[0]["recording"]))) + " |",
+        "|---|" + "---|" * len(rows[0]["recording"]),
+    ]
+    for r in rows:
+        ratios = [
+            f"{a / b:.2f}" if a is not None and b not in (None, 0) else "–"
+            for a, b in zip(r["recording"], r["simulation"], strict=True)
+        ]
+        out.append(f"| {r['metric']} | " + " | ".join(ratios) + " |")
+    noise = next((r for r in rows if r["metric"] == "range_noise"), None)
+    if noise is not None and rec.verdict(noise) == "still apart":
+        out += [
+            "",
+            "The camera's range noise is not the configured sensor's: no effect of the vocabulary "
+            "changes it, so set the config's noise (modulation frequency, integration time, "
+            "`noise_scale`) to the recording's before reading the other levels.",
+        ]
+    return out
 
 
 def plot_level(rec, level: str):
@@ -64,6 +95,7 @@ def reconcile_markdown(rec, d: dict, figures: list[str], recording: str, config:
             f"| {r['level']} | {r['metric']} | {_MEANING.get(r['metric'], '')} | {r['before']:.4g} | "
             f"{r['after']:.4g} | {r['null_95']:.4g} | {rec.verdict(r)} |"
         )
+    lines += _frames_lines(rec)
     lines += ["", "## Physics named by the diagnosis", ""]
     if not rec.effects:
         lines.append("None: the diagnosis found nothing beyond the nominal model.")

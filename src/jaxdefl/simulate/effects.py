@@ -70,7 +70,7 @@ is ≥ 4.5 mm for P ≥ 20 and washes out every step that fits the motion, while
 readings on the lattice itself (a plate whose motion spans less than a step reads constant).
 
 Public surface: `EFFECT_IDS`, `RecordingSpec`, `CleanRecording`, `random_spec`, `draw_effect`,
-`make_recording`, `make_case`, `primary_parameters`, `effect_strength`.
+`make_recording`, `make_case`, `primary_parameters`, `effect_strength`, `best_evidence`.
 """
 
 from __future__ import annotations
@@ -106,6 +106,7 @@ __all__ = [
     "make_case",
     "primary_parameters",
     "effect_strength",
+    "best_evidence",
 ]
 
 from .._effect_ids import EFFECT_IDS  # noqa: F401 (re-exported)
@@ -321,13 +322,32 @@ class CleanRecording:
             c = spec.frame_common
             self.eps = math.sqrt(1.0 - c) * self.eps + math.sqrt(c) * common
         if spec.line_of_sight > 0:  # one range error per plate, along the ray to the plate
-            ray = np.sign(self.static)  # (plate, axis): the camera at the origin, z along its axis
-            ray[ray == 0] = 1.0
-            ray = ray * ray[:, 2:3]  # signs relative to z's
+            ray = self.ray_signs()
             r = self.eps[..., 2:3]  # the range error: the z draw, its frame-common part included
             own = np.random.default_rng([self.seed, 7003]).standard_normal(self.eps.shape)
             c = spec.line_of_sight
             self.eps = math.sqrt(1.0 - c) * own + math.sqrt(c) * r * ray[None]
+
+    def ray_signs(self) -> np.ndarray:
+        """(plate, axis) signs of the ray to each plate relative to its z component (the camera at
+        the origin, z along its axis): how a range error moves the plate's x, y and z."""
+        ray = np.sign(self.static)
+        ray[ray == 0] = 1.0
+        return ray * ray[:, 2:3]
+
+    def noise_correlation(self) -> np.ndarray:
+        """(3 P, 3 P) correlation of one frame's unit noise ``eps`` over the series (plate, axis),
+        flattened plate-major, as drawn: a share ``frame_common`` of each axis' variance common to
+        the plates, then a share ``line_of_sight`` of each one the plate's range error (its z draw,
+        common part included) times the ray's sign."""
+        n, c, los = self.n_plates, self.spec.frame_common, self.spec.line_of_sight
+        corr = np.kron(np.ones((n, n)), np.eye(3)) * ((1.0 - c) * np.eye(3 * n) + c)
+        if los > 0:
+            z = corr[2::3, 2::3]  # (plate, plate) of the z draws
+            ray = self.ray_signs().reshape(-1)
+            zz = np.kron(z, np.ones((3, 3)))  # each series' range error: its plate's z draw
+            corr = (1.0 - los) * np.eye(3 * n) + los * zz * np.outer(ray, ray)
+        return corr
 
     def motion(self, t: np.ndarray, am=None, fm=None) -> np.ndarray:
         """(frame, plate, axis) clean positions at true epoch times t, with the load's AM / FM."""
@@ -559,6 +579,66 @@ def _absorbed_rms(base: CleanRecording, t: np.ndarray, delta: np.ndarray, tied: 
     return np.sqrt(np.mean((delta - x @ coef) ** 2, axis=0))
 
 
+def _absorbed(base: CleanRecording, t: np.ndarray, delta: np.ndarray, tied: bool) -> np.ndarray:
+    """``delta`` (frame, series) minus what the nominal model absorbs (`_absorbed_rms`' columns)."""
+    if tied:
+        return delta - delta.mean(axis=0)
+    tc = (t - 0.5 * (t[0] + t[-1])) / max(0.5 * (t[-1] - t[0]), 1e-9)
+    arg = base.omega * (t - t[0]) - base.phase
+    x = np.stack([np.ones_like(t), np.cos(arg), np.sin(arg), tc * np.sin(arg)], axis=1)
+    coef, *_ = np.linalg.lstsq(x, delta, rcond=None)
+    return delta - x @ coef
+
+
+def _gls_evidence(base: CleanRecording, r: np.ndarray) -> float:
+    """Σ_t r_tᵀ Σ⁻¹ r_t for the absorbed differences r (frame, plate, axis) under the recording's
+    own noise covariance Σ (`CleanRecording.noise_correlation` and σ)."""
+    sd = base.sigma.reshape(-1)
+    corr = base.noise_correlation()
+    flat = r.reshape(r.shape[0], -1) / sd[None, :]
+    return float(np.sum(flat * np.linalg.solve(corr, flat.T).T))
+
+
+def best_evidence(base: CleanRecording, e: Mapping) -> float:
+    """The evidence S of an effect for the best possible detector: the known-form likelihood-ratio
+    test's noncentrality Σ_t δ_tᵀ Σ⁻¹ δ_t, δ_t the effect in frame t over all series (zero on the
+    ones it leaves alone) after what the nominal model absorbs, Σ the noise covariance across
+    plates and axes as drawn (frame-common and line-of-sight shares). On independent noise it is
+    `effect_strength`'s S; an effect alike on the plates carries less evidence under frame-common
+    noise (the common noise looks like it), one on a single plate more (the other plates measure
+    the common noise). Noise-structure effects keep `effect_strength`'s S."""
+    eid = e["id"]
+    spec = base.spec
+    if eid in ("heteroscedastic_noise", "outliers") or (spec.frame_common <= 0 and spec.line_of_sight <= 0):
+        return effect_strength(base, e)[1]
+    t_tab, pos = _camera_clean(base, [e])
+    clean = base.motion(t_tab) if eid == "timing_error" else _camera_clean(base, [])[1]
+    delta = _mean_reading(base, e, pos) - clean
+    keep = np.zeros(delta.shape[1:], bool)
+    if eid in NEEDS_REFERENCE:  # against the LDS: on its plates, z
+        keep[np.asarray(spec.lds_plates, int) - 1, 2] = True
+    else:
+        idx, axes = _series_mask(e)
+        keep[np.ix_(idx, axes)] = True
+    delta = np.where(keep[None], delta, 0.0)
+    n = delta.shape[0]
+    r = _absorbed(base, t_tab, delta.reshape(n, -1), tied=eid in NEEDS_REFERENCE).reshape(delta.shape)
+    return _gls_evidence(base, r)
+
+
+def _mean_reading(base: CleanRecording, e: Mapping, pos: np.ndarray) -> np.ndarray:
+    """(frame, plate, axis) the camera's mean reading of the clean positions ``pos``: ``pos``
+    itself but for quantization, whose deterministic part is the staircase smoothed by the pixels'
+    noise (the rest of the rounding is noise)."""
+    if e["id"] != "quantization":
+        return pos
+    q, o = float(e["parameters"]["step_mm"]), float(e["parameters"]["offset_mm"])
+    pos = pos.copy()
+    for j in np.asarray(e["plates"], int) - 1:
+        pos[:, j, 2] = smoothed_staircase(pos[:, j, 2], q, o, _pixel_dither(base, e, j))
+    return pos
+
+
 def _series_mask(e: Mapping) -> tuple[np.ndarray, list[int]]:
     idx = np.asarray(e["plates"], int) - 1
     axes = [_AXES.index(a) for a in e["axes"]]
@@ -587,12 +667,7 @@ def effect_strength(base: CleanRecording, e: Mapping) -> tuple[float, float]:
     t_tab, pos = _camera_clean(base, [e])
     # the camera against the truth at the table's own timestamps (what a reference would show)
     clean = base.motion(t_tab) if eid == "timing_error" else _camera_clean(base, [])[1]
-    if eid == "quantization":  # the deterministic part: the mean reading, smoothed by the pixels' noise
-        q, o = float(p["step_mm"]), float(p["offset_mm"])
-        pos = pos.copy()
-        for j in idx:
-            pos[:, j, 2] = smoothed_staircase(pos[:, j, 2], q, o, _pixel_dither(base, e, j))
-    delta = (pos - clean)[:, idx][:, :, axes].reshape(n, -1)
+    delta = (_mean_reading(base, e, pos) - clean)[:, idx][:, :, axes].reshape(n, -1)
     rms = _absorbed_rms(base, t_tab, delta, tied=eid in NEEDS_REFERENCE)
     with np.errstate(divide="ignore", invalid="ignore"):  # a noise-free recording: infinite ratio
         ratio = (rms / sig.ravel()) ** 2
@@ -601,6 +676,13 @@ def effect_strength(base: CleanRecording, e: Mapping) -> tuple[float, float]:
 
 # ---------------------------------------------------------------------------------------------
 # drawing effects
+
+
+def _strength_of(evidence: str) -> Callable[[CleanRecording, Mapping], tuple[float, float]]:
+    """(RMS ratio, S) with S counted as ``evidence`` says (see `draw_effect`)."""
+    if evidence == "white":
+        return effect_strength
+    return lambda base, e: (effect_strength(base, e)[0], best_evidence(base, e))
 
 
 def _loguniform(rng: np.random.Generator, lo: float, hi: float) -> float:
@@ -619,12 +701,13 @@ def _fit_magnitude(
     target: float,
     signal_min: float,
     bounds: tuple[float, float] = (0.0, math.inf),
+    strength: Callable[[CleanRecording, Mapping], tuple[float, float]] | None = None,
 ) -> dict:
     """Scale ``parameters[key]`` so that r = target (and S >= signal_min), its magnitude kept
     within ``bounds`` (the bounds win); a few multiplicative secant steps."""
     p = e["parameters"]
     for _ in range(8):
-        r, s = effect_strength(base, e)
+        r, s = (strength or effect_strength)(base, e)
         if r <= 0:
             break
         want = max(target, r * math.sqrt(signal_min / s)) if s > 0 else target
@@ -654,6 +737,7 @@ def draw_effect(
     rng: np.random.Generator,
     target_ratio: float | None = None,
     signal_min: float = SIGNAL_MIN,
+    evidence: Literal["white", "best"] = "white",
 ) -> dict:
     """A fully specified effect with random parameters, plates and a hidden magnitude.
 
@@ -663,12 +747,18 @@ def draw_effect(
         rng: randomness.
         target_ratio: effect RMS / σ; default log-uniform in `RMS_RATIO_RANGE`.
         signal_min: floor of the likelihood signal S = Σ n rms²/σ².
+        evidence: what S counts: ``white`` the series taken as independent (`effect_strength`),
+            ``best`` the best possible detector's under the recording's noise covariance
+            (`best_evidence`: what a detection curve is drawn against).
 
     Returns:
         {"id", "kind", "parameters", "plates", "axes", ...}: what `make_recording` injects.
     """
     if effect_id not in EFFECT_IDS:
         raise ValueError(f"effect_id: expected one of {', '.join(EFFECT_IDS)}, got {effect_id!r}")
+    if evidence not in ("white", "best"):
+        raise ValueError(f"evidence: expected 'white' or 'best', got {evidence!r}")
+    strength = _strength_of(evidence)
     spec, n_pl = base.spec, base.n_plates
     everyone = list(range(1, n_pl + 1))
     target = target_ratio if target_ratio is not None else _loguniform(rng, *RMS_RATIO_RANGE)
@@ -689,7 +779,7 @@ def draw_effect(
         # a clock rate of 20-200 ppm, as small in that range as the noise target asks: over 15-20
         # minutes a rate above ~40 ppm puts the camera-LDS mismatch above the raw noise
         e |= dict(kind="rate", parameters={"rate_ppm": float(rng.choice([-1.0, 1.0])) * 20.0})
-        return _fit_magnitude(base, e, "rate_ppm", target, signal_min, bounds=(20.0, 200.0))
+        return _fit_magnitude(base, e, "rate_ppm", target, signal_min, (20.0, 200.0), strength)
     if effect_id == "harmonic_distortion":
         plates = _adjacent(rng, n_pl, int(rng.integers(1, 4))) if rng.random() < 0.6 else everyone
         e = dict(
@@ -774,7 +864,7 @@ def draw_effect(
             axes=["z"],
         )
         for _ in range(8):  # raise m (up to the range's top) until the signal is enough
-            _, s = effect_strength(base, e)
+            _, s = strength(base, e)
             if s >= signal_min or e["parameters"]["modulation"] >= MODULATION_RANGE[1]:
                 break
             e["parameters"]["modulation"] = min(MODULATION_RANGE[1], e["parameters"]["modulation"] * 1.2)
@@ -810,7 +900,7 @@ def draw_effect(
             plates=everyone,
             axes=["z"],
         )
-        q = _quantization_step(base, e, target, signal_min, ratio)
+        q = _quantization_step(base, e, target, signal_min, ratio, strength)
         e["parameters"] |= {"step_mm": q, "dither_mm": ratio * q, "offset_mm": float(rng.uniform(0, q))}
         return e
     elif effect_id == "mode_shape":
@@ -837,7 +927,7 @@ def draw_effect(
             plates=[mid[k - 1] for k in plates],
             axes=["z"],
         )
-        return _clip_level(base, e, target, signal_min)
+        return _clip_level(base, e, target, signal_min, strength)
     e["id"] = effect_id
     bounds = (0.0, math.inf)
     if effect_id in ("drift", "level_jump", "camera_shake"):  # larger than σ would show by eye
@@ -848,12 +938,17 @@ def draw_effect(
         bounds = (0.0, 0.5)
     elif key == "stiffness_change":  # a crack costs at most 30 % of the stiffness
         bounds = (0.0, 0.3)
-    _fit_magnitude(base, e, key, target, signal_min, bounds)
+    _fit_magnitude(base, e, key, target, signal_min, bounds, strength)
     return e
 
 
 def _quantization_step(
-    base: CleanRecording, e: dict, target: float, signal_min: float, dither_ratio: float | None = None
+    base: CleanRecording,
+    e: dict,
+    target: float,
+    signal_min: float,
+    dither_ratio: float | None = None,
+    strength: Callable[[CleanRecording, Mapping], tuple[float, float]] | None = None,
 ) -> float:
     """The smallest step q (mm) with r >= target and S >= signal_min, at most half the largest
     plate's peak-to-peak motion (a larger step puts the motion on one to three levels: a smooth
@@ -873,7 +968,7 @@ def _quantization_step(
         p["step_mm"] = q
         if dither_ratio is not None:
             p["dither_mm"] = dither_ratio * q
-        r, s = effect_strength(base, e)
+        r, s = (strength or effect_strength)(base, e)
         return r >= target and s >= signal_min
 
     lo = 0.5 * target * float(np.median(base.sigma[:, 2])) * math.sqrt(12.0)  # half the hard staircase's
@@ -893,7 +988,7 @@ def _quantization_step(
     return hi
 
 
-def _clip_level(base: CleanRecording, e: dict, target: float, signal_min: float) -> dict:
+def _clip_level(base: CleanRecording, e: dict, target: float, signal_min: float, strength=None) -> dict:
     """The clip level c (fraction of the amplitude, 0.3-0.99: the peaks of the motion) giving the
     RMS ratio ``target``, lowered until the likelihood signal reaches ``signal_min``; bisection
     (both fall as c rises)."""
@@ -903,7 +998,7 @@ def _clip_level(base: CleanRecording, e: dict, target: float, signal_min: float)
         lo, hi = 0.3, 0.99  # want(lo) holds (the strongest clip), want(hi) may not
         for _ in range(30):
             p["level"] = 0.5 * (lo + hi)
-            if want(*effect_strength(base, e)):
+            if want(*(strength or effect_strength)(base, e)):
                 lo = p["level"]
             else:
                 hi = p["level"]
