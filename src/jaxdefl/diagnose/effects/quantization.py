@@ -213,7 +213,7 @@ def _inside(
 
 
 def _phase(
-    ctx: Context, i: int, st: State, q: float, dither: float, phases: np.ndarray
+    ctx: Context, i: int, st: State, q: float, dither: float, phases: np.ndarray, level: float
 ) -> tuple[float, np.ndarray, np.ndarray, float]:
     """The staircase's phase on series i at a known step and dither: (φ, h', mean, outer offset).
 
@@ -221,22 +221,24 @@ def _phase(
     fitted to it is flattened (to half the amplitude and less), and inside the rounding a
     flattened motion fits nearly as well as the true one (`_inside` stays there). So the start
     is searched too: the motion scaled by ``GAINS`` about its mean × every phase, scored with the
-    nuisance refitted outside the rounding (linear); the best three are refined inside it.
+    nuisance refitted outside the rounding (linear); the best three are refined inside it, and so
+    is the best start at the camera's ``level`` (the other plates' levels: the lattice is the
+    camera's, and a short motion's own phase has shallow false optima).
     """
     s = ctx.series[i]
     nu = ctx.nuisance(i)
     w = weights(st)
     centre = float(np.sum(w * st.mean) / max(float(w.sum()), 1e-300))
-    scored = []
+    scored, at_level = [], []
     for g in GAINS:
         h0 = centre + g * (st.mean - centre)
-        for phi in phases:
-            stair = staircase(h0, q, float(phi), dither)
+        for phi, out in [*((float(f), scored) for f in phases), (level, at_level)]:
+            stair = staircase(h0, q, phi, dither)
             fitted = lstsq(nu, s.y - stair, w)[2]
-            scored.append((float(np.sum(w * (s.y - stair - fitted) ** 2)), h0, float(phi)))
+            out.append((float(np.sum(w * (s.y - stair - fitted) ** 2)), h0, phi))
     scored.sort(key=lambda x: x[0])
     best = None
-    for _, h0, phi in scored[:3]:
+    for _, h0, phi in [*scored[:3], min(at_level, key=lambda x: x[0])]:
         h_i, mean_i, c_i = _inside(ctx, i, st, h0, q, phi, dither)
         r = float(np.sum(w * (s.y - mean_i) ** 2))
         if best is None or r < best[0]:
@@ -449,9 +451,11 @@ class Quantization(Effect):
         sig_q = sig_joint if sig_joint is not None else sig_q
         # the series whose motion spans less than a step read the same lattice: a part of the
         # smoothed sawtooth, there too (left alone, it is a function of h, i.e. harmonics of f0)
+        ang = [2 * np.pi * ((fits[i][0] + fits[i][3]) % q) / q for i in use]  # the levels, on a circle
+        level = (math.atan2(np.mean(np.sin(ang)), np.mean(np.cos(ang))) % (2 * math.pi)) * q / (2 * math.pi)
         for i in idx:
             if i not in use:
-                fits[i] = _phase(ctx, i, states[i], q, dither, fr * q)
+                fits[i] = _phase(ctx, i, states[i], q, dither, fr * q, level)
         use = list(idx)
         # the noise: a rounded reading spreads little next to a level and most between two
         # (Var round(x + sZ): for s = 0.2, 0.02 at a level and 0.25 halfway), so where the
