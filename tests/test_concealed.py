@@ -339,6 +339,92 @@ def test_outliers_heteroscedastic_quantization(clean):
     assert np.abs(q.z - c.z).max() <= 0.4 + 1e-9
 
 
+def test_quantization_rounds_each_pixel_after_its_noise():
+    """Each quantised z is the mean of P pixel readings rounded after their own noise: binned by
+    the position on the step, its mean is the smoothed staircase (not the hard one), its variance
+    about it is the pixels' rounding variance / P (the series' noise is not added a second time),
+    its unrounded noise is the control's (same seed), and the draw is reproducible."""
+    import dataclasses
+
+    from scipy.special import ndtri
+
+    from jaxdefl._lattice import smoothed_staircase
+
+    sl = RecordingSpec(
+        sensor="structured_light",
+        frame_rate_hz=30.0,
+        duration_s=120.0,
+        n_plates=9,
+        noise_mm=(0.4, 0.15, 0.5),
+        plate_noise_spread=0.0,
+    )
+    q, o, pixels, sig = 3.5, 0.3, 4, 0.5
+    dither = sig * math.sqrt(pixels)  # σ_d / q = 0.29: the steps' first harmonic at 20 %
+    e = dict(id="quantization", kind="depth_steps", plates=list(range(1, 10)), axes=["z"])
+    e["parameters"] = {"step_mm": q, "offset_mm": o, "pixels": pixels}
+    traj, _, _ = make_recording(sl, [e], 4)
+    again, _, _ = make_recording(sl, [e], 4)
+    ctl, _, _ = make_recording(sl, [], 4)
+    clean, _, _ = make_recording(dataclasses.replace(sl, noise_mm=(0.0, 0.0, 0.0)), [], 4)
+    np.testing.assert_array_equal(traj.z, again.z)
+    np.testing.assert_array_equal(traj.x, ctl.x)
+    h, z = clean.z.to_numpy(), traj.z.to_numpy()
+    m = smoothed_staircase(h, q, o, dither)
+    frac = np.mod((h - o) / q, 1.0)
+    b = np.minimum((frac * 8).astype(int), 7)
+    for k in range(8):
+        sel = b == k
+        se = 0.75 / math.sqrt(sel.sum())  # noise + rounding σ ≈ 0.7 mm
+        assert abs(np.mean(z[sel] - m[sel])) < 4 * se
+        hard = q * np.round((h[sel] - o) / q) + o  # far off, except next to a level
+        assert abs(np.mean(z[sel] - hard)) > 10 * se or k in (0, 7)
+    assert np.ptp([np.mean(m[b == k] - h[b == k]) for k in range(8)]) > 0.25  # a visible staircase
+    # Var(mean of P readings | h) = Var(one reading | h) / P, the reading's from the normal's quantiles
+    zq = sig * math.sqrt(pixels) * ndtri((np.arange(20_000) + 0.5) / 20_000)
+    grid = (np.arange(64) + 0.5) / 64
+    v1 = np.array([np.var(q * np.round(g + zq / q)) for g in grid])
+    expected = float(np.mean(v1[np.minimum((frac * 64).astype(int), 63)])) / pixels
+    assert np.var(z - m) == pytest.approx(expected, rel=0.05)
+    assert expected > 1.5 * sig**2  # so that the noise counted twice (+σ²) would show
+    # the unrounded mean of the pixels' noise is the control's noise
+    assert np.corrcoef(z - m, ctl.z.to_numpy() - h)[0, 1] > 0.5
+
+
+def test_quantization_with_a_pixel_noise_of_its_own():
+    """``dither_mm`` apart from the series' noise (the benchmark's draw): the pixels' noise σ_d
+    before rounding, the rest σ² − σ_d²/P after it. The mean is the smoothed staircase of σ_d, the
+    variance about it q² Var[round]/P + the rest, and the control differs by the rounding alone."""
+    import dataclasses
+
+    from jaxdefl._lattice import dithered_round_var, smoothed_staircase
+
+    sl = RecordingSpec(
+        sensor="structured_light",
+        frame_rate_hz=30.0,
+        duration_s=120.0,
+        n_plates=9,
+        noise_mm=(0.4, 0.15, 0.5),
+        plate_noise_spread=0.0,
+    )
+    q, o, pixels, dither, sig = 2.0, 0.9, 30, 0.4, 0.5
+    e = dict(id="quantization", kind="depth_steps", plates=list(range(1, 10)), axes=["z"])
+    e["parameters"] = {"step_mm": q, "offset_mm": o, "pixels": pixels, "dither_mm": dither}
+    traj, _, truth = make_recording(sl, [e], 6)
+    ctl, _, _ = make_recording(sl, [], 6)
+    clean, _, _ = make_recording(dataclasses.replace(sl, noise_mm=(0.0, 0.0, 0.0)), [], 6)
+    h, z = clean.z.to_numpy(), traj.z.to_numpy()
+    m = smoothed_staircase(h, q, o, dither)
+    b = np.minimum((np.mod((h - o) / q, 1.0) * 8).astype(int), 7)
+    for k in range(8):
+        sel = b == k
+        assert abs(np.mean(z[sel] - m[sel])) < 4 * sig / math.sqrt(sel.sum())
+    v = q * q * dithered_round_var((h - o) / q, dither / q) / pixels + sig**2 - dither**2 / pixels
+    assert np.var(z - m) == pytest.approx(float(np.mean(v)), rel=0.05)
+    rounding = z - ctl.z.to_numpy() - (m - h)  # the control's noise cancels: what is left is small
+    assert np.std(rounding) < 0.5 * sig
+    assert truth["effects"][0]["rms_ratio"] == pytest.approx(np.std(m - h) / sig, rel=0.3)
+
+
 @pytest.mark.parametrize("eid", EFFECT_IDS)
 def test_drawn_magnitudes_are_below_the_noise_and_detectable(eid):
     spec = RecordingSpec(

@@ -390,6 +390,105 @@ def test_quantization_clean():
         assert passing(ctx, states, EFFECT.propose(ctx, states)) == []
 
 
+def test_smoothed_staircase_follows_a_stratified_noise_average():
+    """E[round(x + sZ)] (a finite sum of Φ) against the slow reference: q·round averaged over
+    400 000 noise values at the normal's quantiles; then its limits (s = 0: the hard staircase,
+    s large: h) and the first harmonic's damping exp(−2π²s²)."""
+    from scipy.special import ndtri
+
+    from jaxdefl._lattice import dithered_round, smoothed_staircase
+
+    q, o = 0.8, 0.23
+    h = np.linspace(2000.0, 2003.0, 37)
+    z = ndtri((np.arange(400_000) + 0.5) / 400_000)
+    for dither in (0.01 * q, 0.1 * q, 0.25 * q, 0.5 * q, 1.2 * q):
+        slow = np.array([np.mean(q * np.round((hk + dither * z - o) / q) + o) for hk in h])
+        np.testing.assert_allclose(smoothed_staircase(h, q, o, dither), slow, atol=1e-3 * q)
+    np.testing.assert_array_equal(smoothed_staircase(h, q, o, 0.0), q * np.round((h - o) / q) + o)
+    np.testing.assert_allclose(smoothed_staircase(h, q, o, 3.0 * q), h, atol=1e-12)
+    x = np.linspace(0.0, 1.0, 256, endpoint=False)
+    for s in (0.2, 0.3):
+        first = 2 * np.mean((dithered_round(x, s) - x) * np.sin(2 * np.pi * x))
+        assert first == pytest.approx(-math.exp(-2 * math.pi**2 * s * s) / math.pi, rel=1e-3)
+
+
+def _pixel_readings(q, o, pixels, seed):
+    """Inject noise before rounding: each z the mean of ``pixels`` readings o + q·round((clean +
+    e_i − o)/q), e_i iid N(0, pixels·σ²) (the unrounded mean has the series' σ)."""
+    rng = np.random.default_rng(seed)
+
+    def inject(t, p, axis, clean, eps, sig):
+        if axis != "z":
+            return clean + sig * eps
+        e = sig * math.sqrt(pixels) * rng.standard_normal((t.size, pixels))
+        return np.mean(q * np.round((clean[:, None] + e - o) / q) + o, axis=1)
+
+    return inject
+
+
+def test_quantization_with_noise_before_rounding():
+    """σ_d/q = 0.25 (4 pixels of 1.52 mm, centroid σ 0.76 mm, q = 6 mm): the first harmonic is
+    30 % of the hard staircase's, so the hard model is far off. The smoothed staircase is found on
+    every z series, its step and dither recovered, and it fits better than the best hard
+    staircase (which the search would not even propose)."""
+    from jaxdefl.diagnose.effects.quantization import EFFECT, Quantization, staircase
+
+    q, o, pixels = 6.0, 0.37, 4
+    dither = 0.76 * math.sqrt(pixels)
+    ctx, states = make_case(_pixel_readings(q, o, pixels, 3), seed=7, n_plates=5, amplitude=6.0)
+    props = EFFECT.propose(ctx, states)
+    assert len(passing(ctx, states, props)) == 1
+    (prop,) = props
+    assert keys(ctx, prop) == [f"{p}z" for p in range(1, 6)]
+    assert close(value(prop, "step_mm"), q, 0.03)
+    assert close(value(prop, "dither_mm"), dither, 0.25)
+    hard = Quantization()
+    hard.dithers = (0.0,)
+    gain_hard = max((total_gain(ctx, states, p) for p in hard.propose(ctx, states)), default=0.0)
+    assert total_gain(ctx, states, prop) > gain_hard + 20.0
+    # even at the true step and levels, the hard staircase of the nominal fits worse than no
+    # staircase at all, the smoothed one better
+    rss = {}
+    for d in (None, 0.0, dither):
+        rss[d] = 0.0
+        for i in (i for i, s in enumerate(ctx.series) if s.axis == "z"):
+            h = states[i].mean
+            r = ctx.series[i].y - (h if d is None else staircase(h, q, o, d))
+            rss[d] += float(np.sum((r - r.mean()) ** 2))
+    assert rss[dither] < 0.97 * rss[None] < 0.97 * rss[0.0]
+
+
+def test_quantization_does_not_depend_on_the_sensor_hint():
+    """The same pixel-quantised data with the hint saying ToF: still found, alike."""
+    import dataclasses
+
+    from jaxdefl.diagnose.effects.quantization import EFFECT
+
+    ctx, states = make_case(_pixel_readings(6.0, 0.37, 4, 3), seed=7, n_plates=5, amplitude=6.0)
+    ref = EFFECT.propose(ctx, states)
+    for sensor in ("tof", "structured_light"):
+        tof = dataclasses.replace(ctx, sensor=sensor)
+        props = EFFECT.propose(tof, states)
+        assert len(passing(tof, states, props)) == 1
+        assert value(props[0], "step_mm") == value(ref[0], "step_mm")
+
+
+def test_quantization_not_taken_from_coloured_noise():
+    """Smooth data, AR(1) noise (ρ 0.3-0.8), no quantization: nothing passes."""
+    from jaxdefl.diagnose.effects.quantization import EFFECT
+
+    for seed, rho in enumerate((0.3, 0.6, 0.8)):
+
+        def inject(t, p, axis, clean, eps, sig, rho=rho):
+            from scipy.signal import lfilter
+
+            e = lfilter([math.sqrt(1 - rho * rho)], [1.0, -rho], eps)
+            return clean + sig * e
+
+        ctx, states = make_case(inject, seed=70 + seed, n_plates=5)
+        assert passing(ctx, states, EFFECT.propose(ctx, states)) == []
+
+
 def test_strided_running_median_follows_the_exact_one_on_a_coloured_spectrum():
     """`local_median` takes the window's median every width/32 bins and interpolates: against the
     exact running median (a slow numpy version) on a red spectrum with excluded bands, the

@@ -33,8 +33,14 @@ outliers               a fraction ε of the samples of 1-3 plates get an error N
                        ``fraction``, ``scale_mm``.
 heteroscedastic_noise  σ_i = σ0 (1 + m u_i), u = cos(ω t_rel − φ − ψ) (kind "phase") or
                        (t − t_mid)/(duration/2) (kind "time"); ``modulation`` (m).
-quantization           z = q round((z_clean − o)/q) + o before the noise; ``step_mm``,
-                       ``offset_mm`` (structured-light recordings only).
+quantization           noise before rounding, as a disparity camera makes it: each z is the mean of
+                       P pixel readings o + q round((z_clean + e_i − o)/q), e_i ~ N(0, σ_d²), plus
+                       the rest of the series' noise after the rounding, N(0, σ² − σ_d²/P) (none
+                       for the default σ_d = σ√P: then the pixels' noise is the whole noise); the
+                       unrounded reading has the series' noise σ, not added twice. Its mean is the
+                       smoothed staircase `jaxdefl._lattice.smoothed_staircase`; ``step_mm`` (q),
+                       ``offset_mm`` (o), ``pixels`` (P, default 1), ``dither_mm`` (σ_d, optional;
+                       drawn: P 20-200, σ_d/q 0.12-0.25); structured-light recordings only.
 mode_shape             z_p += a sin(nπ x_p/L) cos(2π f t_rel + ψ), x_p the plate's position on the
                        span L; ``mode`` (n = 2 or 3: sign changes across the plates), ``freq_hz``,
                        ``amplitude_mm`` (a, at the antinode), ``phase_rad``.
@@ -57,7 +63,11 @@ amplitude envelope within ±25 %, a phase wobble within 0.5 rad. Noise-structure
 0.15-0.4; outliers 0.2-1 % of the samples at 4-12 σ. The reference-tied effects use the physical
 ranges: the taps spread over 0.4-1 frame period; timestamps late by 2-10 ms; a clock rate of
 20-200 ppm (either sign) but as small as the RMS target asks (20-40 ppm for 15-20 minutes: larger
-rates put the camera-LDS mismatch far above the raw noise).
+rates put the camera-LDS mismatch far above the raw noise). A quantization step is at most half
+the largest plate's peak-to-peak motion (the cap wins over the target); its pixels' noise is
+drawn apart from the series' noise: with σ = 1 mm and ≤ 5.2 mm of motion, the default σ_d = σ√P
+is ≥ 4.5 mm for P ≥ 20 and washes out every step that fits the motion, while P of 1-2 leaves
+readings on the lattice itself (a plate whose motion spans less than a step reads constant).
 
 Public surface: `EFFECT_IDS`, `RecordingSpec`, `CleanRecording`, `random_spec`, `draw_effect`,
 `make_recording`, `make_case`, `primary_parameters`, `effect_strength`, `best_evidence`.
@@ -74,6 +84,7 @@ from typing import Any, Literal
 import numpy as np
 import pandas as pd
 
+from .._lattice import smoothed_staircase
 from .config import SimConfig, config_from_dict
 from .injection import make_spec, motion_modulations, shake_displacement
 from .lds import frame_clock, truth_table
@@ -106,6 +117,9 @@ TOF_ONLY = frozenset({"motion_artefact"})  # four-phase sampling is a ToF proper
 SIGNAL_MIN = 200.0  # Σ n rms²/σ² over the affected series (aim: >= ~150, with a margin)
 RMS_RATIO_RANGE = (0.1, 0.6)  # effect RMS / raw noise σ of the touched series
 MODULATION_RANGE = (0.15, 0.4)  # heteroscedastic noise
+# quantization: pixels averaged per reading (log-uniform), their noise before rounding σ_d / q
+PIXELS_RANGE = (20.0, 200.0)
+DITHER_RATIO_RANGE = (0.12, 0.25)
 
 # Experiment II's days at 3 Hz: (day, cycles at start, f0 Hz, mid-span amplitude mm) of Table 6.16
 # (ToF days, LDS) and Table 6.24 (Kinect days), as in configs/exp2_{tof,kinect}_3hz.toml
@@ -435,17 +449,19 @@ def _render(base: CleanRecording, effects: Sequence[Mapping]) -> tuple[np.ndarra
     """(table times, camera positions with noise (frame, plate, axis), realised extras)."""
     t_tab, pos = _camera_clean(base, effects)
     extras: dict[str, Any] = {}
-    e = _by_id(effects, "quantization")
-    if e is not None:
-        q, o = float(e["parameters"]["step_mm"]), float(e["parameters"]["offset_mm"])
-        idx = np.asarray(e["plates"], int) - 1
-        pos[:, idx, 2] = q * np.round((pos[:, idx, 2] - o) / q) + o
     scale = np.ones_like(base.eps)
     e = _by_id(effects, "heteroscedastic_noise")
     if e is not None:
         idx = np.asarray(e["plates"], int) - 1
         scale[:, idx, 2] = 1.0 + float(e["parameters"]["modulation"]) * _het_u(base, e, t_tab)[:, None]
-    pos = pos + base.sigma[None] * scale * base.eps
+    noise = base.sigma[None] * scale * base.eps
+    e = _by_id(effects, "quantization")
+    if e is not None:  # the pixels' noise is the series' noise: rounded, not added again
+        for j in np.asarray(e["plates"], int) - 1:
+            sig_f = base.sigma[j, 2] * scale[:, j, 2]
+            pos[:, j, 2] = _quantised_readings(base, e, j, pos[:, j, 2], sig_f, noise[:, j, 2])
+            noise[:, j, 2] = 0.0
+    pos = pos + noise
     e = _by_id(effects, "outliers")
     if e is not None:
         rng = np.random.default_rng([base.seed, 7002])
@@ -461,6 +477,48 @@ def _render(base: CleanRecording, effects: Sequence[Mapping]) -> tuple[np.ndarra
             count += k
         extras["outlier_count"] = count
     return t_tab, pos, extras
+
+
+def _pixel_dither(base: CleanRecording, e: Mapping, j: int) -> float:
+    """σ_d (mm) of plate j's pixels before rounding: ``dither_mm``, default σ√P (the whole noise)."""
+    p = e["parameters"]
+    if "dither_mm" in p:
+        return float(p["dither_mm"])
+    return float(base.sigma[j, 2]) * math.sqrt(int(p.get("pixels", 1)))
+
+
+def _quantised_readings(
+    base: CleanRecording, e: Mapping, j: int, z_clean: np.ndarray, sig_f: np.ndarray, noise: np.ndarray
+) -> np.ndarray:
+    """(frame,) plate j's z as a disparity camera reads it: the mean of P pixel readings
+    o + q·round((z_clean + e_i − o)/q), the pixels' noise e_i ~ N(0, σ_d²) before the rounding,
+    plus the rest of the series' noise after it (none when σ_d = σ√P, the default).
+
+    ``noise`` = σ_f ε is the draw of the recording without quantisation (σ_f ``sig_f``, the
+    frame's level). It is split into independent parts before and after the rounding, with
+    ρ = σ_d²/(P σ_f²) (at most 1): the pixels' mean m = √ρ σ_f (√ρ ε + √(1 − ρ) u) and the rest
+    σ_f ε − m (uncorrelated with m: both variances add to σ_f²); then e_i = m + σ_d (g_i − ḡ),
+    u and g_i iid N(0, 1) from a stream of the recording's seed and the plate (`CleanRecording`
+    keeps its own draws), has exactly the law of P iid N(0, σ_d²) with mean m. So the unrounded
+    reading has the noise of the recording without quantisation (frame-common and line-of-sight
+    parts included), and a control and a quantised case differ by the rounding alone.
+    """
+    p = e["parameters"]
+    q, o, n_px = float(p["step_mm"]), float(p["offset_mm"]), int(p.get("pixels", 1))
+    if n_px < 1:
+        raise ValueError(f"quantization: pixels must be >= 1, got {n_px}")
+    dither = _pixel_dither(base, e, j)
+    rng = np.random.default_rng([base.seed, 7004, j])
+    u = rng.standard_normal(z_clean.size)
+    g = rng.standard_normal((z_clean.size, n_px))
+    g -= g.mean(axis=1, keepdims=True)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rho = np.where(sig_f > 0, np.minimum(dither**2 / (n_px * sig_f**2), 1.0), 1.0)
+    eps = base.eps[:, j, 2]
+    m = np.sqrt(rho) * sig_f * (np.sqrt(rho) * eps + np.sqrt(1.0 - rho) * u)
+    e_px = m[:, None] + dither * g
+    readings = np.mean(q * np.round((z_clean[:, None] + e_px - o) / q) + o, axis=1)
+    return readings + (noise - m)
 
 
 def _het_u(base: CleanRecording, e: Mapping, t_tab: np.ndarray) -> np.ndarray:
@@ -555,7 +613,7 @@ def best_evidence(base: CleanRecording, e: Mapping) -> float:
         return effect_strength(base, e)[1]
     t_tab, pos = _camera_clean(base, [e])
     clean = base.motion(t_tab) if eid == "timing_error" else _camera_clean(base, [])[1]
-    delta = pos - clean
+    delta = _mean_reading(base, e, pos) - clean
     keep = np.zeros(delta.shape[1:], bool)
     if eid in NEEDS_REFERENCE:  # against the LDS: on its plates, z
         keep[np.asarray(spec.lds_plates, int) - 1, 2] = True
@@ -566,6 +624,19 @@ def best_evidence(base: CleanRecording, e: Mapping) -> float:
     n = delta.shape[0]
     r = _absorbed(base, t_tab, delta.reshape(n, -1), tied=eid in NEEDS_REFERENCE).reshape(delta.shape)
     return _gls_evidence(base, r)
+
+
+def _mean_reading(base: CleanRecording, e: Mapping, pos: np.ndarray) -> np.ndarray:
+    """(frame, plate, axis) the camera's mean reading of the clean positions ``pos``: ``pos``
+    itself but for quantization, whose deterministic part is the staircase smoothed by the pixels'
+    noise (the rest of the rounding is noise)."""
+    if e["id"] != "quantization":
+        return pos
+    q, o = float(e["parameters"]["step_mm"]), float(e["parameters"]["offset_mm"])
+    pos = pos.copy()
+    for j in np.asarray(e["plates"], int) - 1:
+        pos[:, j, 2] = smoothed_staircase(pos[:, j, 2], q, o, _pixel_dither(base, e, j))
+    return pos
 
 
 def _series_mask(e: Mapping) -> tuple[np.ndarray, list[int]]:
@@ -596,11 +667,7 @@ def effect_strength(base: CleanRecording, e: Mapping) -> tuple[float, float]:
     t_tab, pos = _camera_clean(base, [e])
     # the camera against the truth at the table's own timestamps (what a reference would show)
     clean = base.motion(t_tab) if eid == "timing_error" else _camera_clean(base, [])[1]
-    if eid == "quantization":
-        q, o = float(p["step_mm"]), float(p["offset_mm"])
-        pos = pos.copy()
-        pos[:, idx, 2] = q * np.round((pos[:, idx, 2] - o) / q) + o
-    delta = (pos - clean)[:, idx][:, :, axes].reshape(n, -1)
+    delta = (_mean_reading(base, e, pos) - clean)[:, idx][:, :, axes].reshape(n, -1)
     rms = _absorbed_rms(base, t_tab, delta, tied=eid in NEEDS_REFERENCE)
     with np.errstate(divide="ignore", invalid="ignore"):  # a noise-free recording: infinite ratio
         ratio = (rms / sig.ravel()) ** 2
@@ -824,15 +891,18 @@ def draw_effect(
     elif effect_id == "quantization":
         if spec.sensor != "structured_light":
             raise ValueError("quantization: only for structured-light recordings (spec.sensor)")
-        sig = float(np.median(base.sigma[:, 2]))
-        q = target * sig * math.sqrt(12.0)
+        pixels = int(round(_loguniform(rng, *PIXELS_RANGE)))
+        ratio = float(rng.uniform(*DITHER_RATIO_RANGE))
         e = dict(
+            id=effect_id,
             kind="depth_steps",
-            parameters={"step_mm": q, "offset_mm": float(rng.uniform(0, q))},
+            parameters={"step_mm": 1.0, "offset_mm": 0.0, "pixels": pixels, "dither_mm": ratio},
             plates=everyone,
             axes=["z"],
         )
-        key = "step_mm"
+        q = _quantization_step(base, e, target, signal_min, ratio, strength)
+        e["parameters"] |= {"step_mm": q, "dither_mm": ratio * q, "offset_mm": float(rng.uniform(0, q))}
+        return e
     elif effect_id == "mode_shape":
         e = dict(
             kind=f"mode_{int(rng.choice([2, 3], p=[0.7, 0.3]))}",
@@ -869,9 +939,53 @@ def draw_effect(
     elif key == "stiffness_change":  # a crack costs at most 30 % of the stiffness
         bounds = (0.0, 0.3)
     _fit_magnitude(base, e, key, target, signal_min, bounds, strength)
-    if effect_id == "quantization":
-        e["parameters"]["offset_mm"] = float(rng.uniform(0, e["parameters"]["step_mm"]))
     return e
+
+
+def _quantization_step(
+    base: CleanRecording,
+    e: dict,
+    target: float,
+    signal_min: float,
+    dither_ratio: float | None = None,
+    strength: Callable[[CleanRecording, Mapping], tuple[float, float]] | None = None,
+) -> float:
+    """The smallest step q (mm) with r >= target and S >= signal_min, at most half the largest
+    plate's peak-to-peak motion (a larger step puts the motion on one to three levels: a smooth
+    function of the position, i.e. harmonics of f0, with no staircase left to tell it by, whatever
+    its RMS); bisection in log q, the pixels' noise ``dither_mm`` kept at
+    ``dither_ratio`` × q when given.
+
+    Not `_fit_magnitude`'s r ∝ q: with a fixed pixel noise σ_d (σ√P by default) the staircase's
+    RMS is ∝ q exp(−2π²σ_d²/q²) for q ≲ 2σ_d (a log-slope 1 + 4π²σ_d²/q², dozens where
+    q ~ σ_d), so a multiplicative secant step overshoots and diverges. Below the cap r and S grow
+    with q.
+    """
+    p = e["parameters"]
+    q_max = 0.5 * 2.0 * base.amp0 * float(np.max(np.abs(base.shape[np.asarray(e["plates"], int) - 1])))
+
+    def enough(q: float) -> bool:
+        p["step_mm"] = q
+        if dither_ratio is not None:
+            p["dither_mm"] = dither_ratio * q
+        r, s = (strength or effect_strength)(base, e)
+        return r >= target and s >= signal_min
+
+    lo = 0.5 * target * float(np.median(base.sigma[:, 2])) * math.sqrt(12.0)  # half the hard staircase's
+    while lo > 1e-3 and enough(lo):
+        lo *= 0.5
+    hi = min(2.0 * lo, q_max)
+    while hi < q_max and not enough(hi):
+        lo, hi = hi, min(2.0 * hi, q_max)
+    if hi == q_max and not enough(hi):
+        return q_max  # the cap wins: the effect is smaller than the target
+    for _ in range(16):
+        mid = math.sqrt(lo * hi)
+        if enough(mid):
+            hi = mid
+        else:
+            lo = mid
+    return hi
 
 
 def _clip_level(base: CleanRecording, e: dict, target: float, signal_min: float, strength=None) -> dict:
