@@ -339,6 +339,16 @@ def test_outliers_heteroscedastic_quantization(clean):
     assert np.abs(q.z - c.z).max() <= 0.4 + 1e-9
 
 
+# a structured-light recording with every plate's noise alike (the quantization generator tests)
+_SL_SPEC = RecordingSpec(
+    sensor="structured_light",
+    frame_rate_hz=30.0,
+    duration_s=120.0,
+    n_plates=9,
+    noise_mm=(0.4, 0.15, 0.5),
+    plate_noise_spread=0.0,
+)
+
 def test_quantization_rounds_each_pixel_after_its_noise():
     """Each quantised z is the mean of P pixel readings rounded after their own noise: binned by
     the position on the step, its mean is the smoothed staircase (not the hard one), its variance
@@ -350,14 +360,7 @@ def test_quantization_rounds_each_pixel_after_its_noise():
 
     from jaxdefl._lattice import smoothed_staircase
 
-    sl = RecordingSpec(
-        sensor="structured_light",
-        frame_rate_hz=30.0,
-        duration_s=120.0,
-        n_plates=9,
-        noise_mm=(0.4, 0.15, 0.5),
-        plate_noise_spread=0.0,
-    )
+    sl = _SL_SPEC
     q, o, pixels, sig = 3.5, 0.3, 4, 0.5
     dither = sig * math.sqrt(pixels)  # σ_d / q = 0.29: the steps' first harmonic at 20 %
     e = dict(id="quantization", kind="depth_steps", plates=list(range(1, 10)), axes=["z"])
@@ -398,14 +401,7 @@ def test_quantization_with_a_pixel_noise_of_its_own():
 
     from jaxdefl._lattice import dithered_round_var, smoothed_staircase
 
-    sl = RecordingSpec(
-        sensor="structured_light",
-        frame_rate_hz=30.0,
-        duration_s=120.0,
-        n_plates=9,
-        noise_mm=(0.4, 0.15, 0.5),
-        plate_noise_spread=0.0,
-    )
+    sl = _SL_SPEC
     q, o, pixels, dither, sig = 2.0, 0.9, 30, 0.4, 0.5
     e = dict(id="quantization", kind="depth_steps", plates=list(range(1, 10)), axes=["z"])
     e["parameters"] = {"step_mm": q, "offset_mm": o, "pixels": pixels, "dither_mm": dither}

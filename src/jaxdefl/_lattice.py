@@ -25,6 +25,12 @@ S_HARD = 1e-3  # below: the hard round (the smoothing is < Φ(−500) away from 
 S_SMOOTH = 2.0  # above: x itself (the first harmonic is exp(−2π²·4) ≈ 6e-35 of q/π)
 
 
+def _checked(x, s: float) -> np.ndarray:
+    if not s >= 0:
+        raise ValueError(f"s: expected a noise level >= 0, got {s}")
+    return np.asarray(x, dtype=float)
+
+
 def dithered_round(x: np.ndarray, s: float) -> np.ndarray:
     """E[round(x + s Z)], Z ~ N(0, 1), elementwise: exact to ~1e-15 (a finite sum of Φ).
 
@@ -40,9 +46,7 @@ def dithered_round(x: np.ndarray, s: float) -> np.ndarray:
     Returns:
         The expected rounded value, shaped like x.
     """
-    x = np.asarray(x, dtype=float)
-    if not s >= 0:
-        raise ValueError(f"s: expected a noise level >= 0, got {s}")
+    x = _checked(x, s)
     if s < S_HARD:
         return np.round(x)
     if s > S_SMOOTH:
@@ -62,9 +66,7 @@ def dithered_round_var(x: np.ndarray, s: float) -> np.ndarray:
     + P(k <= −j)] = Σ_j (2j − 1) [Φ((r − j + ½)/s) + Φ((−r − j + ½)/s)], and Var = E[k²] − E[k]².
     0 for s below `S_HARD` (the hard round), s² + 1/12 above `S_SMOOTH` (Sheppard).
     """
-    x = np.asarray(x, dtype=float)
-    if not s >= 0:
-        raise ValueError(f"s: expected a noise level >= 0, got {s}")
+    x = _checked(x, s)
     if s < S_HARD:
         return np.zeros_like(x)
     if s > S_SMOOTH:
