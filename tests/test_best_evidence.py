@@ -6,7 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from jaxdefl.simulate.effects import CleanRecording, RecordingSpec, best_evidence, draw_effect, effect_strength
+from jaxdefl.simulate.effects import (
+    CleanRecording,
+    RecordingSpec,
+    best_evidence,
+    draw_effect,
+    effect_strength,
+)
 
 
 @pytest.mark.parametrize(("common", "los"), [(0.6, 0.0), (0.5, 0.9), (0.0, 0.85)])
@@ -40,8 +46,13 @@ def test_a_common_effect_is_discounted_by_the_design_effect_and_a_single_plate_o
     white = effect_strength(base, drift)[1]
     assert best_evidence(base, drift) == pytest.approx(white / (1 + (m - 1) * c), rel=1e-6)
     # one plate: the others measure the common noise, Σ⁻¹'s diagonal (1 + (m − 2) c)/((1 − c)(1 + (m − 1) c))
-    jump = {"id": "level_jump", "kind": "one_plate", "plates": [4], "axes": ["z"],
-            "parameters": {"t_jump_s": 60.0, "size_mm": 0.2}}
+    jump = {
+        "id": "level_jump",
+        "kind": "one_plate",
+        "plates": [4],
+        "axes": ["z"],
+        "parameters": {"t_jump_s": 60.0, "size_mm": 0.2},
+    }
     gain = (1 + (m - 2) * c) / ((1 - c) * (1 + (m - 1) * c))
     assert best_evidence(base, jump) == pytest.approx(effect_strength(base, jump)[1] * gain, rel=1e-6)
 
@@ -50,7 +61,9 @@ def test_draw_effect_scales_to_the_best_evidence():
     spec = RecordingSpec(sensor="tof", duration_s=120, n_plates=9, frame_common=0.7)
     base = CleanRecording(spec, 8)
     for eid in ("amplitude_modulation", "extra_periodic", "clipping"):
-        e = draw_effect(eid, base, np.random.default_rng(4), target_ratio=1e-6, signal_min=80.0, evidence="best")
+        e = draw_effect(
+            eid, base, np.random.default_rng(4), target_ratio=1e-6, signal_min=80.0, evidence="best"
+        )
         assert best_evidence(base, e) == pytest.approx(80.0, rel=0.02)
     with pytest.raises(ValueError, match="evidence"):
         draw_effect("drift", base, np.random.default_rng(4), evidence="gls")

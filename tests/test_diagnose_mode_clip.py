@@ -234,10 +234,10 @@ def test_the_gls_statistic_of_a_fixed_pattern_is_chi_square_in_common_and_colour
     for _ in range(300):
         f, psi = rng.uniform(0.3, 9.5), rng.uniform(0, 2 * math.pi)
         phi = rng.standard_normal(len(idx))
-        new = {
-            i: states[i].with_(mean=states[i].mean + 0.01 * p * np.cos(2 * math.pi * f * ctx.series[i].t + psi))
-            for i, p in zip(idx, phi, strict=True)
-        }
+        new = {}
+        for i, p in zip(idx, phi, strict=True):
+            wave = np.cos(2 * math.pi * f * ctx.series[i].t + psi)
+            new[i] = states[i].with_(mean=states[i].mean + 0.01 * p * wave)
         lr.append(2.0 * gls_gain(ctx, states, new))
     lr = np.asarray(lr)
     assert np.mean(lr) == pytest.approx(1.0, abs=0.2)

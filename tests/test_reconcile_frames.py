@@ -100,9 +100,15 @@ def test_frame_levels_find_a_noisier_camera_than_configured():
     def recording(c, seed):
         t, fr, amp, facts = render_frames(c, 3.0, seed)
         return Recording(
-            path=Path("<clip>"), kind=facts["frame_kind"], n_frames=len(t), height=fr.shape[1],
-            width=fr.shape[2], intrinsics={k: float(facts[k]) for k in ("fx", "fy", "cx", "cy")},
-            segment=str(facts["segment"]), attrs=facts, _read=lambda s, e: (t[s:e], fr[s:e], amp[s:e]),
+            path=Path("<clip>"),
+            kind=facts["frame_kind"],
+            n_frames=len(t),
+            height=fr.shape[1],
+            width=fr.shape[2],
+            intrinsics={k: float(facts[k]) for k in ("fx", "fy", "cx", "cy")},
+            segment=str(facts["segment"]),
+            attrs=facts,
+            _read=lambda s, e: (t[s:e], fr[s:e], amp[s:e]),
         )
 
     noisy = dataclasses.replace(cfg, camera=dataclasses.replace(cfg.camera, noise_scale=1.6))

@@ -29,8 +29,9 @@ plates (the mode's amplitude and phase), f refined on a fine grid about the matc
 series' offset free: 4 parameters (f, a, b, g). One proposal per n; BIC chooses the mode, and
 chooses between a mode (one amplitude in a known shape) and `extra_periodic` (a line common to
 the plates, or free amplitudes per plate). The search scores the term by the generalised
-least-squares statistic along it (`_correlation.gls_gain`), as the screen finds it. Reported: ``mode`` (n), ``freq_hz``, ``amplitude_mm``
-(at the antinode), ``phase_rad`` (a cos(2π f t_rel + ψ)); the shape per plate in the detail.
+least-squares statistic along it (`_correlation.gls_gain`), as the screen finds it. Reported:
+``mode`` (n), ``freq_hz``, ``amplitude_mm`` (at the antinode), ``phase_rad`` (a cos(2π f t_rel +
+ψ)); the shape per plate in the detail.
 """
 
 from __future__ import annotations
