@@ -61,7 +61,7 @@ import numpy as np
 
 from ..._lattice import dithered_round, dithered_round_var, smoothed_staircase
 from .._base import Context, Effect, Proposal, State, keep_series, lstsq
-from .screening import bonferroni, chi2_sf, gain, param, residual, touched, updated, weights
+from .screening import P_SCREEN, bonferroni, chi2_sf, gain, param, residual, touched, updated, weights
 
 __all__ = ["Quantization", "EFFECT"]
 
@@ -393,6 +393,8 @@ class Quantization(Effect):
         p_single = bonferroni(chi2_sf(stat.max(), 2), stat.size)
         p_total = bonferroni(chi2_sf(total.max(), 2 * len(idx)), nus.size)
         p_value = min(1.0, 2 * min(p_single, p_total))
+        if p_value >= P_SCREEN:  # the search's test could not pass it: no refit of a staircase
+            return []
         logn = np.array([math.log(ctx.series[i].n) for i in idx])
         crit = np.maximum(stat - 2 * logn[:, None], 0.0).sum(axis=0)
         best = None
