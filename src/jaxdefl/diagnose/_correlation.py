@@ -31,7 +31,7 @@ import numpy as np
 
 from ._base import Context, State
 
-__all__ = ["D_MIN", "FrameCorrelation", "frame_correlation", "gls_gain"]
+__all__ = ["D_MIN", "FrameCorrelation", "floored_inverse", "frame_correlation", "gls_gain"]
 
 # Pairs with fewer common differences than this get no correlation (ρ = 0).
 _MIN_PAIRS = 50
@@ -93,6 +93,15 @@ class FrameCorrelation:
         return float(sum(dll.values())) / self.design_effect(list(dll), shape)
 
 
+def floored_inverse(cov: np.ndarray) -> np.ndarray:
+    """The inverse of a covariance across series with its correlation's eigenvalues floored at
+    `D_MIN` (an estimated correlation that calls a pattern nearly noise-free is not trusted beyond
+    it, as `FrameCorrelation.design_effect` floors d)."""
+    sd = np.sqrt(np.maximum(np.diag(cov), 1e-300))
+    lam, vec = np.linalg.eigh(cov / np.outer(sd, sd))
+    return (vec / np.maximum(lam, D_MIN)) @ vec.T / np.outer(sd, sd)
+
+
 def gls_gain(ctx: Context, states: list[State], new: dict[int, State]) -> float | None:
     """Δlog L of a term of known pattern under the noise covariance of its series: the generalised
     least-squares statistic along the term's change δ (``new`` against ``states``),
@@ -102,8 +111,8 @@ def gls_gain(ctx: Context, states: list[State], new: dict[int, State]) -> float 
     δ_t and r_t the change and the residual of the term's series in frame t over their noise
     scales, on the frames they all have, each series' AR(1) colour filtered out first (its ρ from
     its residual, `unnamed.ar1_rho`), and Σ the covariance of those filtered residuals across the
-    series (estimated on them, so that the filter and the covariance agree; its correlation's
-    eigenvalues floored at `D_MIN`, as `FrameCorrelation.design_effect` floors d). For a fixed
+    series (estimated on them, so that the filter and the covariance agree; inverted by
+    `floored_inverse`). For a fixed
     direction it is χ²₁ under the null; a direction fitted by the effect (a mode's phase at a
     scanned frequency and shape) keeps it below the χ²₂ of that frequency and shape, which the
     acceptance test's degrees of freedom and trials cover. Unlike Δlog L / d it weighs the
@@ -137,11 +146,9 @@ def gls_gain(ctx: Context, states: list[State], new: dict[int, State]) -> float 
             for x in (res, dlt):
                 x[:, j] = np.concatenate([x[:1, j], (x[1:, j] - rg * x[:-1, j]) / root])
     centred = res - res.mean(axis=0)
-    sd = np.sqrt(np.mean(centred**2, axis=0))
-    if not np.all(sd > 0):
+    if not np.all(np.mean(centred**2, axis=0) > 0):
         return None
-    lam, vec = np.linalg.eigh((centred / sd).T @ (centred / sd) / k.size)
-    inv = (vec / np.maximum(lam, D_MIN)) @ vec.T / np.outer(sd, sd)
+    inv = floored_inverse(centred.T @ centred / k.size)
     dr = float(np.sum((dlt @ inv) * res))
     dd = float(np.sum((dlt @ inv) * dlt))
     return 0.5 * dr * dr / dd if dd > 0 else None

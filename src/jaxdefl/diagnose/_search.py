@@ -361,12 +361,12 @@ def _score(
         n += ctx.series[i].n
     if not (math.isfinite(ll0) and math.isfinite(ll1)) or n == 0:
         return math.inf, math.nan, math.nan, -math.inf
-    gain = ll1 - ll0 if corr is None else corr.discount(dll, p.shape)
-    if corr is not None and p.shape is not None:
-        # a known pattern: the generalised least-squares statistic under the frame's covariance
-        gls = gls_gain(ctx, states, p.states)
-        if gls is not None:
-            gain = gls
+    # a known pattern: the generalised least-squares statistic under its series' covariance
+    gls = gls_gain(ctx, states, p.states) if corr is not None and p.shape is not None else None
+    if gls is not None:
+        gain = gls
+    else:
+        gain = ll1 - ll0 if corr is None else corr.discount(dll, p.shape)
     dbic = -2.0 * gain + p.n_params * math.log(n_total)
     return dbic, rms_equivalent(ll0, n), rms_equivalent(ll1, n), 2.0 * gain / max(p.inflation, 1.0)
 

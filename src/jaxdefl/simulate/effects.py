@@ -565,22 +565,11 @@ def _table(base: CleanRecording, t_tab: np.ndarray, pos: np.ndarray) -> pd.DataF
 # magnitudes: effective RMS and likelihood signal of an effect
 
 
-def _absorbed_rms(base: CleanRecording, t: np.ndarray, delta: np.ndarray, tied: bool) -> np.ndarray:
-    """RMS per column of ``delta`` (frame, series) after removing what the nominal model absorbs."""
-    if tied:
-        return np.sqrt(np.mean((delta - delta.mean(axis=0)) ** 2, axis=0))
-    tc = (t - 0.5 * (t[0] + t[-1])) / max(0.5 * (t[-1] - t[0]), 1e-9)
-    arg = base.omega * (t - t[0]) - base.phase
-    c, s = np.cos(arg), np.sin(arg)
-    # offset, the harmonic, and a frequency change: d/dω of A cos(ω t − φ) is −A t sin(ω t − φ), in
-    # quadrature with the motion (an amplitude trend t cos(ω t − φ) is not absorbed)
-    x = np.stack([np.ones_like(t), c, s, tc * s], axis=1)
-    coef, *_ = np.linalg.lstsq(x, delta, rcond=None)
-    return np.sqrt(np.mean((delta - x @ coef) ** 2, axis=0))
-
-
 def _absorbed(base: CleanRecording, t: np.ndarray, delta: np.ndarray, tied: bool) -> np.ndarray:
-    """``delta`` (frame, series) minus what the nominal model absorbs (`_absorbed_rms`' columns)."""
+    """``delta`` (frame, series) minus what the nominal model absorbs: the offset (tied to a
+    reference), else the offset, the harmonic and a frequency change (d/dω of A cos(ω t − φ) is
+    −A t sin(ω t − φ), in quadrature with the motion; an amplitude trend t cos(ω t − φ) is not
+    absorbed)."""
     if tied:
         return delta - delta.mean(axis=0)
     tc = (t - 0.5 * (t[0] + t[-1])) / max(0.5 * (t[-1] - t[0]), 1e-9)
@@ -588,6 +577,15 @@ def _absorbed(base: CleanRecording, t: np.ndarray, delta: np.ndarray, tied: bool
     x = np.stack([np.ones_like(t), np.cos(arg), np.sin(arg), tc * np.sin(arg)], axis=1)
     coef, *_ = np.linalg.lstsq(x, delta, rcond=None)
     return delta - x @ coef
+
+
+def _effect_delta(base: CleanRecording, e: Mapping) -> tuple[np.ndarray, np.ndarray]:
+    """(table times, (frame, plate, axis) the camera's mean reading with the mean-shape effect
+    ``e`` less the reading without it); for the reference-tied effects, against the truth at the
+    table's own timestamps (what a reference would show)."""
+    t_tab, pos = _camera_clean(base, [e])
+    clean = base.motion(t_tab) if e["id"] == "timing_error" else _camera_clean(base, [])[1]
+    return t_tab, _mean_reading(base, e, pos) - clean
 
 
 def _gls_evidence(base: CleanRecording, r: np.ndarray) -> float:
@@ -611,9 +609,7 @@ def best_evidence(base: CleanRecording, e: Mapping) -> float:
     spec = base.spec
     if eid in ("heteroscedastic_noise", "outliers") or (spec.frame_common <= 0 and spec.line_of_sight <= 0):
         return effect_strength(base, e)[1]
-    t_tab, pos = _camera_clean(base, [e])
-    clean = base.motion(t_tab) if eid == "timing_error" else _camera_clean(base, [])[1]
-    delta = _mean_reading(base, e, pos) - clean
+    t_tab, delta = _effect_delta(base, e)
     keep = np.zeros(delta.shape[1:], bool)
     if eid in NEEDS_REFERENCE:  # against the LDS: on its plates, z
         keep[np.asarray(spec.lds_plates, int) - 1, 2] = True
@@ -664,11 +660,9 @@ def effect_strength(base: CleanRecording, e: Mapping) -> tuple[float, float]:
     if eid in NEEDS_REFERENCE:  # visible against the LDS only: on its plates, z
         idx, axes = np.asarray(base.spec.lds_plates, int) - 1, [2]
         sig = base.sigma[np.ix_(idx, axes)]
-    t_tab, pos = _camera_clean(base, [e])
-    # the camera against the truth at the table's own timestamps (what a reference would show)
-    clean = base.motion(t_tab) if eid == "timing_error" else _camera_clean(base, [])[1]
-    delta = (_mean_reading(base, e, pos) - clean)[:, idx][:, :, axes].reshape(n, -1)
-    rms = _absorbed_rms(base, t_tab, delta, tied=eid in NEEDS_REFERENCE)
+    t_tab, delta = _effect_delta(base, e)
+    delta = delta[:, idx][:, :, axes].reshape(n, -1)
+    rms = np.sqrt(np.mean(_absorbed(base, t_tab, delta, tied=eid in NEEDS_REFERENCE) ** 2, axis=0))
     with np.errstate(divide="ignore", invalid="ignore"):  # a noise-free recording: infinite ratio
         ratio = (rms / sig.ravel()) ** 2
     return float(np.sqrt(np.mean(ratio))), float(n * np.sum(ratio))

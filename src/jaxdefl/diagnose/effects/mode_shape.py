@@ -42,7 +42,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._base import Context, Effect, Proposal, State, loglik, masked_fourier
-from .._correlation import D_MIN
+from .._correlation import floored_inverse
 from .._varpro import fit_shared
 from .extra_periodic import LOCAL_BINS, OVERSAMPLE, line_band, local_median
 from .screening import param, scanned, shared_amplitude
@@ -139,10 +139,7 @@ class ModeShape(Effect):
         # frame, and each series' level about the lines): the matched filter is whitened by it,
         # as the search scores a known pattern (`_correlation.gls_gain`)
         cs = coef[:, allowed]
-        cov = np.real(cs @ cs.conj().T) / max(cs.shape[1], 1)
-        sdc = np.sqrt(np.maximum(np.diag(cov), 1e-300))
-        lam, vec = np.linalg.eigh(cov / np.outer(sdc, sdc))
-        inv = (vec / np.maximum(lam, D_MIN)) @ vec.T / np.outer(sdc, sdc)
+        inv = floored_inverse(np.real(cs @ cs.conj().T) / max(cs.shape[1], 1))
         out = []
         for n in ORDERS:
             phi = mode_shapes(x, n)  # (gap, series)

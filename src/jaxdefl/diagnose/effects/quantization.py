@@ -59,7 +59,8 @@ import math
 
 import numpy as np
 
-from ..._lattice import dithered_round, dithered_round_var, smoothed_staircase
+from ..._lattice import dithered_round, dithered_round_var
+from ..._lattice import smoothed_staircase as staircase  # the mean reading (dither 0: hard steps)
 from .._base import Context, Effect, Proposal, State, keep_series, lstsq
 from .screening import P_SCREEN, bonferroni, chi2_sf, gain, param, residual, touched, updated, weights
 
@@ -80,12 +81,6 @@ SHARES = (0.0, 0.25, 0.5, 0.75, 1.0)  # the grid of the noise's share that is ro
 
 def saw(x: np.ndarray) -> np.ndarray:
     return x - np.round(x)
-
-
-def staircase(h: np.ndarray, q: float, o: float, dither: float = 0.0) -> np.ndarray:
-    """The mean reading at true value h: the staircase with levels o + k q smoothed by the
-    pixels' noise before rounding (`jaxdefl._lattice.smoothed_staircase`; dither 0: the hard one)."""
-    return smoothed_staircase(h, q, o, dither)
 
 
 class _Saws:
