@@ -31,6 +31,8 @@ def _root(
     _state["debug"] = debug
 
 
+_WAIT_HELP = "When another jaxdefl command writes to the same --out: wait for it (default: exit 2)."
+
 _TIMESTAMPS_HELP = (
     "strict (default: a repeated time with other values is an error), reclock (recover the "
     "sample clock of rounded or jittered stamps) or merge (average true duplicates)."
@@ -68,6 +70,7 @@ def fit(
     ] = "harmonic",
     harmonics: Annotated[int, typer.Option(help="Fit f0 and its harmonics 2 f0 .. K f0.")] = 1,
     lines: Annotated[int, typer.Option(help="Fit N independent spectral lines (modes).")] = 1,
+    wait: Annotated[bool, typer.Option("--wait", help=_WAIT_HELP)] = False,
 ) -> None:
     """Estimate loading frequency and deflection amplitude per segment, window, plate and axis."""
     from .settings import FIT_FLAGS, FitSettings
@@ -78,7 +81,8 @@ def fit(
         _jax_setup()
         from . import pipeline
 
-        pipeline.fit_file(traj, out, settings, reference=reference)
+        with _locked(out, "fit", wait):
+            pipeline.fit_file(traj, out, settings, reference=reference)
 
 
 @app.command()
@@ -98,20 +102,22 @@ def simulate(
         ),
     ] = False,
     speed: Annotated[float, typer.Option(help="With --live: times real time.")] = 1.0,
+    wait: Annotated[bool, typer.Option("--wait", help=_WAIT_HELP)] = False,
 ) -> None:
     """Simulate a recording: DIR/recording.zarr, DIR/truth.csv, DIR/lds.csv (or --live)."""
     from .settings import SIMULATE_FLAGS, SimulateSettings
 
     with _flag_names(SIMULATE_FLAGS):
         s = SimulateSettings(**_flag_values(locals(), SIMULATE_FLAGS))  # before any input is read
-        if s.live:
-            from .simulate import write_live
+        with _locked(out, "simulate", wait):
+            if s.live:
+                from .simulate import write_live
 
-            write_live(config, out, duration_s=s.duration_s, seed=s.seed, speed=s.speed, session=s.session)
-            return
-        from .simulate import simulate_to_dir
+                write_live(config, out, duration_s=s.duration_s, seed=s.seed, speed=s.speed, session=s.session)
+                return
+            from .simulate import simulate_to_dir
 
-        simulate_to_dir(config, out, duration_s=s.duration_s, seed=s.seed, session=s.session)
+            simulate_to_dir(config, out, duration_s=s.duration_s, seed=s.seed, session=s.session)
 
 
 @app.command()
@@ -138,6 +144,7 @@ def extract(
             "or jittered frame times).",
         ),
     ] = "strict",
+    wait: Annotated[bool, typer.Option("--wait", help=_WAIT_HELP)] = False,
 ) -> None:
     """Extract the plates from every frame: 3D centroid trajectories (t, plate, x, y, z)."""
     from .settings import EXTRACT_FLAGS, ExtractSettings
@@ -146,7 +153,8 @@ def extract(
         settings = ExtractSettings(**_flag_values(locals(), EXTRACT_FLAGS))  # before any input is read
         from .frames import extract_to_table
 
-        extract_to_table(recording, out, settings)
+        with _locked(out, "extract", wait):
+            extract_to_table(recording, out, settings)
 
 
 @app.command()
@@ -163,6 +171,7 @@ def run(
         str | None,
         typer.Option("--timestamps", help="Override processing.timestamps: " + _TIMESTAMPS_HELP),
     ] = None,
+    wait: Annotated[bool, typer.Option("--wait", help=_WAIT_HELP)] = False,
 ) -> None:
     """Reprocess a campaign (days x cameras) to tables, a Zarr dataset, figures and a report."""
     from .settings import RUN_FLAGS, RunSettings
@@ -172,7 +181,8 @@ def run(
         _jax_setup()
         from . import pipeline
 
-        pipeline.run_file(config, out, settings)
+        with _locked(out, "run", wait):
+            pipeline.run_file(config, out, settings)
 
 
 @app.command()
@@ -200,6 +210,7 @@ def diagnose(
         bool, typer.Option("--figures/--no-figures", help="Write a figure per effect.")
     ] = True,
     timestamps: Annotated[str, typer.Option("--timestamps", help=_TIMESTAMPS_HELP)] = "strict",
+    wait: Annotated[bool, typer.Option("--wait", help=_WAIT_HELP)] = False,
 ) -> None:
     """Locate where a recording departs from the nominal model and name the missing physics."""
     from .settings import DIAGNOSE_FLAGS, DiagnoseSettings
@@ -209,7 +220,8 @@ def diagnose(
         _jax_setup()
         from . import pipeline
 
-        pipeline.diagnose_file(traj, out, settings, reference=reference, config=config, figures=figures)
+        with _locked(out, "diagnose", wait):
+            pipeline.diagnose_file(traj, out, settings, reference=reference, config=config, figures=figures)
 
 
 @app.command()
@@ -227,6 +239,7 @@ def reconcile(
     null_sims: Annotated[int, typer.Option(help="Simulations for the null band.")] = 20,
     seed: Annotated[int, typer.Option(help="Random seed of the simulations.")] = 0,
     timestamps: Annotated[str, typer.Option("--timestamps", help=_TIMESTAMPS_HELP)] = "strict",
+    wait: Annotated[bool, typer.Option("--wait", help=_WAIT_HELP)] = False,
 ) -> None:
     """Compare a recording with its simulation, name the missing physics, simulate it, compare again."""
     from .settings import RECONCILE_FLAGS, ReconcileSettings
@@ -236,7 +249,8 @@ def reconcile(
         _jax_setup()
         from . import pipeline
 
-        pipeline.reconcile_file(recording, config, out, settings, reference=reference)
+        with _locked(out, "reconcile", wait):
+            pipeline.reconcile_file(recording, config, out, settings, reference=reference)
 
 
 @app.command()
@@ -273,6 +287,7 @@ def monitor(
     timestamps: Annotated[
         str, typer.Option("--timestamps", help=_TIMESTAMPS_HELP + " (a replayed table only)")
     ] = "strict",
+    wait: Annotated[bool, typer.Option("--wait", help=_WAIT_HELP)] = False,
 ) -> None:
     """Follow a live camera: f0 and A per plate with σ's, alarms when the structure or a sensor changes."""
     from .settings import MONITOR_FLAGS, MonitorSettings
@@ -294,7 +309,8 @@ def monitor(
                 timestamps=s.timestamps,
             )
         inputs = tuple(p for p in (source, config, reference) if p is not None)
-        run_monitor(src, out, s, inputs=inputs, reference=reference)
+        with _locked(out, "monitor", wait):
+            run_monitor(src, out, s, inputs=inputs, reference=reference)
 
 
 @app.command()
@@ -302,12 +318,14 @@ def demo(
     out: Annotated[Path, typer.Option("--out", help="Report directory.")] = Path("demo_out"),
     duration: Annotated[float, typer.Option(help="Simulated duration, s.")] = 120.0,
     seed: Annotated[int, typer.Option(help="Random seed.")] = 1,
+    wait: Annotated[bool, typer.Option("--wait", help=_WAIT_HELP)] = False,
 ) -> None:
     """Run the main job on the built-in default (Experiment II, 3 Hz, SR4000 at 20 Hz) to a report."""
     _jax_setup()
     from . import pipeline
 
-    pipeline.demo(out, duration_s=duration, seed=seed)
+    with _locked(out, "demo", wait):
+        pipeline.demo(out, duration_s=duration, seed=seed)
 
 
 def _jax_setup() -> None:
@@ -317,6 +335,14 @@ def _jax_setup() -> None:
     from ._jax import setup
 
     setup()
+
+
+def _locked(out: Path, command: str, wait: bool):
+    """One command per output (`jaxdefl.io.lock`): a second one on OUT exits 2 or, with
+    --wait, waits; a killed holder's lock and temporary files are cleared."""
+    from .io.lock import output_lock
+
+    return output_lock(out, command=f"jaxdefl {command}", wait=wait)
 
 
 def _flag_values(given: dict, flags: dict[str, str]) -> dict:
