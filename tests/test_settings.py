@@ -113,7 +113,7 @@ BAD_FLAGS = [
     ("extract", "--chunk-frames 0", "--chunk-frames: expected an integer >= 1"),
     ("extract", "--device gpu", "--device: expected cpu, cuda or cuda:N"),
     ("extract", "--timestamps merge", "--timestamps: expected strict or reclock"),
-    ("simulate", "--duration -1", "--duration: expected a duration >= 0 s"),
+    ("simulate", "--duration -1", "--duration: expected a duration > 0 s"),
     ("simulate", "--live --speed 0", "--speed: expected a factor > 0"),
     ("run", "--scheduler local:0", "--scheduler: expected none, local"),
     ("run", "--timestamps later", "--timestamps: expected one of"),
@@ -176,7 +176,7 @@ def test_other_settings_are_frozen_and_normalised():
     [
         (lambda: ReconcileSettings(n_null=4), "n_null: expected at least 5"),
         (lambda: ReconcileSettings(n_sims=0), "n_sims: expected at least 1"),
-        (lambda: SimulateSettings(duration_s=float("nan")), "duration_s: expected a duration >= 0 s"),
+        (lambda: SimulateSettings(duration_s=float("nan")), "duration_s: expected a duration > 0 s"),
         (lambda: MonitorSettings(until_s=0.0), "until_s: expected a time > 0 s, got 0"),
         (lambda: MonitorSettings(timestamps="merge"), "timestamps: merge applies to replay"),
         (lambda: RunSettings(scheduler=" "), "scheduler: expected none, local"),

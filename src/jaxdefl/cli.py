@@ -113,7 +113,9 @@ def simulate(
             if s.live:
                 from .simulate import write_live
 
-                write_live(config, out, duration_s=s.duration_s, seed=s.seed, speed=s.speed, session=s.session)
+                write_live(
+                    config, out, duration_s=s.duration_s, seed=s.seed, speed=s.speed, session=s.session
+                )
                 return
             from .simulate import simulate_to_dir
 
@@ -359,8 +361,26 @@ def _flag_names(flags: dict[str, str]):
         raise err.renamed(flags) from None
 
 
+# what to change when a command runs out of memory, in the flags it has
+_OOM_ADVICE = {
+    "fit": "use shorter windows (--window), a longer --step, a smaller --oversampling or fewer plates",
+    "simulate": "use a shorter --duration or a smaller recording.chunk_frames in the config",
+    "extract": "use a smaller --chunk-frames",
+    "run": "use a shorter processing.window_s, a longer processing.step_s or fewer recordings",
+    "diagnose": "diagnose a shorter record or one --segment",
+    "reconcile": "use fewer --null-sims or a shorter record",
+    "monitor": "use a shorter --block or --snapshot",
+    "demo": "use a shorter --duration",
+    "": "use a smaller input",
+}
+
+
+def _command(argv: list[str]) -> str:
+    return next((a for a in argv if not a.startswith("-")), "")
+
+
 def _interrupted_message(err: Interrupted, argv: list[str]) -> str:
-    cmd = next((a for a in argv if not a.startswith("-")), "")
+    cmd = _command(argv)
     if cmd == "run":
         return f"interrupted ({err}): finished units are kept; run the same command again to resume"
     if cmd == "monitor":
@@ -413,7 +433,7 @@ def _run(argv: list[str]) -> int:
         if _state["debug"]:
             raise
         print(
-            "jaxdefl: error: out of memory (use shorter windows, fewer plates or a smaller --step)",
+            f"jaxdefl: error: out of memory ({_OOM_ADVICE.get(_command(argv), _OOM_ADVICE[''])})",
             file=sys.stderr,
         )
         return 1

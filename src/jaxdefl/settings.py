@@ -335,8 +335,8 @@ class SimulateSettings:
 
     def __post_init__(self):
         d = self.duration_s
-        if d is not None and not (math.isfinite(d) and d >= 0):
-            raise ParameterError("duration_s", f"expected a duration >= 0 s, got {_got(d)}")
+        if d is not None and not (math.isfinite(d) and d > 0):
+            raise ParameterError("duration_s", f"expected a duration > 0 s, got {_got(d)}")
         _check_seed(self)
         _check_positive(self, ("speed",), "a factor > 0")
 

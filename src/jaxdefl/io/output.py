@@ -133,6 +133,7 @@ class Outputs:
         self._planned: dict[Path, str] = {}
         self._staged: dict[Path, Path] = {}
         self._token = secrets.token_hex(4)
+        self._made: list[Path] = []  # directories made for the outputs: removed if left empty
 
     # -- planning ---------------------------------------------------------------------------
 
@@ -174,6 +175,7 @@ class Outputs:
             self.reserve(final, str(final))
         if final in self._staged:
             return self._staged[final]
+        self._made += [d for d in reversed([final.parent, *final.parent.parents]) if not d.exists()]
         final.parent.mkdir(parents=True, exist_ok=True)
         tmp = final.parent / f"{_TMP_PREFIX}{self._token}-{final.name}"
         self._staged[final] = tmp
@@ -255,6 +257,7 @@ class Outputs:
                 for d in {f.parent for f, _ in staged}:
                     _fsync_dir(d)
                 self._staged.clear()
+                self._made.clear()
             finally:
                 for p in old:
                     _remove(p)
@@ -266,6 +269,12 @@ class Outputs:
         for tmp in self._staged.values():
             _remove(tmp)
         self._staged.clear()
+        for d in reversed(self._made):  # a refused or failed command leaves no empty folder
+            try:
+                d.rmdir()
+            except OSError:
+                pass
+        self._made.clear()
 
     def __enter__(self) -> Outputs:
         return self

@@ -169,6 +169,54 @@ def _geometry_from_sim_config(rec: Recording, cfg_path: Path) -> None:
         return  # not a simulator config: ordinal numbering
 
 
+def _frame_range(arr, i: int) -> str:
+    """The frames of chunk ``i`` along the frame axis of ``arr``."""
+    c = int(arr.chunks[0])
+    return f"frames {i * c}..{min(int(arr.shape[0]), (i + 1) * c) - 1}"
+
+
+def _check_chunks(path: Path, name: str, arr) -> None:
+    """Every chunk of ``arr`` must be stored: Zarr reads a missing one as fill values, which
+    would silently drop (or invent) frames. Names the array and the frames of the first gap."""
+    root = path / arr.path
+    grid = [-(-int(s) // int(c)) for s, c in zip(arr.shape, arr.chunks, strict=True)]
+    for coords in np.ndindex(*grid):
+        key = arr.metadata.encode_chunk_key(coords)
+        if not (root / key).is_file():
+            missing = sum(not (root / arr.metadata.encode_chunk_key(c)).is_file() for c in np.ndindex(*grid))
+            more = f" (and {missing - 1} more chunk(s))" if missing > 1 else ""
+            raise _err(
+                path,
+                f"array {name!r}: the chunk of {_frame_range(arr, coords[0])} is missing "
+                f"({root / key}){more}; the recording is incomplete",
+            )
+
+
+def _read_frames(path: Path, name: str, arr, s: int, e: int) -> np.ndarray:
+    """``arr[s:e]``; a chunk that cannot be decoded (truncated, corrupt) is named by its frames."""
+    try:
+        return np.asarray(arr[s:e])
+    except Exception as err:
+        c = int(arr.chunks[0])
+        for i in range(s // c, -(-e // c)):  # find the chunk that fails
+            try:
+                arr[i * c : min(e, (i + 1) * c)]
+            except Exception:
+                bad = _frame_range(arr, i)
+                break
+        else:
+            bad = f"frames {s}..{e - 1}"
+        why = _short(f"{type(err).__name__}: {err}")
+        raise _err(
+            path, f"array {name!r}: the chunk of {bad} cannot be read ({why}); truncated or corrupt"
+        ) from None
+
+
+def _short(text: str, limit: int = 120) -> str:
+    text = " ".join(str(text).split())
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
 def _open_zarr(path: Path, timestamps: str = "strict") -> Recording:
     import zarr
 
@@ -200,6 +248,9 @@ def _open_zarr(path: Path, timestamps: str = "strict") -> Recording:
         raise _err(
             path, f"array 'timestamps' has shape {ts.shape}; expected ({n},) to match {kind!r} {fr.shape}"
         )
+    if kind == "range" and "amplitude" not in keys:
+        # a ToF camera delivers range and amplitude together; the plates are found on the latter
+        raise _err(path, "missing array 'amplitude' (frame, h, w): a ToF (range) recording needs it")
     amp = g["amplitude"] if "amplitude" in keys else None
     if amp is not None and amp.shape != fr.shape:
         raise _err(path, f"array 'amplitude' has shape {amp.shape}; expected {fr.shape} like {kind!r}")
@@ -209,20 +260,15 @@ def _open_zarr(path: Path, timestamps: str = "strict") -> Recording:
     if "n_frames" in attrs and int(attrs["n_frames"]) != n:
         raise _err(path, f"truncated: attribute n_frames={attrs['n_frames']} but {n} frames stored")
     intr = _intrinsics(path, attrs, "the group attributes")
-    try:
-        t_all = np.asarray(ts[:], np.float64)
-    except Exception as err:
-        raise _err(path, f"array 'timestamps' cannot be read ({type(err).__name__})") from None
+    arrays = {kind: fr, "timestamps": ts} | ({} if amp is None else {"amplitude": amp})
+    for name, arr in arrays.items():
+        _check_chunks(path, name, arr)
+    t_all = _read_frames(path, "timestamps", ts, 0, n).astype(np.float64)
     clock = _check_timestamps(path, t_all, policy=timestamps)
 
     def read(s, e):
-        try:
-            f = np.asarray(fr[s:e], np.float32)
-            a = None if amp is None else np.asarray(amp[s:e], np.float32)
-        except Exception as err:
-            raise _err(
-                path, f"frames {s}..{e - 1} cannot be read ({type(err).__name__}: corrupt chunk?)"
-            ) from None
+        f = _read_frames(path, kind, fr, s, e).astype(np.float32, copy=False)
+        a = None if amp is None else _read_frames(path, "amplitude", amp, s, e).astype(np.float32, copy=False)
         return t_all[s:e], f, a
 
     rec = Recording(

@@ -16,6 +16,7 @@ import numpy as np
 import pandas as pd
 
 from .._errors import ConfigError
+from .._resources import MEMORY_BUDGET_BYTES
 from ..status import Status
 from .clock import SNAP_MAX, fit_clock
 
@@ -276,7 +277,7 @@ def windows_like(ref: pd.DataFrame, like: pd.DataFrame, min_samples: int = 16) -
 MIN_WINDOW_FRAMES = 8
 # The padded batch (t, y, mask, k: 8 bytes each, plus the periodogram's and the fit's working
 # copies) must fit in this budget; past it the window settings are refused before any work.
-MAX_BATCH_BYTES = 4 << 30
+MAX_BATCH_BYTES = MEMORY_BUDGET_BYTES
 
 
 def check_window_plan(

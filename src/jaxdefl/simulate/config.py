@@ -378,8 +378,8 @@ def validate(cfg: SimConfig) -> None:
     """Physical and geometric checks; one-line `ConfigError` naming file and key."""
     src, cam = cfg.source, cfg.camera
     rec = cfg.recording
-    if rec.duration_s < 0:
-        raise _err(src, "recording.duration_s", "a duration >= 0 s", rec.duration_s)
+    if not rec.duration_s > 0:
+        raise _err(src, "recording.duration_s", "a duration > 0 s", rec.duration_s)
     if rec.chunk_frames < 1:
         raise _err(src, "recording.chunk_frames", "an integer >= 1", rec.chunk_frames)
     fmax = SENSOR_MAX_FRAME_RATE_HZ[cam.sensor]

@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from .._errors import ConfigError, ParameterError
+from .._resources import MEMORY_BUDGET_BYTES, check_disk, check_memory
 from .._signals import check_interrupt
 from ..io.output import Outputs
 from .config import SimConfig, load_config
@@ -28,14 +29,54 @@ from .scene import kinematics, pixel_model
 __all__ = ["simulate_to_dir", "simulate_trajectories", "tap_times", "render_frames"]
 
 _COLUMNS = ("segment", "t", "plate", "x", "y", "z")
+# every chunk is stored, even one of fill values only: a reader takes a missing chunk for damage
+_EVERY_CHUNK = {"write_empty_chunks": True}
 
 
 def _check_duration(cfg: SimConfig, duration_s: float | None) -> float:
     if duration_s is None:
+        if not cfg.recording.duration_s > 0:
+            raise ConfigError(
+                f"recording.duration_s: expected a duration > 0 s, got {cfg.recording.duration_s:g}"
+            )
         return cfg.recording.duration_s
-    if not np.isfinite(duration_s) or duration_s < 0:
-        raise ParameterError("duration_s", f"expected a duration >= 0 s, got {duration_s:g}")
+    if not np.isfinite(duration_s) or duration_s <= 0:
+        raise ParameterError("duration_s", f"expected a duration > 0 s, got {duration_s:g}")
     return float(duration_s)
+
+
+# Memory of a simulation: its frame clock (random draws, times and indices of every frame) and
+# one chunk of rendered frames (measured: 8-11 B per output pixel for both sensors, both arrays)
+_CLOCK_BYTES_PER_FRAME = 48
+_RENDER_BYTES_PER_PIXEL = 24
+_STORED_BYTES_PER_PIXEL = 8  # range or depth, and amplitude: float32 each (before compression)
+
+
+def _check_size(cfg: SimConfig, duration: float, out: Path, duration_flag: str, source: str) -> None:
+    """Refuse a duration or chunk size whose memory or disk space is out of reach, before any
+    file is made. ``duration_flag`` names where the duration came from, ``source`` the config."""
+    cam, chunk = cfg.camera, cfg.recording.chunk_frames
+    n = int(np.floor(duration * cam.frame_rate_hz + 1e-9))
+    px = cam.width * cam.height
+    frames = f"{n:,} frames of {cam.width}x{cam.height}"
+    # a Zarr chunk is allocated whole, however few frames it ends up holding
+    check_memory(
+        _RENDER_BYTES_PER_PIXEL * px * chunk,
+        f"{source}: key 'recording.chunk_frames' {chunk:,}: chunks of {chunk:,} frames of "
+        f"{cam.width}x{cam.height}",
+        f"at most {MEMORY_BUDGET_BYTES // (_RENDER_BYTES_PER_PIXEL * px):,} frames per chunk",
+    )
+    check_memory(
+        _CLOCK_BYTES_PER_FRAME * n + _RENDER_BYTES_PER_PIXEL * px * chunk,
+        f"{duration_flag} {duration:g}: {frames}",
+        "a shorter duration",
+    )
+    check_disk(
+        n * (_STORED_BYTES_PER_PIXEL * px + 8),
+        out,
+        f"{duration_flag} {duration:g}: {frames} (uncompressed)",
+        "a shorter duration or another --out",
+    )
 
 
 def tap_times(cfg: SimConfig, t_frame: np.ndarray) -> np.ndarray:
@@ -210,6 +251,8 @@ def simulate_to_dir(
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out}: is a file; expected a directory")
+    where = "recording.duration_s" if duration_s is None else "--duration"
+    _check_size(cfg, duration, out, where, str(config_path))
     outs = Outputs(inputs=[config_path])
     for name in ("config.json", "recording.zarr", "truth.csv", "lds.csv"):
         outs.reserve(out / name, f"--out {out}: {name}")
@@ -243,11 +286,17 @@ def _write_recording(cfg: SimConfig, outs: Outputs, out: Path, duration: float, 
             dtype="float32",
             dimension_names=("frame", "h", "w"),
             fill_value=np.nan,
+            config=_EVERY_CHUNK,
         )
         for name in (rend.kind, "amplitude")
     )
     stamps = root.create_array(
-        "timestamps", shape=(0,), chunks=(max(chunk, 4096),), dtype="float64", dimension_names=("frame",)
+        "timestamps",
+        shape=(0,),
+        chunks=(max(chunk, 4096),),
+        dtype="float64",
+        dimension_names=("frame",),
+        config=_EVERY_CHUNK,
     )
     frames.attrs.update(units="mm")
     stamps.attrs.update(units="s since 1970-01-01 (UTC)")

@@ -23,11 +23,12 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.fft
 
-from .._errors import ConfigError
+from .._errors import ConfigError, ParameterError
 from .._jax import persistent_jit
 from .._shapes import bucket, pow2_at_least, pow2_at_most
 from .._sincos import sincos
 from ..series import Windows
+from ..series.windows import MAX_BATCH_BYTES
 from .fap import false_alarm_probability, n_independent
 
 __all__ = ["METHODS", "Periodogram", "lomb_direct", "lomb_from_sums", "lomb_grid", "lomb_peaks"]
@@ -36,6 +37,24 @@ Method = Literal["auto", "grid", "nufft"]
 
 # Largest number of complex grid cells per FFT chunk (~64 MB): chunks of a few hundred windows.
 _CHUNK_CELLS = 1 << 22
+# Working memory per frequency of one window's periodogram (FFT buffers, tau sums, powers;
+# measured: ~53 B per grid point on the frame clock), and per extra series of a non-uniform one.
+_BYTES_PER_FREQ = 64
+_BYTES_PER_SERIES_FREQ = 8
+
+
+def _check_memory(n_freq: int, length: int, rows: int, oversampling: float) -> None:
+    """Refuse an oversampling whose periodogram would not fit in MAX_BATCH_BYTES, before any of
+    it is allocated (``n_freq`` frequencies of ``rows`` windows at once, ``length`` samples)."""
+    need = n_freq * (_BYTES_PER_FREQ + _BYTES_PER_SERIES_FREQ * rows)
+    if need > MAX_BATCH_BYTES:
+        most = max(1.0, oversampling * MAX_BATCH_BYTES / need)
+        raise ParameterError(
+            "oversampling",
+            f"{oversampling:g} gives {n_freq:,} frequencies for windows of {length:,} samples, "
+            f"~{need / 2**30:.1f} GiB; expected at most {MAX_BATCH_BYTES / 2**30:.0f} GiB "
+            f"(an oversampling <= {math.floor(most):,} here, or shorter windows)",
+        )
 
 
 def lomb_from_sums(ch, sh, c2, s2, n, var):
@@ -242,6 +261,7 @@ def _peaks_grid(w: Windows, rows, out, fmin, fmax, oversampling, keep, search_dt
     n_freq = j_hi - j_lo + 1
     per_chunk = max(1, _CHUNK_CELLS // n_fft)
     chunk = min(pow2_at_least(len(rows)), pow2_at_most(per_chunk))
+    _check_memory(n_fft * chunk, length, 0, oversampling)
     keep_set = set(keep)
     for c0 in range(0, len(rows), chunk):
         sel = rows[c0 : c0 + chunk]
@@ -310,6 +330,7 @@ def _peaks_nufft(w: Windows, rows, out, fmin, fmax, oversampling, keep, search_d
         n_freq = int(math.floor((f_hi - f_lo) / df + 1e-9)) + 1
         if n_freq < 3:
             raise ConfigError(f"--fmin/--fmax: the band {f_lo:g}..{f_hi:g} Hz holds fewer than 3 frequencies")
+        _check_memory(n_freq, n, group.size, oversampling)
         res = nifty_ls.lombscargle(
             t - t[0],
             ys,
