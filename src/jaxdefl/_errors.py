@@ -2,7 +2,43 @@
 
 from __future__ import annotations
 
-__all__ = ["JaxdeflError", "ConfigError", "InputError", "Interrupted", "ParameterError"]
+__all__ = [
+    "JaxdeflError",
+    "ConfigError",
+    "InputError",
+    "Interrupted",
+    "ParameterError",
+    "MESSAGE_CHARS",
+    "echo",
+    "one_line",
+]
+
+# An error message is one line of at most this many characters, whatever the input held.
+MESSAGE_CHARS = 600
+
+
+def echo(value, limit: int = 60) -> str:
+    """``repr(value)`` of input echoed in a message, cut to ``limit`` characters: a cell padded
+    with a million zero bytes is shown by its start and its length."""
+    text = repr(value.item() if hasattr(value, "item") and callable(value.item) else value)
+    if len(text) <= limit:
+        return text
+    n = len(value) if isinstance(value, str | bytes) else len(text)
+    return f"{text[: limit - 3]}... ({n:,} characters)"
+
+
+def one_line(message: str, limit: int = MESSAGE_CHARS) -> str:
+    """A message as one line of at most ``limit`` characters (control characters escaped)."""
+    text = str(message)
+    if len(text) > 4 * limit:
+        text = text[: 4 * limit]  # before escaping: a message of gigabytes is never copied whole
+        cut = True
+    else:
+        cut = False
+    text = "".join(c if c.isprintable() else repr(c)[1:-1] for c in " ".join(text.splitlines()))
+    if cut or len(text) > limit:
+        return f"{text[: limit - 40]}... (message cut at {limit} characters)"
+    return text
 
 
 class JaxdeflError(Exception):

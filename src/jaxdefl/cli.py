@@ -11,7 +11,7 @@ from typing import Annotated
 
 import typer
 
-from ._errors import Interrupted, JaxdeflError, ParameterError
+from ._errors import Interrupted, JaxdeflError, ParameterError, one_line
 from ._signals import check_interrupt, committed_under_signal, handle_signals
 
 app = typer.Typer(
@@ -414,20 +414,20 @@ def _run(argv: list[str]) -> int:
     except JaxdeflError as err:
         if _state["debug"]:
             raise
-        print(f"jaxdefl: error: {err}", file=sys.stderr)
+        print(f"jaxdefl: error: {one_line(err)}", file=sys.stderr)
         return err.exit_code
     except KeyboardInterrupt:  # a SIGINT that arrived before the handler was installed
         raise Interrupted(signal.SIGINT) from None
     except typer.Exit as ex:
         return ex.exit_code
     except (typer.BadParameter, typer.Abort) as err:  # pragma: no cover - click handles most
-        print(f"jaxdefl: error: {err}", file=sys.stderr)
+        print(f"jaxdefl: error: {one_line(err)}", file=sys.stderr)
         return 2
     except OSError as err:
         if _state["debug"]:
             raise
         where = f"{err.filename}: " if err.filename else ""
-        print(f"jaxdefl: error: {where}{err.strerror or err}", file=sys.stderr)
+        print(f"jaxdefl: error: {one_line(f'{where}{err.strerror or err}')}", file=sys.stderr)
         return 1
     except MemoryError:
         if _state["debug"]:
@@ -445,7 +445,7 @@ def _run(argv: list[str]) -> int:
             return err.exit_code
         if _state["debug"]:
             raise
-        print(f"jaxdefl: error: {type(err).__name__}: {err}", file=sys.stderr)
+        print(f"jaxdefl: error: {one_line(f'{type(err).__name__}: {err}')}", file=sys.stderr)
         return 1
     # typer hands back an Exit's code (its own KeyboardInterrupt handling returns 130)
     if isinstance(rv, int) and not isinstance(rv, bool) and rv != 0:

@@ -166,7 +166,8 @@ def output_lock(
             holder = _read_holder(path)
             if not wait:
                 raise OutputLocked(
-                    f"{what} {out}: in use by {_holder_text(holder)}; wait for it to finish or rerun with --wait"
+                    f"{what} {out}: in use by {_holder_text(holder)}; "
+                    "wait for it to finish or rerun with --wait"
                 )
             if not waited:
                 print(f"jaxdefl: waiting for {out}: in use by {_holder_text(holder)}", file=sys.stderr)

@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from .._errors import ConfigError, InputError
+from .._errors import ConfigError, InputError, echo, one_line
 
 __all__ = ["Recording", "FrameChunk", "open_recording", "TUM_DEPTH_SCALE_MM"]
 
@@ -93,7 +93,7 @@ def _intrinsics(path: Path, src: dict, where: str) -> dict:
             v = float(src[k])
         except (TypeError, ValueError):
             raise _err(
-                path, f"camera intrinsic {k!r} in {where}: expected a number, got {src[k]!r}"
+                path, f"camera intrinsic {k!r} in {where}: expected a number, got {echo(src[k])}"
             ) from None
         if not np.isfinite(v) or (k in ("fx", "fy") and v <= 0):
             raise _err(
@@ -206,15 +206,10 @@ def _read_frames(path: Path, name: str, arr, s: int, e: int) -> np.ndarray:
                 break
         else:
             bad = f"frames {s}..{e - 1}"
-        why = _short(f"{type(err).__name__}: {err}")
+        why = one_line(f"{type(err).__name__}: {err}", limit=120)
         raise _err(
             path, f"array {name!r}: the chunk of {bad} cannot be read ({why}); truncated or corrupt"
         ) from None
-
-
-def _short(text: str, limit: int = 120) -> str:
-    text = " ".join(str(text).split())
-    return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
 def _open_zarr(path: Path, timestamps: str = "strict") -> Recording:
@@ -358,11 +353,11 @@ def _open_tum(
             continue
         parts = s.split()
         if len(parts) != 2:
-            raise _err(listing, f"line {i}: expected 'timestamp filename', got {s!r}")
+            raise _err(listing, f"line {i}: expected 'timestamp filename', got {echo(s)}")
         try:
             t.append(float(parts[0]))
         except ValueError:
-            raise _err(listing, f"line {i}: timestamp {parts[0]!r} is not a number") from None
+            raise _err(listing, f"line {i}: timestamp {echo(parts[0])} is not a number") from None
         files.append(path / parts[1])
     if not files:
         raise _err(listing, "no frames listed")

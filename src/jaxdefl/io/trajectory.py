@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .._errors import ConfigError, InputError
+from .._errors import ConfigError, InputError, echo
 
 __all__ = [
     "TIMESTAMP_POLICIES",
@@ -70,9 +70,7 @@ def check_timestamp_policy(policy: str) -> str:
 
 def _plain(v) -> str:
     """A cell as the user wrote it: numpy scalars as plain numbers, strings quoted."""
-    if isinstance(v, np.generic):
-        v = v.item()
-    return repr(v)
+    return echo(v)
 
 
 _VALUE_COLUMNS = ("t", "x", "y", "z")
