@@ -71,8 +71,6 @@ def check_timestamp_policy(policy: str) -> str:
 def _plain(v) -> str:
     """A cell as the user wrote it: numpy scalars as plain numbers, strings quoted."""
     return echo(v)
-
-
 _VALUE_COLUMNS = ("t", "x", "y", "z")
 _HEADER = re.compile(r"^\s*([A-Za-z]+)\s*(?:[_ ]\s*\[?\s*([^\]\s]+)\s*\]?|\[\s*([^\]\s]+)\s*\])?\s*$")
 
@@ -188,11 +186,8 @@ def _check_plausible(path: Path, col: str, v: np.ndarray, plate: np.ndarray) -> 
         top = float(a.max())
         if top > _EPOCH_S_MAX:
             unit, name = (
-                ("milliseconds", "t_ms")
-                if top < 1e14
-                else ("microseconds", "t_us")
-                if top < 1e17
-                else ("nanoseconds", "t_ns")
+                ("milliseconds", "t_ms") if top < 1e14 else ("microseconds", "t_us") if top < 1e17 else
+                ("nanoseconds", "t_ns")
             )
             raise InputError(
                 f"{path}: column 't' has no unit and values up to {top:.4g}, implausible as seconds "
