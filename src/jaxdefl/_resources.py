@@ -13,7 +13,15 @@ from pathlib import Path
 
 from ._errors import ConfigError
 
-__all__ = ["MEMORY_BUDGET_BYTES", "check_disk", "check_memory", "free_bytes", "size_text"]
+__all__ = [
+    "MEMORY_BUDGET_BYTES",
+    "available_memory",
+    "check_available_memory",
+    "check_disk",
+    "check_memory",
+    "free_bytes",
+    "size_text",
+]
 
 # What one command may plan to hold at once, besides the interpreter and its libraries.
 MEMORY_BUDGET_BYTES = 4 << 30
@@ -51,4 +59,26 @@ def check_disk(need: float, out: Path | str, what: str, fix: str) -> None:
     if need > free:
         raise ConfigError(
             f"{what} would write up to ~{size_text(need)} to {out}, which has {size_text(free)} free ({fix})"
+        )
+
+
+def available_memory() -> int | None:
+    """Memory the system can give a new allocation without swapping (MemAvailable), or None."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def check_available_memory(need: float, what: str, fix: str) -> None:
+    """Refuse work whose size is set by its input, not by a flag (``need`` bytes), when the
+    system has less memory available: it would otherwise end in swapping or the OOM killer."""
+    free = available_memory()
+    if free is not None and need > free:
+        raise ConfigError(
+            f"{what} would need ~{size_text(need)} of memory; {size_text(free)} are available ({fix})"
         )
