@@ -152,9 +152,7 @@ def test_fit_posterior_writes_flags_and_posteriors(recording, capsys):
     assert len(unc) == len(est)
     flags = {"ok", "low_snr", "few_cycles", "heavy_dropouts", "coloured_noise", "inadequate_model"}
     flags.add("not_fitted")
-    assert set(unc["flag"]) <= flags | {
-        f for f in unc["flag"] if "+" in f
-    }
+    assert set(unc["flag"]) <= flags | {f for f in unc["flag"] if "+" in f}
     post = pd.read_csv(recording / "est_posterior.csv")
     assert len(post) == 2 and post["converged_chain"].all()
     # at this SNR the posterior and the linearised σ_A agree (issue 6: within 10 %)
@@ -164,3 +162,44 @@ def test_fit_posterior_writes_flags_and_posteriors(recording, capsys):
     assert "--posterior: expected a number of windows >= 0, got -1" in capsys.readouterr().err
     assert main([*args, "--posterior-noise", "pink"]) == 2
     assert "--posterior-noise: expected ar1 or white, got 'pink'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    "args, names",
+    [
+        (["fit", "{traj}", "--out", "{out}", "--windw", "3"], ["--windw", "--window"]),
+        (["run", "{traj}", "--jobs", "3"], ["--jobs", "jaxdefl run --help"]),
+        (["fit", "{traj}", "extra", "--out", "{out}"], ["extra", "jaxdefl fit --help"]),
+        (["fit", "{traj}", "--out", "{out}", "--window", "ten"], ["--window: expected a number, got 'ten'"]),
+        (["fit", "{traj}", "--out", "{out}", "--harmonics", "1.5"], ["--harmonics: expected an integer"]),
+        (["fit", "{traj}", "--out"], ["--out"]),
+        (["fit", "{traj}"], ["--out"]),
+        (["bogus"], ["bogus"]),
+        (["run", "{traj}", "--scheduler", "banana"], ["--scheduler", "host:port", "'banana'"]),
+        (["run", "{traj}", "--scheduler", "tcp://host"], ["--scheduler", "'tcp://host'"]),
+        (["run", "{traj}", "--scheduler", "host:99999"], ["--scheduler"]),
+        (["run", "{traj}", "--scheduler", "local:0"], ["--scheduler"]),
+    ],
+)
+def test_every_usage_error_is_one_line_naming_the_flag_and_exit_2(recording, capsys, args, names):
+    out = recording / "e.csv"
+    argv = [a.format(traj=recording / "traj.csv", out=out) for a in args]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("jaxdefl: error: "), err
+    for name in names:
+        assert name in err[0]
+    assert "Error" not in err[0] and "Exception" not in err[0]  # no class names leak
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("address", ["none", "local", "local:3", "10.0.0.5:8786", "tcp://[::1]:8786"])
+def test_valid_schedulers_pass_the_flag_check(address):
+    from jaxdefl.settings import RunSettings
+
+    assert RunSettings(scheduler=address).scheduler == address
+
+
+def test_no_arguments_shows_the_help(capsys):
+    assert main([]) == 0
+    assert "Usage" in capsys.readouterr().out
