@@ -165,7 +165,8 @@ def fit_file(
             )
         if "z" not in axes:
             raise ConfigError("--reference: compares the z axis; --axes must include z")
-    check_window_plan(df, axes, s.window_s, s.step_s, source=str(traj))
+    if (clipped := check_window_plan(df, axes, s.window_s, s.step_s, source=str(traj))) is not None:
+        console.print(f"  {clipped}", highlight=False, soft_wrap=True)
 
     kw = dict(fmin_hz=s.fmin_hz, fmax_hz=s.fmax_hz, oversampling=s.oversampling, fap_max=s.fap_max)
     est = _estimate(df, axes=axes, window_s=s.window_s, step_s=s.step_s, model=spec, **kw)

@@ -73,6 +73,8 @@ def _plain(v) -> str:
     if isinstance(v, np.generic):
         v = v.item()
     return repr(v)
+
+
 _VALUE_COLUMNS = ("t", "x", "y", "z")
 _HEADER = re.compile(r"^\s*([A-Za-z]+)\s*(?:[_ ]\s*\[?\s*([^\]\s]+)\s*\]?|\[\s*([^\]\s]+)\s*\])?\s*$")
 
@@ -104,11 +106,26 @@ def load_table(path: Path) -> pd.DataFrame:
         if suffix in (".parquet", ".pq"):
             return pd.read_parquet(path)
         if suffix in (".csv", ".txt", ".gz"):
-            return pd.read_csv(path, comment="#")
+            return _unique_columns(pd.read_csv(path, comment="#"), path)
     except (ValueError, OSError, pd.errors.ParserError) as err:
         first = str(err).splitlines()[0] if str(err) else type(err).__name__
         raise InputError(f"{path}: cannot be read as a table ({first})") from None
     raise InputError(f"{path}: unknown table format {suffix!r}; expected .csv or .parquet")
+
+
+def _unique_columns(df: pd.DataFrame, path: Path) -> pd.DataFrame:
+    """The table, or an InputError naming a column its header has twice (pandas reads the
+    second ``z`` as ``z.1``, which would silently leave it unused)."""
+    names = [str(c) for c in df.columns]
+    for i, name in enumerate(names):
+        m = re.fullmatch(r"(.+)\.(\d+)", name)
+        if m and m.group(1) in names[:i]:
+            first = names.index(m.group(1))
+            raise InputError(
+                f"{path}: column {m.group(1)!r} appears twice in the header (columns {first + 1} and "
+                f"{i + 1}); expected each column once"
+            )
+    return df
 
 
 def _row_offset(path: Path) -> int:
@@ -188,8 +205,11 @@ def _check_plausible(path: Path, col: str, v: np.ndarray, plate: np.ndarray) -> 
         top = float(a.max())
         if top > _EPOCH_S_MAX:
             unit, name = (
-                ("milliseconds", "t_ms") if top < 1e14 else ("microseconds", "t_us") if top < 1e17 else
-                ("nanoseconds", "t_ns")
+                ("milliseconds", "t_ms")
+                if top < 1e14
+                else ("microseconds", "t_us")
+                if top < 1e17
+                else ("nanoseconds", "t_ns")
             )
             raise InputError(
                 f"{path}: column 't' has no unit and values up to {top:.4g}, implausible as seconds "
