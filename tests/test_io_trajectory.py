@@ -3,7 +3,7 @@ import pandas as pd
 import pytest
 
 from jaxdefl import InputError
-from jaxdefl.io import read_trajectory, validate_trajectory, write_trajectory
+from jaxdefl.io import read_trajectory, timestamp_note, validate_trajectory, write_trajectory
 
 
 def _csv(tmp_path, text, name="traj.csv"):
@@ -125,3 +125,46 @@ def test_unreadable_table(tmp_path):
     p.write_bytes(b"not a parquet file at all")
     with pytest.raises(InputError, match=r"broken.parquet: cannot be read as a table"):
         read_trajectory(p)
+
+
+# -- reclock on rows out of sample order (issue 25 item 11) -------------------------------------
+
+
+def _jittered_logger(seed: int, n: int = 400, dt: float = 0.05) -> pd.DataFrame:
+    """Two plates sampled on one clock, stamps rounded to the ms and jittered by 0.1 frame."""
+    rng = np.random.default_rng(seed)
+    t_true = 1.7e9 + dt * np.arange(n)
+    rows = []
+    for plate in (3, 7):
+        stamps = np.round(t_true + rng.normal(0, 0.1 * dt, n), 3)
+        rows.append(
+            pd.DataFrame({"t": stamps, "plate": plate, "z": np.sin(2 * np.pi * 3 * (t_true - t_true[0]))})
+        )
+    return pd.concat(rows, ignore_index=True)
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_reclock_sorts_a_shuffled_table_and_says_so(tmp_path, seed):
+    df = _jittered_logger(seed)
+    (tmp_path / "ordered.csv").write_text(df.to_csv(index=False, float_format="%.3f"))
+    shuffled = df.sample(frac=1.0, random_state=seed)
+    (tmp_path / "shuffled.csv").write_text(shuffled.to_csv(index=False, float_format="%.3f"))
+    a = read_trajectory(tmp_path / "ordered.csv", timestamps="reclock")
+    b = read_trajectory(tmp_path / "shuffled.csv", timestamps="reclock")
+    assert b.attrs["timestamps"]["series_sorted"] == 2
+    assert a.attrs["timestamps"]["series_sorted"] == 0
+    assert "sorted by t within their plate" in timestamp_note(b.attrs["timestamps"])
+    # sorting by the stamps gives the samples back (the jitter is below half a frame): the
+    # recovered clock and the values agree with the table written in order
+    np.testing.assert_allclose(b["t"], a["t"], rtol=0, atol=1e-6)
+    np.testing.assert_allclose(b["z"], a["z"], atol=1e-12)
+    assert np.all(np.diff(b[b["plate"] == 3]["t"]) > 0)
+
+
+def test_strict_refusal_never_suggests_the_policy_given(tmp_path):
+    p = _csv(tmp_path, "t,plate,z\n0,1,1\n0.05,1,2\n0.05,1,3\n0.1,1,4\n")
+    with pytest.raises(InputError, match="rerun with --timestamps reclock .* or --timestamps merge"):
+        read_trajectory(p)
+    # a series too short to reclock keeps its stamps: the refusal names merge, not reclock again
+    with pytest.raises(InputError, match=r"rerun with --timestamps merge \(true duplicates\)$"):
+        read_trajectory(_csv(tmp_path, "t,plate,z\n0,1,1\n0,1,2\n", "short.csv"), timestamps="reclock")

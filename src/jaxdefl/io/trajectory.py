@@ -22,7 +22,9 @@ Timestamp policy (``timestamps``; `TIMESTAMP_POLICIES`):
 - ``reclock``: the stamps are a device's rounded or jittered writing of a sample clock: every
   row is a sample, in row order, and its time is replaced by the clock recovered per segment and
   plate (`jaxdefl.series.clock.fit_clock`); the recovered interval, jitter RMS and drift are in
-  the returned table's ``attrs["timestamps"]``.
+  the returned table's ``attrs["timestamps"]``. A plate's rows that step back by more than a
+  frame interval are not in sample order (a shuffled or re-sorted file): they are sorted by t
+  first, and the report says so (``series_sorted``).
 """
 
 from __future__ import annotations
@@ -55,10 +57,17 @@ _METRES_MEDIAN_MIN = 0.5  # a range camera sees from 0.5 m on; a series centred 
 _METRES_ABS_MAX = 10.0  # |z| below this everywhere ...
 _METRES_SPREAD_MAX = 0.02  # ... and every plate's robust σ below this: metres, not mm
 _MICROMETRES_MEDIAN_MIN = 1e5  # median |z| beyond 100 m: micrometres, not mm
-_HINT = (
-    "rerun with --timestamps reclock (a rounded or jittered logger clock) "
-    "or --timestamps merge (true duplicates)"
-)
+# what each policy reads that the others refuse, for the hint of a refusal
+_READS = {
+    "reclock": "--timestamps reclock (a rounded or jittered logger clock)",
+    "merge": "--timestamps merge (true duplicates)",
+}
+
+
+def _hint(given: str) -> str:
+    """The policies other than ``given`` that would read a table with repeated timestamps."""
+    other = [text for policy, text in _READS.items() if policy != given]
+    return "rerun with " + " or ".join(other)
 
 
 def check_timestamp_policy(policy: str) -> str:
@@ -328,7 +337,11 @@ def validate_trajectory(
             f"{path}: row {out['_row'].iat[j + 1]}: t must increase within plate "
             f"{out['plate'].iat[j + 1]}, got t={_plain(out['t'].iat[j + 1])} after "
             f"t={_plain(out['t'].iat[j])} (row {out['_row'].iat[j]})"
-            + ("; if a jittered clock swapped neighbours, rerun with --timestamps reclock" if small else "")
+            + (
+                "; if a jittered clock swapped neighbours, rerun with --timestamps reclock"
+                if small and timestamps != "reclock"
+                else ""
+            )
         )
     rep = same_series & (dt == 0)
     if rep.any() and timestamps == "merge":
@@ -342,7 +355,7 @@ def validate_trajectory(
             raise InputError(
                 f"{path}: row {out['_row'].iat[j + 1]}: plate {out['plate'].iat[j + 1]} repeats "
                 f"t={_plain(out['t'].iat[j + 1])} of row {out['_row'].iat[j]} with different values "
-                f"({int(conflict.sum())} such rows); {_HINT}"
+                f"({int(conflict.sum())} such rows); {_hint(timestamps)}"
             )
         out = out.drop(index=np.flatnonzero(rep) + 1).reset_index(drop=True)
     # A plate without one valid sample stays: its windows get the status too_few_samples, and
@@ -369,11 +382,12 @@ def _reclock(out: pd.DataFrame, path: Path) -> tuple[pd.DataFrame, dict]:
     `jaxdefl.series.clock.fit_clock`); a step back of more than a recovered interval is an error."""
     from ..series.clock import fit_clock
 
-    t = out["t"].to_numpy().copy()
     seg = pd.factorize(out["segment"])[0]
     plate = out["plate"].to_numpy()
     cut = np.flatnonzero((seg[1:] != seg[:-1]) | (plate[1:] != plate[:-1])) + 1
-    bounds = np.concatenate([[0], cut, [t.size]])
+    bounds = np.concatenate([[0], cut, [len(out)]])
+    out, n_sorted = _sample_order(out, bounds)
+    t = out["t"].to_numpy().copy()
     per_segment: dict[str, list] = {}
     for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
         ts = t[lo:hi]
@@ -404,7 +418,31 @@ def _reclock(out: pd.DataFrame, path: Path) -> tuple[pd.DataFrame, dict]:
                 "drift_ppm": float(np.median([c.drift_ppm for c in clocks])),
             }
         )
-    return out, {"policy": "reclock", "segments": segments}
+    return out, {"policy": "reclock", "segments": segments, "series_sorted": n_sorted}
+
+
+def _sample_order(out: pd.DataFrame, bounds: np.ndarray) -> tuple[pd.DataFrame, int]:
+    """The rows of every (segment, plate) series in sample order, and how many series were
+    sorted. Rows in file order are the samples' order (a jittered stamp may fall behind its
+    predecessor by less than a frame interval); a series whose stamps go back by more than
+    its median frame interval was written out of order (shuffled, or plates interleaved
+    out of order) and is sorted by t, stably."""
+    t = out["t"].to_numpy()
+    order = np.arange(t.size)
+    n_sorted = 0
+    for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
+        d = np.diff(t[lo:hi])
+        if not (d < 0).any():
+            continue
+        steps = np.diff(np.sort(t[lo:hi]))
+        steps = steps[steps > 0]
+        interval = float(np.median(steps)) if steps.size else 0.0
+        if (d < -interval).any():
+            order[lo:hi] = lo + np.argsort(t[lo:hi], kind="stable")
+            n_sorted += 1
+    if n_sorted:
+        out = out.iloc[order].reset_index(drop=True)
+    return out, n_sorted
 
 
 def timestamp_note(report: dict | None) -> str | None:
@@ -419,10 +457,17 @@ def timestamp_note(report: dict | None) -> str | None:
     iv = np.median([s["interval_s"] for s in segs])
     jit = float(np.sqrt(np.mean([s["jitter_rms_s"] ** 2 for s in segs])))
     drift = np.median([s["drift_ppm"] for s in segs])
+    n_sorted = report.get("series_sorted", 0)
     return (
         f"timestamps reclocked: interval {iv:.9g} s, jitter RMS {jit:.3g} s "
         f"({jit / iv:.2f} frame), drift {drift:+.3g} ppm "
         f"({sum(s['series'] for s in segs)} series in {len(segs)} segment(s))"
+        + (
+            f"; the rows of {n_sorted} series were out of sample order and were sorted by t "
+            "within their plate"
+            if n_sorted
+            else ""
+        )
     )
 
 
