@@ -1,4 +1,5 @@
 import json
+import sys
 
 import numpy as np
 import pandas as pd
@@ -203,3 +204,81 @@ def test_valid_schedulers_pass_the_flag_check(address):
 def test_no_arguments_shows_the_help(capsys):
     assert main([]) == 0
     assert "Usage" in capsys.readouterr().out
+
+
+# -- TUM depth folders in a base install: no OpenCV (issue 25 item 12) --------------------------
+
+TUM_INTR = dict(fx=100.0, fy=100.0, cx=63.5, cy=31.5)
+
+
+def _tum_folder(root, n=260):
+    """A TUM-style folder (depth.txt, depth/*.png at 0.2 mm per unit, camera.json) of three
+    plates moving at 3 Hz above a beam, written with OpenCV; the same frames as an .npz."""
+    import cv2
+
+    rng = np.random.default_rng(5)
+    t = 100.0 + np.arange(n) / 20.0
+    defl = 2.0 * np.sin(2 * np.pi * 3.0 * (t - t[0]))
+    z = np.full((n, 64, 128), 2700.0)
+    z[:, 8:24, :] = 1900.0 + defl[:, None, None]
+    for c0, c1 in [(8, 34), (50, 76), (92, 118)]:
+        z[:, 24:36, c0:c1] = 1880.0 + defl[:, None, None]
+    z += rng.normal(0, 1.0, z.shape)
+    img = np.round(z / 0.2).astype(np.uint16)
+    img[:, 0, 0] = 0  # no measurement
+    (root / "depth").mkdir(parents=True)
+    lines = ["# timestamp filename"]
+    for i in range(n):
+        assert cv2.imwrite(str(root / "depth" / f"{i:04d}.png"), img[i])
+        lines.append(f"{t[i]:.6f} depth/{i:04d}.png")
+    (root / "depth.txt").write_text("\n".join(lines) + "\n")
+    (root / "camera.json").write_text(json.dumps(TUM_INTR))
+    frames = np.where(img == 0, np.nan, img.astype(np.float32) * np.float32(0.2))
+    np.savez(root.parent / "same.npz", timestamps=t, depth=frames, intrinsics=list(TUM_INTR.values()))
+    return root, img
+
+
+def test_png_reading_agrees_with_opencv_and_skimage(tmp_path, monkeypatch):
+    import cv2
+    from skimage import io as skio
+
+    from jaxdefl.io.recording import _read_png
+
+    rng = np.random.default_rng(0)
+    img = rng.integers(0, 65536, (37, 53), dtype=np.uint16)
+    img[0, :3] = [0, 1, 65535]
+    cv2.imwrite(str(tmp_path / "a.png"), img)
+    monkeypatch.setitem(sys.modules, "cv2", None)  # a base install: no OpenCV
+    ours = _read_png(tmp_path / "a.png")
+    assert ours.dtype == np.uint16 and np.array_equal(ours, img)
+    assert np.array_equal(ours, cv2.imread(str(tmp_path / "a.png"), cv2.IMREAD_UNCHANGED))
+    assert np.array_equal(ours, skio.imread(tmp_path / "a.png"))
+    assert _read_png(tmp_path / "missing.png") is None
+    (tmp_path / "b.png").write_bytes(b"\x89PNG truncated")
+    assert _read_png(tmp_path / "b.png") is None
+
+
+def test_extract_reads_a_tum_folder_without_opencv(tmp_path, monkeypatch, capsys):
+    folder, _ = _tum_folder(tmp_path / "tum")
+    monkeypatch.setitem(sys.modules, "cv2", None)  # `import cv2` now fails, as in a base install
+    assert main(["extract", str(folder), "--out", str(tmp_path / "tum.csv"), "--device", "cpu"]) == 0
+    assert (
+        main(["extract", str(tmp_path / "same.npz"), "--out", str(tmp_path / "npz.csv"), "--device", "cpu"])
+        == 0
+    )
+    a, b = pd.read_csv(tmp_path / "tum.csv"), pd.read_csv(tmp_path / "npz.csv")
+    assert (
+        sorted(a["plate"].unique()) == [1, 2, 3] and len(a) == 3 * 260
+    )  # 13 s: the monitor fits its first 10 s
+    # the PNGs read exactly as the frames they hold
+    pd.testing.assert_frame_equal(a.drop(columns="segment"), b.drop(columns="segment"))
+
+
+@pytest.mark.slow
+def test_monitor_replays_a_tum_folder_without_opencv(tmp_path, monkeypatch, capsys):
+    folder, _ = _tum_folder(tmp_path / "tum")
+    monkeypatch.setitem(sys.modules, "cv2", None)
+    out = tmp_path / "mon"
+    args = ["monitor", "--replay", str(folder), "--out", str(out), "--speed", "0"]
+    assert main(args) == 0, capsys.readouterr().err
+    assert (out / "estimates.csv").exists()
