@@ -46,6 +46,7 @@ __all__ = [
     "validate_trajectory",
     "check_timestamp_policy",
     "timestamp_note",
+    "layout_note",
 ]
 
 TIMESTAMP_POLICIES = ("strict", "reclock", "merge")
@@ -176,17 +177,20 @@ def _iso_seconds(stripped: pd.Series, blank: pd.Series) -> np.ndarray | None:
     return _datetime_seconds(parsed)
 
 
-def _to_numeric(df: pd.DataFrame, col: str, path: Path) -> np.ndarray:
+def _to_numeric(df: pd.DataFrame, col: str, path: Path, name: str | None = None) -> np.ndarray:
+    """Column ``col`` (t, plate, x, y or z: what its values must be) as float64; messages
+    call it ``name`` (default: ``col``), as the file does."""
     raw = df[col]
     off = _row_offset(path)
+    shown = col if name is None else name
     if pd.api.types.is_bool_dtype(raw):
         raise InputError(
-            f"{path}: column {col!r} holds true/false values; expected "
+            f"{path}: column {shown!r} holds true/false values; expected "
             + ("times in s" if col == "t" else "plate numbers" if col == "plate" else "numbers in mm")
         )
     if pd.api.types.is_datetime64_any_dtype(raw) or pd.api.types.is_timedelta64_dtype(raw):
         if col != "t":
-            raise InputError(f"{path}: column {col!r} holds dates or durations; expected numbers")
+            raise InputError(f"{path}: column {shown!r} holds dates or durations; expected numbers")
         return _datetime_seconds(raw)
     if raw.dtype == object or pd.api.types.is_string_dtype(raw):
         stripped = raw.astype("string").str.strip()
@@ -198,7 +202,7 @@ def _to_numeric(df: pd.DataFrame, col: str, path: Path) -> np.ndarray:
                 return iso
             i = int(np.flatnonzero(bad.to_numpy())[0])
             raise InputError(
-                f"{path}: row {i + off} column {col!r}: expected a number, got {_plain(raw.iloc[i])}"
+                f"{path}: row {i + off} column {shown!r}: expected a number, got {_plain(raw.iloc[i])}"
             )
         return num.to_numpy(dtype=np.float64)
     return pd.to_numeric(raw, errors="coerce").to_numpy(dtype=np.float64)
@@ -273,6 +277,9 @@ def validate_trajectory(
     check_timestamp_policy(timestamps)
     path = Path(str(path))
     off = _row_offset(path)
+    layout = None
+    if "plate" in required and "plate" not in {_parse_header(c, path)[0] for c in df.columns}:
+        df, layout = _long_from_wide(df, path)
     renamed: dict[str, str] = {}
     factors: dict[str, float] = {}
     explicit: dict[str, bool] = {}
@@ -286,9 +293,13 @@ def validate_trajectory(
     df = df.rename(columns=renamed)
     missing = [c for c in required if c not in df.columns]
     if missing:
+        got = ", ".join(map(str, df.columns))
+        if "plate" in missing:
+            layouts = _layouts(plateless="z" in df.columns)
+            raise InputError(f"{path}: missing column(s) {', '.join(missing)} (got {got}); {layouts}")
         raise InputError(
             f"{path}: missing column(s) {', '.join(missing)}; "
-            f"expected t, plate, z (optional x, y, segment), got {', '.join(map(str, df.columns))}"
+            f"expected t, plate, z (optional x, y, segment), got {got}"
         )
     if len(df) == 0:
         raise InputError(f"{path}: the table has no rows")
@@ -315,7 +326,7 @@ def validate_trajectory(
         _check_plausible(path, "t", t, out["plate"].to_numpy())
     if "z" in axes and not explicit["z"]:
         _check_plausible(path, "z", out["z"].to_numpy(), out["plate"].to_numpy())
-    out["_row"] = np.arange(len(df)) + off
+    out["_row"] = df["_line"].to_numpy() if "_line" in df else np.arange(len(df)) + off
 
     out = out.sort_values(["segment", "plate", "_row"], kind="stable").reset_index(drop=True)
     report = None
@@ -363,7 +374,126 @@ def validate_trajectory(
     out = out.drop(columns="_row")
     if report is not None:
         out.attrs["timestamps"] = report
+    if layout is not None:
+        out.attrs["layout"] = layout
     return out
+
+
+# -- wide logger tables: a time column and one column per channel -------------------------------
+
+
+def _layouts(time: str | None = None, unit: str | None = None, plateless: bool = False) -> str:
+    """The two layouts a table may have and a one-line conversion to the long one: of a wide
+    table with the time column ``time`` (in ``unit``; channels numbered 1.. in column order),
+    or of a long table without plate numbers (``plateless``: one plate)."""
+    layouts = (
+        "expected a long table (t, plate, z; optional x, y, segment) or a wide logger table (a time "
+        "column such as t, time_ms or 'Time (s)', then one column per plate numbered like LDS1, LDS2)"
+    )
+    if plateless:
+        return f"{layouts}; for one plate: pd.read_csv(f).assign(plate=1).to_csv(g, index=False)"
+    time = time or "t"
+    long = "t" if unit is None else f"t_{unit}"
+    rename = "" if time == long else f".rename(columns={{{time!r}: {long!r}}})"
+    return (
+        f"{layouts}; to convert (plates 1.. in column order): pd.read_csv(f){rename}.melt(id_vars="
+        f"{long!r}, var_name='plate', value_name='z').assign(plate=lambda d: pd.factorize(d.plate)[0]"
+        " + 1).to_csv(g, index=False)"
+    )
+
+
+_UNIT = r"(?:[_ ]\s*[\[(]?\s*(?P<unit>[^\])\s]+)\s*[\])]?|\s*[\[(]\s*(?P<unit2>[^\])\s]+)\s*[\])])"
+_TIME_HEADER = re.compile(rf"^\s*(?:t|time|timestamp)\s*{_UNIT}?\s*$", re.IGNORECASE)
+_CHANNEL_HEADER = re.compile(rf"^\s*(?P<label>.*?)\s*(?P<number>\d+)\s*{_UNIT}?\s*$")
+
+
+def _unit_of(m: re.Match, table: dict[str, float], path: Path, name: str) -> tuple[float, bool]:
+    unit = m.group("unit") or m.group("unit2")
+    if unit is None:
+        return 1.0, False
+    if unit not in table:
+        raise InputError(
+            f"{path}: column {name!r} has unknown unit {unit!r}; expected one of {', '.join(table)}"
+        )
+    return table[unit], True
+
+
+def _long_from_wide(df: pd.DataFrame, path: Path) -> tuple[pd.DataFrame, dict]:
+    """A wide logger table (a time column, one column per channel: ``time_ms, LDS1, LDS2``) as
+    a long table ``t, plate, z`` (+ segment) with its file lines kept in ``_line``, and the
+    mapping of its columns (``attrs["layout"]``). The plate of a channel is its header's
+    trailing number; a unit may follow (``LDS1_mm``, ``LDS1 [m]``). Any other table without a
+    ``plate`` column is left for `validate_trajectory` to refuse, naming both layouts."""
+    names = [str(c) for c in df.columns]
+    times = [c for c in names if _TIME_HEADER.match(c)]
+    rest = [c for c in names if c not in times and c.strip().lower() != "segment"]
+    unit = None
+    if len(times) == 1:
+        m = _TIME_HEADER.match(times[0])
+        unit = m.group("unit") or m.group("unit2")
+    if len(times) != 1 or not rest:
+        if len(times) > 1:
+            raise InputError(
+                f"{path}: no 'plate' column and several time columns ({', '.join(times)}); {_layouts()}"
+            )
+        return df, None
+    if any(_parse_header(c, path)[0] in _VALUE_COLUMNS for c in rest):
+        return df, None  # a long table without its plate column: refused as such
+    channels = {c: _CHANNEL_HEADER.match(c) for c in rest}
+    unnumbered = [c for c, m in channels.items() if m is None or m.group("label").startswith("Unnamed")]
+    if unnumbered:
+        raise InputError(
+            f"{path}: no 'plate' column, and the column(s) {', '.join(map(repr, unnumbered))} beside "
+            f"{times[0]!r} carry no plate number; {_layouts(times[0], unit)}"
+        )
+    labels = {re.sub(r"[\s_-]+$", "", m.group("label")).lower() for m in channels.values()}
+    plates = {c: int(m.group("number")) for c, m in channels.items()}
+    if len(labels) > 1 or len(set(plates.values())) < len(plates):
+        raise InputError(
+            f"{path}: no 'plate' column, and the channel columns {', '.join(map(repr, rest))} do not "
+            f"name one sensor's plates once each; {_layouts(times[0], unit)}"
+        )
+    off = _row_offset(path)
+    t_factor, t_unit = _unit_of(_TIME_HEADER.match(times[0]), _TIME_S, path, times[0])
+    raw_t = df[times[0]]
+    t = _to_numeric(df.rename(columns={times[0]: "t"}), "t", path, name=times[0])
+    if np.isnan(t).any():
+        i = int(np.flatnonzero(np.isnan(t))[0])
+        raise InputError(f"{path}: row {i + off} column {times[0]!r}: expected a time, got an empty cell")
+    # dates (datetime64, ISO strings) are seconds since the epoch already: no unit applies
+    dated = pd.api.types.is_datetime64_any_dtype(raw_t) or bool(
+        (pd.to_numeric(raw_t, errors="coerce").isna() & raw_t.notna()).any()
+    )
+    explicit = []
+    z = []
+    for c, m in channels.items():
+        factor, has_unit = _unit_of(m, _LENGTH_MM, path, c)
+        explicit.append(has_unit)
+        z.append(_to_numeric(df.rename(columns={c: "z"}), "z", path, name=c) * factor)
+    n, k = len(df), len(rest)
+    long = pd.DataFrame(
+        {
+            # a unit in the headers is kept, so that the long table's checks never second-guess it
+            ("t_s" if t_unit or dated else "t"): np.tile(t if dated else t * t_factor, k),
+            "plate": np.repeat(list(plates.values()), n),
+            ("z_mm" if all(explicit) else "z"): np.concatenate(z),
+            "_line": np.tile(np.arange(n) + off, k),
+        }
+    )
+    seg = next((c for c in names if c.strip().lower() == "segment"), None)
+    if seg is not None:
+        long.insert(0, "segment", np.tile(df[seg].to_numpy(), k))
+    layout = {"layout": "wide", "time": times[0], "channels": plates}
+    return long, layout
+
+
+def layout_note(layout: dict | None, path: Path | str = "") -> str | None:
+    """One line for stderr naming how a wide table's columns were read (None for a long table)."""
+    if not layout:
+        return None
+    chans = ", ".join(f"{c} -> plate {p}" for c, p in list(layout["channels"].items())[:8])
+    more = " ..." if len(layout["channels"]) > 8 else ""
+    return f"{path}: a wide table: {layout['time']} -> t; {chans}{more} (z)"
 
 
 def _merge(out: pd.DataFrame, axes: list[str]) -> tuple[pd.DataFrame, dict]:
