@@ -282,3 +282,61 @@ def test_monitor_replays_a_tum_folder_without_opencv(tmp_path, monkeypatch, caps
     args = ["monitor", "--replay", str(folder), "--out", str(out), "--speed", "0"]
     assert main(args) == 0, capsys.readouterr().err
     assert (out / "estimates.csv").exists()
+
+
+# -- shipped config names in campaign files, fit --help, the install (issue 25 item 19) ---------
+
+
+def test_campaign_simulate_config_is_a_nearby_path_else_a_shipped_name(tmp_path):
+    from jaxdefl import ConfigError
+    from jaxdefl._configs import config_dir
+    from jaxdefl.bulk import load_campaign
+
+    camp = tmp_path / "c.toml"
+    camp.write_text('[simulate]\nconfig = "exp2_tof_3hz"\nduration_s = 5.0\n')
+    shipped = (config_dir() / "exp2_tof_3hz.toml").resolve()
+    assert load_campaign(camp).recordings[0].simulate["config"] == str(shipped)
+    # a file of that name beside the campaign wins over the shipped config
+    (tmp_path / "exp2_tof_3hz").write_bytes(shipped.read_bytes())
+    assert load_campaign(camp).recordings[0].simulate["config"] == str((tmp_path / "exp2_tof_3hz").resolve())
+    camp.write_text('[simulate]\nconfig = "no_such_config"\n')
+    with pytest.raises(
+        ConfigError, match=r"key 'simulate.config': file not found: .*or the name of a shipped"
+    ):
+        load_campaign(camp)
+
+
+def test_fit_help_names_every_table_format_it_writes(capsys):
+    from jaxdefl.io.output import TABLE_SUFFIXES
+
+    assert main(["fit", "--help"]) == 0
+    text = " ".join(capsys.readouterr().out.split())
+    assert "(CSV)" not in text
+    for suffix in TABLE_SUFFIXES:
+        assert suffix in text
+
+
+def test_pyproject_licence_is_spdx_so_setuptools_prints_no_deprecation(monkeypatch):
+    import tomllib
+    import warnings
+    from pathlib import Path
+
+    from packaging.requirements import Requirement
+    from packaging.version import Version
+    from setuptools.config.pyprojecttoml import apply_configuration
+    from setuptools.dist import Distribution
+    from setuptools.warnings import SetuptoolsDeprecationWarning
+
+    root = Path(__file__).resolve().parents[1]
+    monkeypatch.chdir(root)  # the readme is found from the project's root, as a build does
+    with warnings.catch_warnings():
+        # the banner a build printed three times (`project.license` as a TOML table)
+        warnings.simplefilter("error", SetuptoolsDeprecationWarning)
+        dist = apply_configuration(Distribution(), root / "pyproject.toml")
+    assert dist.metadata.license_expression == "MIT"
+    build = tomllib.loads((root / "pyproject.toml").read_text())["build-system"]["requires"]
+    setuptools = next(Requirement(r) for r in build if r.startswith("setuptools"))
+    # the SPDX string form needs setuptools 77; an older one would be picked by an isolated build
+    assert not setuptools.specifier.contains(Version("76.9")) and setuptools.specifier.contains(
+        Version("77.0")
+    )

@@ -39,8 +39,19 @@ _TIMESTAMPS_HELP = (
 
 @app.command()
 def fit(
-    traj: Annotated[Path, typer.Argument(help="Trajectory table (CSV or Parquet).")],
-    out: Annotated[Path, typer.Option("--out", help="Estimates table to write (CSV).")],
+    traj: Annotated[
+        Path,
+        typer.Argument(help="Trajectory table, CSV or Parquet (t, plate, z or a wide logger table)."),
+    ],
+    out: Annotated[
+        Path,
+        typer.Option(
+            "--out",
+            help="Estimates table to write, CSV or Parquet by its suffix (.csv, .parquet, .pq); "
+            "OUT.json (the settings) and, with --reference or --posterior, OUT_reference, "
+            "OUT_comparison, OUT_uncertainty, OUT_posterior in the same format beside it.",
+        ),
+    ],
     window: Annotated[float | None, typer.Option(help="Window length in s (default: whole segment).")] = None,
     step: Annotated[float | None, typer.Option(help="Window step in s (default: the window length).")] = None,
     axes: Annotated[
