@@ -538,3 +538,95 @@ def test_sigint_during_run_exits_130_and_resumes(tmp_path):
     assert main(["run", str(cfg), "--out", str(out)]) == 0
     units = pd.read_csv(out / "units.csv").set_index("unit")
     assert all(units.loc[u, "skipped"] for u in done)
+
+
+# -- duplicates, windows longer than the record, campaign plates (issue 25 item 4) --------------
+
+
+@pytest.mark.parametrize("axes", ["z,z", "z,x,z", "y, y"])
+def test_a_duplicated_axis_is_refused(work, capsys, axes):
+    args = ["fit", work / "traj.csv", "--out", work / "EST.csv", "--axes", axes]
+    assert_refused(work, capsys, args, "--axes: names ")
+
+
+@pytest.mark.parametrize("header", ["t,plate,z,x,z", "t,plate,z,plate", "t,t,plate,z"])
+def test_a_duplicated_column_is_refused_naming_file_and_column(work, capsys, header):
+    bad = work / "dup.csv"
+    names = header.split(",")
+    rows = "\n".join(",".join(str(0.05 * i if n == "t" else 1) for n in names) for i in range(20))
+    bad.write_text(header + "\n" + rows + "\n")
+    twice = next(n for n in names if names.count(n) > 1)
+    first, second = [i + 1 for i, n in enumerate(names) if n == twice]
+    message = f"dup.csv: column {twice!r} appears twice in the header (columns {first} and {second})"
+    assert_refused(work, capsys, ["fit", bad, "--out", work / "EST.csv"], message)
+
+
+def test_a_window_longer_than_the_record_is_clipped_and_said(work, capsys):
+    traj = read_trajectory(work / "traj.csv")
+    span = traj["t"].max() - traj["t"].min()
+    capsys.readouterr()
+    out = work / "long.csv"
+    assert main(["fit", str(work / "traj.csv"), "--out", str(out), "--window", "3000", "--axes", "z"]) == 0
+    said = capsys.readouterr().err
+    assert "--window 3000 s is longer than segment 'day1' (60 s)" in said and "clipped" in said
+    est = pd.read_csv(out)
+    assert (est["window"] == 0).all()
+    dt = np.median(np.diff(np.unique(traj["t"])))
+    t0 = traj["t"].min()
+    # the window is the record: its bounds and the phase's reference time come from the data
+    assert np.allclose(est["t_start"], t0, atol=1e-6)
+    assert np.allclose(est["t_end"], t0 + span + dt, atol=1e-6)
+    whole = work / "whole.csv"
+    assert main(["fit", str(work / "traj.csv"), "--out", str(whole), "--axes", "z"]) == 0
+    ref = pd.read_csv(whole)
+    # the clipped window fits the same samples as the whole-record fit
+    assert (est["n"].to_numpy() == ref["n"].to_numpy()).all()
+    assert np.allclose(est["amplitude_mm"], ref["amplitude_mm"], rtol=1e-6)
+
+
+def _campaign(tmp: Path, tables: Path, processing: str) -> Path:
+    shutil.copy(tables / "traj.csv", tmp / "traj.csv")
+    (tmp / "campaign.toml").write_text(
+        f'[campaign]\nname = "c"\n[processing]\n{processing}\n'
+        '[[recording]]\nday = 1\ncamera = "cam"\ncycles = 0\ntrajectories = "traj.csv"\n'
+    )
+    return tmp / "campaign.toml"
+
+
+@pytest.mark.parametrize(
+    "processing, message",
+    [
+        ("reference_plate = 42", "key 'processing.reference_plate': plate 42 has no position"),
+        ("reference_plate = 0", "key 'processing.reference_plate': plate 0 has no position"),
+        (
+            "plate_x_mm = [200.0, 450.0, 700.0]\nreference_plate = 3",
+            "key 'processing.plate_x_mm': has 3 plate positions, but the recordings have plates 3, 5, 7",
+        ),
+        (
+            "reference_plate = 2",
+            "key 'processing.reference_plate': plate 2 is in no recording (plates 3, 5, 7)",
+        ),
+    ],
+)
+def test_campaign_plate_keys_are_config_errors_before_any_campaign_output(
+    tables, tmp_path, capsys, processing, message
+):
+    cfg = _campaign(tmp_path, tables, processing)
+    out = tmp_path / "out"
+    code, err = run_cli(["run", cfg, "--out", out], capsys)
+    assert code == 2 and len(err) == 1 and message in err[0], err
+    assert "campaign.toml" in err[0]
+    # no campaign table, dataset or report: at most the finished units, kept for a rerun
+    made = {p.name for p in out.iterdir()} if out.exists() else set()
+    assert made <= {"units"}, made
+
+
+def test_simulated_campaign_checks_plates_against_its_simulation(tmp_path, capsys):
+    cfg = tmp_path / "c.toml"
+    cfg.write_text(
+        "[processing]\nplate_x_mm = [200.0, 450.0]\nreference_plate = 2\n"
+        '[simulate]\nconfig = "exp2_tof_3hz"\nduration_s = 5.0\n'
+    )
+    code, err = run_cli(["run", cfg, "--out", tmp_path / "out"], capsys)
+    assert code == 2 and "key 'processing.plate_x_mm': has 2 plate positions" in err[0], err
+    assert not (tmp_path / "out").exists()

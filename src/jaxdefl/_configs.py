@@ -22,17 +22,20 @@ def shipped_names() -> list[str]:
     return sorted(p.stem for p in config_dir().glob("*.toml"))
 
 
-def resolve_config(path: Path | str) -> Path:
+def resolve_config(path: Path | str, relative_to: Path | str | None = None) -> Path:
     """``path`` if it exists; otherwise a bare name (``exp1`` or ``exp1.toml``) of a shipped config.
 
-    A path that exists nowhere is returned unchanged, for the caller's "file not found" error
-    (which `not_found_hint` completes)."""
+    With ``relative_to`` (a directory: a campaign file's), a relative ``path`` is taken from
+    there instead of the working directory, and wins over a shipped config of the same name.
+    A path that exists nowhere is returned unchanged (from ``relative_to``), for the caller's
+    "file not found" error (which `not_found_hint` completes)."""
     path = Path(path)
-    if path.exists() or path.parent != Path("."):
-        return path
+    near = Path(relative_to) / path if relative_to is not None else path
+    if near.exists() or path.parent != Path("."):
+        return near
     stem = path.name[: -len(".toml")] if path.name.endswith(".toml") else path.name
     shipped = config_dir() / f"{stem}.toml"
-    return shipped if shipped.is_file() else path
+    return shipped if shipped.is_file() else near
 
 
 def not_found_hint() -> str:

@@ -41,8 +41,19 @@ _TIMESTAMPS_HELP = (
 
 @app.command()
 def fit(
-    traj: Annotated[Path, typer.Argument(help="Trajectory table (CSV or Parquet).")],
-    out: Annotated[Path, typer.Option("--out", help="Estimates table to write (CSV).")],
+    traj: Annotated[
+        Path,
+        typer.Argument(help="Trajectory table, CSV or Parquet (t, plate, z or a wide logger table)."),
+    ],
+    out: Annotated[
+        Path,
+        typer.Option(
+            "--out",
+            help="Estimates table to write, CSV or Parquet by its suffix (.csv, .parquet, .pq); "
+            "OUT.json (the settings) and, with --reference or --posterior, OUT_reference, "
+            "OUT_comparison, OUT_uncertainty, OUT_posterior in the same format beside it.",
+        ),
+    ],
     window: Annotated[float | None, typer.Option(help="Window length in s (default: whole segment).")] = None,
     step: Annotated[float | None, typer.Option(help="Window step in s (default: the window length).")] = None,
     axes: Annotated[
@@ -408,9 +419,43 @@ def main(argv: list[str] | None = None) -> int:
         return err.exit_code
 
 
+def _usage_message(err: typer.TyperException) -> str:
+    """A click/typer usage error as one line that names the flag (or argument) and what it expected."""
+    hint = None
+    param = getattr(err, "param", None)
+    if getattr(err, "param_hint", None) is not None:
+        hint = err.param_hint if isinstance(err.param_hint, str) else " / ".join(err.param_hint)
+    elif param is not None:
+        names = [o for o in getattr(param, "opts", []) if o.startswith("--")]
+        hint = names[0] if names else str(getattr(param, "human_readable_name", param.name))
+    cause = err.__cause__
+    if hint is not None and cause is not None and hasattr(cause, "errors"):  # a pydantic coercion
+        first = cause.errors()[0]
+        expected = _EXPECTED.get(first.get("type"), first.get("msg", str(err.message)))
+        return f"{hint}: expected {expected}, got {first.get('input')!r}"
+    if type(err).__name__ == "MissingParameter":
+        return err.format_message().rstrip(".")
+    if hint is not None:
+        return f"{hint}: {err.message}"
+    ctx = getattr(err, "ctx", None)
+    where = f"; see `{ctx.command_path} --help`" if ctx is not None else ""
+    return f"{err.format_message().rstrip('.')}{where}"
+
+
+# pydantic's error types of typer's conversions, as what the flag expected
+_EXPECTED = {
+    "float_parsing": "a number",
+    "float_type": "a number",
+    "int_parsing": "an integer",
+    "int_from_float": "an integer",
+    "int_type": "an integer",
+    "bool_parsing": "true or false",
+}
+
+
 def _run(argv: list[str]) -> int:
     try:
-        rv = app(args=argv, standalone_mode=False)
+        rv = app(args=argv, prog_name="jaxdefl", standalone_mode=False)
     except JaxdeflError as err:
         if _state["debug"]:
             raise
@@ -420,8 +465,14 @@ def _run(argv: list[str]) -> int:
         raise Interrupted(signal.SIGINT) from None
     except typer.Exit as ex:
         return ex.exit_code
-    except (typer.BadParameter, typer.Abort) as err:  # pragma: no cover - click handles most
-        print(f"jaxdefl: error: {one_line(err)}", file=sys.stderr)
+    except typer.TyperException as err:  # every click/typer usage error: one line, exit 2
+        if type(err).__name__ == "NoArgsIsHelpError":  # `jaxdefl` alone: the help
+            err.show()
+            return 0
+        print(f"jaxdefl: error: {one_line(_usage_message(err))}", file=sys.stderr)
+        return 2
+    except typer.Abort:  # pragma: no cover - a prompt aborted; jaxdefl has none
+        print("jaxdefl: error: aborted", file=sys.stderr)
         return 2
     except OSError as err:
         if _state["debug"]:
@@ -437,12 +488,7 @@ def _run(argv: list[str]) -> int:
             file=sys.stderr,
         )
         return 1
-    except Exception as err:  # click usage errors
-        import click
-
-        if isinstance(err, click.ClickException):
-            err.show()
-            return err.exit_code
+    except Exception as err:
         if _state["debug"]:
             raise
         print(f"jaxdefl: error: {one_line(f'{type(err).__name__}: {err}')}", file=sys.stderr)

@@ -17,6 +17,7 @@ from ._configs import config_dir
 from ._errors import ConfigError, JaxdeflError, ParameterError
 from .fit import Estimates, compare_with_reference, estimate_windows, fit_reference
 from .io import (
+    layout_note,
     load_table,
     read_reference,
     read_trajectory,
@@ -149,6 +150,7 @@ def fit_file(
             outs.reserve(paths["posterior_png"], "the posterior figure")
 
     df = read_trajectory(traj, timestamps=timestamps)
+    layouts = {"trajectory": df.attrs.get("layout")}
     clocks = {"trajectory": df.attrs.get("timestamps")}
     axes = s.axes
     if axes is None:
@@ -156,6 +158,7 @@ def fit_file(
     ref = None
     if reference is not None:
         ref = read_reference(reference, timestamps=timestamps)
+        layouts["reference"] = ref.attrs.get("layout")
         clocks["reference"] = ref.attrs.get("timestamps")
         shared = np.intersect1d(ref["plate"].unique(), df["plate"].unique())
         if not shared.size:
@@ -165,7 +168,8 @@ def fit_file(
             )
         if "z" not in axes:
             raise ConfigError("--reference: compares the z axis; --axes must include z")
-    check_window_plan(df, axes, s.window_s, s.step_s, source=str(traj))
+    if (clipped := check_window_plan(df, axes, s.window_s, s.step_s, source=str(traj))) is not None:
+        console.print(f"  {clipped}", highlight=False, soft_wrap=True)
 
     kw = dict(fmin_hz=s.fmin_hz, fmax_hz=s.fmax_hz, oversampling=s.oversampling, fap_max=s.fap_max)
     est = _estimate(df, axes=axes, window_s=s.window_s, step_s=s.step_s, model=spec, **kw)
@@ -192,6 +196,7 @@ def fit_file(
                 reference=str(reference) if reference else None,
                 timestamps=timestamps,
                 clock={k: v for k, v in clocks.items() if v},
+                **({"layout": {k: v for k, v in layouts.items() if v}} if any(layouts.values()) else {}),
                 **kw,
                 **({} if spec.is_default else dict(model=s.model, harmonics=s.harmonics, lines=s.lines)),
             ),
@@ -201,6 +206,9 @@ def fit_file(
             outs.table(paths["comparison"], comparison)
         if unc is not None:
             write_uncertainty(outs, unc, post, paths)
+    for name, path in (("trajectory", traj), ("reference", reference)):
+        if (note := layout_note(layouts.get(name), path)) is not None:
+            console.print(f"  {note}", highlight=False, soft_wrap=True)
     for name, rep in clocks.items():
         if (note := timestamp_note(rep)) is not None:
             console.print(f"  {name}: {note}", highlight=False, soft_wrap=True)

@@ -110,6 +110,11 @@ def _check_axes(settings) -> None:
         axes = _names(settings.axes)
         if not axes or any(a not in AXES for a in axes):
             raise ParameterError("axes", f"expected a comma list of z, x, y; got {_got(settings.axes)}")
+        if len(set(axes)) < len(axes):
+            twice = next(a for a in axes if axes.count(a) > 1)
+            raise ParameterError(
+                "axes", f"names {twice} twice in {_got(settings.axes)}; expected each axis once"
+            )
         object.__setattr__(settings, "axes", axes)
 
 

@@ -12,7 +12,7 @@ from ..columns import ESTIMATE_CORE
 from ..fit import ESTIMATE_COLUMNS
 from ..status import Status, UnitStatus
 from ..synthetic import beam_shape
-from .campaign import Campaign
+from .campaign import Campaign, check_plates
 from .store import atomic_write_text
 from .units import read_unit_tables
 
@@ -134,6 +134,8 @@ def gather(
     lds = read_unit_tables(out, ok, "lds.csv")
     comparison = read_unit_tables(out, ok, "comparison.csv")
     truth = read_unit_tables(out, ok, "truth.csv")
+    if len(whole):  # before any of the campaign's outputs is written
+        check_plates(campaign.path, campaign.processing, whole["plate"].unique())
     _write_csv(units, out / "units.csv")
     tables = {
         "estimates_whole.csv": whole,

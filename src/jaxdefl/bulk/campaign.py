@@ -45,7 +45,7 @@ from .._configs import not_found_hint, resolve_config
 from .._errors import ConfigError
 from ..io.trajectory import TIMESTAMP_POLICIES
 
-__all__ = ["Campaign", "Processing", "Recording", "load_campaign"]
+__all__ = ["Campaign", "Processing", "Recording", "check_plates", "load_campaign"]
 
 
 @dataclass(frozen=True)
@@ -249,11 +249,51 @@ def load_campaign(path: Path | str) -> Campaign:
         )
     if sim is None and not recs:
         raise _err(path, "recording", "no recordings: add [[recording]] entries or a [simulate] table")
+    _check_reference_plate(path, proc, len(proc.plate_x_mm))
     if sim is not None:
+        from ..simulate import load_config
         from .simulated import simulated_recordings
 
         recs = simulated_recordings(sim, path)
+        cfg = recs[0].simulate
+        check_plates(path, proc, range(1, len(load_config(cfg["config"], cfg["session"]).plate_x_mm()) + 1))
     return Campaign(name=name, path=path, processing=proc, recordings=tuple(recs), simulate=sim)
+
+
+def _check_reference_plate(path: Path, proc: Processing, n_plates: int) -> None:
+    if not 1 <= proc.reference_plate <= n_plates:
+        raise _err(
+            path,
+            "processing.reference_plate",
+            f"plate {proc.reference_plate} has no position in processing.plate_x_mm "
+            f"(expected a plate 1..{len(proc.plate_x_mm)})",
+        )
+
+
+def check_plates(path: Path, proc: Processing, plates) -> None:
+    """A `ConfigError` naming the key when ``proc.plate_x_mm`` has no position for one of the
+    recordings' ``plates`` or ``proc.reference_plate`` is not one of them (before the campaign's
+    tables and report are written)."""
+    plates = sorted(int(p) for p in plates)
+    if not plates:
+        return
+    if plates[-1] > len(proc.plate_x_mm) or plates[0] < 1:
+        raise _err(
+            path,
+            "processing.plate_x_mm",
+            f"has {len(proc.plate_x_mm)} plate positions, but the recordings have plates "
+            f"{_plate_list(plates)}; expected a position (mm) for each plate 1..{plates[-1]}",
+        )
+    if proc.reference_plate not in plates:
+        raise _err(
+            path,
+            "processing.reference_plate",
+            f"plate {proc.reference_plate} is in no recording (plates {_plate_list(plates)})",
+        )
+
+
+def _plate_list(plates: list[int]) -> str:
+    return ", ".join(map(str, plates[:12])) + (" ..." if len(plates) > 12 else "")
 
 
 def _type_name(t) -> str:

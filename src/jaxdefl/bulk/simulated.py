@@ -23,6 +23,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from .._configs import not_found_hint, resolve_config
 from .._errors import ConfigError
 from ..status import UnitStatus
 from .campaign import Recording
@@ -56,9 +57,10 @@ def simulated_recordings(sim: dict, path: Path) -> list[Recording]:
             raise ConfigError(f"{path}: key 'simulate.{key}': expected {_KEYS[key]!s}, got {val!r}")
     if "config" not in sim:
         raise ConfigError(f"{path}: key 'simulate.config': missing (the simulation config to record)")
-    cfg_path = (path.parent / sim["config"]).resolve()
+    # a path relative to the campaign file wins; else the name of a shipped config
+    cfg_path = resolve_config(sim["config"], relative_to=path.parent).resolve()
     if not cfg_path.is_file():
-        raise ConfigError(f"{path}: key 'simulate.config': file not found: {cfg_path}")
+        raise ConfigError(f"{path}: key 'simulate.config': file not found: {cfg_path}{not_found_hint()}")
     if sim.get("duration_s", 600.0) <= 0:
         raise ConfigError(
             f"{path}: key 'simulate.duration_s': expected a positive duration, got {sim['duration_s']}"

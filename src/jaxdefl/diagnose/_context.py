@@ -11,7 +11,7 @@ import pandas as pd
 from .._errors import ConfigError, InputError, ParameterError
 from ..fit import estimate_windows
 from ..fit.estimate import MAX_ABS_VALUE_MM
-from ..io import timestamp_note, validate_trajectory
+from ..io import layout_note, timestamp_note, validate_trajectory
 from ..series import make_windows
 from ..series.windows import frame_clock, windows_like
 from ..settings import DiagnoseSettings
@@ -75,6 +75,7 @@ def build_context(
     segment, axes, timestamps = settings.segment, settings.axes, settings.timestamps
     frame_rate_hz = settings.frame_rate_hz
     df = validate_trajectory(traj.reset_index(drop=True), source, timestamps=timestamps)
+    notes: list[str] = [n for n in [layout_note(df.attrs.get("layout"), source)] if n is not None]
     segs = [str(s) for s in df["segment"].unique()]
     if segment is None and len(segs) > 1:
         raise ParameterError(
@@ -89,7 +90,6 @@ def build_context(
             )
         df = df[df["segment"] == segment]
     axes = tuple(a for a in ("z", "x", "y") if a in df.columns) if axes is None else axes
-    notes: list[str] = []
     if (note := timestamp_note(df.attrs.get("timestamps"))) is not None:
         notes.append(f"{source}: {note}")
     t0 = float(df["t"].min())
@@ -179,6 +179,8 @@ def build_context(
             required=("t", "plate", "z"),
             timestamps=timestamps,
         )
+        if (note := layout_note(ref.attrs.get("layout"), reference_source)) is not None:
+            notes.append(note)
         if (note := timestamp_note(ref.attrs.get("timestamps"))) is not None:
             notes.append(f"{reference_source}: {note}")
         if not np.isin(ref["plate"].unique(), df["plate"].unique()).any():

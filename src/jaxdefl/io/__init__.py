@@ -3,6 +3,7 @@
 from .trajectory import (
     TIMESTAMP_POLICIES,
     check_timestamp_policy,
+    layout_note,
     load_table,
     read_reference,
     read_trajectory,
@@ -14,6 +15,7 @@ from .trajectory import (
 __all__ = [
     "TIMESTAMP_POLICIES",
     "check_timestamp_policy",
+    "layout_note",
     "load_table",
     "read_reference",
     "read_trajectory",

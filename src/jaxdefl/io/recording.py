@@ -321,11 +321,23 @@ def _open_npz(path: Path, timestamps: str = "strict") -> Recording:
     return rec
 
 
+def _read_png(path: Path) -> np.ndarray | None:
+    """A PNG's pixels as stored (a 16-bit depth PNG as uint16), or None when the file is missing
+    or not an image. Pillow (a base dependency) reads it: no OpenCV needed."""
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as img:
+            if img.mode in ("I;16", "I;16B", "I;16L"):
+                return np.asarray(img).astype(np.uint16)
+            return np.asarray(img)
+    except (OSError, UnidentifiedImageError, ValueError):
+        return None
+
+
 def _open_tum(
     path: Path, depth_scale_mm: float | None, intrinsics: dict | None, timestamps: str = "strict"
 ) -> Recording:
-    import cv2
-
     listing = path / "depth.txt"
     if not listing.exists():
         raise _err(
@@ -363,7 +375,7 @@ def _open_tum(
         raise _err(listing, "no frames listed")
     t = np.asarray(t, np.float64)
     clock = _check_timestamps(listing, t, policy=timestamps)
-    first = cv2.imread(str(files[0]), cv2.IMREAD_UNCHANGED)
+    first = _read_png(files[0])
     if first is None:
         raise _err(files[0], "missing or not a readable PNG (frame 0 of depth.txt)")
     if first.ndim != 2 or first.dtype != np.uint16:
@@ -375,7 +387,7 @@ def _open_tum(
     def read(s, e):
         out = np.empty((e - s, h, w), np.float32)
         for j in range(s, e):
-            img = cv2.imread(str(files[j]), cv2.IMREAD_UNCHANGED)
+            img = _read_png(files[j])
             if img is None:
                 raise _err(files[j], f"missing or not a readable PNG (frame {j} of depth.txt)")
             if img.shape != (h, w) or img.dtype != np.uint16:

@@ -22,7 +22,9 @@ Timestamp policy (``timestamps``; `TIMESTAMP_POLICIES`):
 - ``reclock``: the stamps are a device's rounded or jittered writing of a sample clock: every
   row is a sample, in row order, and its time is replaced by the clock recovered per segment and
   plate (`jaxdefl.series.clock.fit_clock`); the recovered interval, jitter RMS and drift are in
-  the returned table's ``attrs["timestamps"]``.
+  the returned table's ``attrs["timestamps"]``. A plate's rows that step back by more than a
+  frame interval are not in sample order (a shuffled or re-sorted file): they are sorted by t
+  first, and the report says so (``series_sorted``).
 """
 
 from __future__ import annotations
@@ -44,6 +46,7 @@ __all__ = [
     "validate_trajectory",
     "check_timestamp_policy",
     "timestamp_note",
+    "layout_note",
 ]
 
 TIMESTAMP_POLICIES = ("strict", "reclock", "merge")
@@ -55,10 +58,17 @@ _METRES_MEDIAN_MIN = 0.5  # a range camera sees from 0.5 m on; a series centred 
 _METRES_ABS_MAX = 10.0  # |z| below this everywhere ...
 _METRES_SPREAD_MAX = 0.02  # ... and every plate's robust σ below this: metres, not mm
 _MICROMETRES_MEDIAN_MIN = 1e5  # median |z| beyond 100 m: micrometres, not mm
-_HINT = (
-    "rerun with --timestamps reclock (a rounded or jittered logger clock) "
-    "or --timestamps merge (true duplicates)"
-)
+# what each policy reads that the others refuse, for the hint of a refusal
+_READS = {
+    "reclock": "--timestamps reclock (a rounded or jittered logger clock)",
+    "merge": "--timestamps merge (true duplicates)",
+}
+
+
+def _hint(given: str) -> str:
+    """The policies other than ``given`` that would read a table with repeated timestamps."""
+    other = [text for policy, text in _READS.items() if policy != given]
+    return "rerun with " + " or ".join(other)
 
 
 def check_timestamp_policy(policy: str) -> str:
@@ -71,6 +81,8 @@ def check_timestamp_policy(policy: str) -> str:
 def _plain(v) -> str:
     """A cell as the user wrote it: numpy scalars as plain numbers, strings quoted."""
     return echo(v)
+
+
 _VALUE_COLUMNS = ("t", "x", "y", "z")
 _HEADER = re.compile(r"^\s*([A-Za-z]+)\s*(?:[_ ]\s*\[?\s*([^\]\s]+)\s*\]?|\[\s*([^\]\s]+)\s*\])?\s*$")
 
@@ -102,11 +114,26 @@ def load_table(path: Path) -> pd.DataFrame:
         if suffix in (".parquet", ".pq"):
             return pd.read_parquet(path)
         if suffix in (".csv", ".txt", ".gz"):
-            return pd.read_csv(path, comment="#")
+            return _unique_columns(pd.read_csv(path, comment="#"), path)
     except (ValueError, OSError, pd.errors.ParserError) as err:
         first = str(err).splitlines()[0] if str(err) else type(err).__name__
         raise InputError(f"{path}: cannot be read as a table ({first})") from None
     raise InputError(f"{path}: unknown table format {suffix!r}; expected .csv or .parquet")
+
+
+def _unique_columns(df: pd.DataFrame, path: Path) -> pd.DataFrame:
+    """The table, or an InputError naming a column its header has twice (pandas reads the
+    second ``z`` as ``z.1``, which would silently leave it unused)."""
+    names = [str(c) for c in df.columns]
+    for i, name in enumerate(names):
+        m = re.fullmatch(r"(.+)\.(\d+)", name)
+        if m and m.group(1) in names[:i]:
+            first = names.index(m.group(1))
+            raise InputError(
+                f"{path}: column {m.group(1)!r} appears twice in the header (columns {first + 1} and "
+                f"{i + 1}); expected each column once"
+            )
+    return df
 
 
 def _row_offset(path: Path) -> int:
@@ -148,17 +175,20 @@ def _iso_seconds(stripped: pd.Series, blank: pd.Series) -> np.ndarray | None:
     return _datetime_seconds(parsed)
 
 
-def _to_numeric(df: pd.DataFrame, col: str, path: Path) -> np.ndarray:
+def _to_numeric(df: pd.DataFrame, col: str, path: Path, name: str | None = None) -> np.ndarray:
+    """Column ``col`` (t, plate, x, y or z: what its values must be) as float64; messages
+    call it ``name`` (default: ``col``), as the file does."""
     raw = df[col]
     off = _row_offset(path)
+    shown = col if name is None else name
     if pd.api.types.is_bool_dtype(raw):
         raise InputError(
-            f"{path}: column {col!r} holds true/false values; expected "
+            f"{path}: column {shown!r} holds true/false values; expected "
             + ("times in s" if col == "t" else "plate numbers" if col == "plate" else "numbers in mm")
         )
     if pd.api.types.is_datetime64_any_dtype(raw) or pd.api.types.is_timedelta64_dtype(raw):
         if col != "t":
-            raise InputError(f"{path}: column {col!r} holds dates or durations; expected numbers")
+            raise InputError(f"{path}: column {shown!r} holds dates or durations; expected numbers")
         return _datetime_seconds(raw)
     if raw.dtype == object or pd.api.types.is_string_dtype(raw):
         stripped = raw.astype("string").str.strip()
@@ -170,7 +200,7 @@ def _to_numeric(df: pd.DataFrame, col: str, path: Path) -> np.ndarray:
                 return iso
             i = int(np.flatnonzero(bad.to_numpy())[0])
             raise InputError(
-                f"{path}: row {i + off} column {col!r}: expected a number, got {_plain(raw.iloc[i])}"
+                f"{path}: row {i + off} column {shown!r}: expected a number, got {_plain(raw.iloc[i])}"
             )
         return num.to_numpy(dtype=np.float64)
     return pd.to_numeric(raw, errors="coerce").to_numpy(dtype=np.float64)
@@ -186,8 +216,11 @@ def _check_plausible(path: Path, col: str, v: np.ndarray, plate: np.ndarray) -> 
         top = float(a.max())
         if top > _EPOCH_S_MAX:
             unit, name = (
-                ("milliseconds", "t_ms") if top < 1e14 else ("microseconds", "t_us") if top < 1e17 else
-                ("nanoseconds", "t_ns")
+                ("milliseconds", "t_ms")
+                if top < 1e14
+                else ("microseconds", "t_us")
+                if top < 1e17
+                else ("nanoseconds", "t_ns")
             )
             raise InputError(
                 f"{path}: column 't' has no unit and values up to {top:.4g}, implausible as seconds "
@@ -242,6 +275,9 @@ def validate_trajectory(
     check_timestamp_policy(timestamps)
     path = Path(str(path))
     off = _row_offset(path)
+    layout = None
+    if "plate" in required and "plate" not in {_parse_header(c, path)[0] for c in df.columns}:
+        df, layout = _long_from_wide(df, path)
     renamed: dict[str, str] = {}
     factors: dict[str, float] = {}
     explicit: dict[str, bool] = {}
@@ -255,9 +291,13 @@ def validate_trajectory(
     df = df.rename(columns=renamed)
     missing = [c for c in required if c not in df.columns]
     if missing:
+        got = ", ".join(map(str, df.columns))
+        if "plate" in missing:
+            layouts = _layouts(plateless="z" in df.columns)
+            raise InputError(f"{path}: missing column(s) {', '.join(missing)} (got {got}); {layouts}")
         raise InputError(
             f"{path}: missing column(s) {', '.join(missing)}; "
-            f"expected t, plate, z (optional x, y, segment), got {', '.join(map(str, df.columns))}"
+            f"expected t, plate, z (optional x, y, segment), got {got}"
         )
     if len(df) == 0:
         raise InputError(f"{path}: the table has no rows")
@@ -284,7 +324,7 @@ def validate_trajectory(
         _check_plausible(path, "t", t, out["plate"].to_numpy())
     if "z" in axes and not explicit["z"]:
         _check_plausible(path, "z", out["z"].to_numpy(), out["plate"].to_numpy())
-    out["_row"] = np.arange(len(df)) + off
+    out["_row"] = df["_line"].to_numpy() if "_line" in df else np.arange(len(df)) + off
 
     out = out.sort_values(["segment", "plate", "_row"], kind="stable").reset_index(drop=True)
     report = None
@@ -306,7 +346,11 @@ def validate_trajectory(
             f"{path}: row {out['_row'].iat[j + 1]}: t must increase within plate "
             f"{out['plate'].iat[j + 1]}, got t={_plain(out['t'].iat[j + 1])} after "
             f"t={_plain(out['t'].iat[j])} (row {out['_row'].iat[j]})"
-            + ("; if a jittered clock swapped neighbours, rerun with --timestamps reclock" if small else "")
+            + (
+                "; if a jittered clock swapped neighbours, rerun with --timestamps reclock"
+                if small and timestamps != "reclock"
+                else ""
+            )
         )
     rep = same_series & (dt == 0)
     if rep.any() and timestamps == "merge":
@@ -320,7 +364,7 @@ def validate_trajectory(
             raise InputError(
                 f"{path}: row {out['_row'].iat[j + 1]}: plate {out['plate'].iat[j + 1]} repeats "
                 f"t={_plain(out['t'].iat[j + 1])} of row {out['_row'].iat[j]} with different values "
-                f"({int(conflict.sum())} such rows); {_HINT}"
+                f"({int(conflict.sum())} such rows); {_hint(timestamps)}"
             )
         out = out.drop(index=np.flatnonzero(rep) + 1).reset_index(drop=True)
     # A plate without one valid sample stays: its windows get the status too_few_samples, and
@@ -328,7 +372,126 @@ def validate_trajectory(
     out = out.drop(columns="_row")
     if report is not None:
         out.attrs["timestamps"] = report
+    if layout is not None:
+        out.attrs["layout"] = layout
     return out
+
+
+# -- wide logger tables: a time column and one column per channel -------------------------------
+
+
+def _layouts(time: str | None = None, unit: str | None = None, plateless: bool = False) -> str:
+    """The two layouts a table may have and a one-line conversion to the long one: of a wide
+    table with the time column ``time`` (in ``unit``; channels numbered 1.. in column order),
+    or of a long table without plate numbers (``plateless``: one plate)."""
+    layouts = (
+        "expected a long table (t, plate, z; optional x, y, segment) or a wide logger table (a time "
+        "column such as t, time_ms or 'Time (s)', then one column per plate numbered like LDS1, LDS2)"
+    )
+    if plateless:
+        return f"{layouts}; for one plate: pd.read_csv(f).assign(plate=1).to_csv(g, index=False)"
+    time = time or "t"
+    long = "t" if unit is None else f"t_{unit}"
+    rename = "" if time == long else f".rename(columns={{{time!r}: {long!r}}})"
+    return (
+        f"{layouts}; to convert (plates 1.. in column order): pd.read_csv(f){rename}.melt(id_vars="
+        f"{long!r}, var_name='plate', value_name='z').assign(plate=lambda d: pd.factorize(d.plate)[0]"
+        " + 1).to_csv(g, index=False)"
+    )
+
+
+_UNIT = r"(?:[_ ]\s*[\[(]?\s*(?P<unit>[^\])\s]+)\s*[\])]?|\s*[\[(]\s*(?P<unit2>[^\])\s]+)\s*[\])])"
+_TIME_HEADER = re.compile(rf"^\s*(?:t|time|timestamp)\s*{_UNIT}?\s*$", re.IGNORECASE)
+_CHANNEL_HEADER = re.compile(rf"^\s*(?P<label>.*?)\s*(?P<number>\d+)\s*{_UNIT}?\s*$")
+
+
+def _unit_of(m: re.Match, table: dict[str, float], path: Path, name: str) -> tuple[float, bool]:
+    unit = m.group("unit") or m.group("unit2")
+    if unit is None:
+        return 1.0, False
+    if unit not in table:
+        raise InputError(
+            f"{path}: column {name!r} has unknown unit {unit!r}; expected one of {', '.join(table)}"
+        )
+    return table[unit], True
+
+
+def _long_from_wide(df: pd.DataFrame, path: Path) -> tuple[pd.DataFrame, dict]:
+    """A wide logger table (a time column, one column per channel: ``time_ms, LDS1, LDS2``) as
+    a long table ``t, plate, z`` (+ segment) with its file lines kept in ``_line``, and the
+    mapping of its columns (``attrs["layout"]``). The plate of a channel is its header's
+    trailing number; a unit may follow (``LDS1_mm``, ``LDS1 [m]``). Any other table without a
+    ``plate`` column is left for `validate_trajectory` to refuse, naming both layouts."""
+    names = [str(c) for c in df.columns]
+    times = [c for c in names if _TIME_HEADER.match(c)]
+    rest = [c for c in names if c not in times and c.strip().lower() != "segment"]
+    unit = None
+    if len(times) == 1:
+        m = _TIME_HEADER.match(times[0])
+        unit = m.group("unit") or m.group("unit2")
+    if len(times) != 1 or not rest:
+        if len(times) > 1:
+            raise InputError(
+                f"{path}: no 'plate' column and several time columns ({', '.join(times)}); {_layouts()}"
+            )
+        return df, None
+    if any(_parse_header(c, path)[0] in _VALUE_COLUMNS for c in rest):
+        return df, None  # a long table without its plate column: refused as such
+    channels = {c: _CHANNEL_HEADER.match(c) for c in rest}
+    unnumbered = [c for c, m in channels.items() if m is None or m.group("label").startswith("Unnamed")]
+    if unnumbered:
+        raise InputError(
+            f"{path}: no 'plate' column, and the column(s) {', '.join(map(repr, unnumbered))} beside "
+            f"{times[0]!r} carry no plate number; {_layouts(times[0], unit)}"
+        )
+    labels = {re.sub(r"[\s_-]+$", "", m.group("label")).lower() for m in channels.values()}
+    plates = {c: int(m.group("number")) for c, m in channels.items()}
+    if len(labels) > 1 or len(set(plates.values())) < len(plates):
+        raise InputError(
+            f"{path}: no 'plate' column, and the channel columns {', '.join(map(repr, rest))} do not "
+            f"name one sensor's plates once each; {_layouts(times[0], unit)}"
+        )
+    off = _row_offset(path)
+    t_factor, t_unit = _unit_of(_TIME_HEADER.match(times[0]), _TIME_S, path, times[0])
+    raw_t = df[times[0]]
+    t = _to_numeric(df.rename(columns={times[0]: "t"}), "t", path, name=times[0])
+    if np.isnan(t).any():
+        i = int(np.flatnonzero(np.isnan(t))[0])
+        raise InputError(f"{path}: row {i + off} column {times[0]!r}: expected a time, got an empty cell")
+    # dates (datetime64, ISO strings) are seconds since the epoch already: no unit applies
+    dated = pd.api.types.is_datetime64_any_dtype(raw_t) or bool(
+        (pd.to_numeric(raw_t, errors="coerce").isna() & raw_t.notna()).any()
+    )
+    explicit = []
+    z = []
+    for c, m in channels.items():
+        factor, has_unit = _unit_of(m, _LENGTH_MM, path, c)
+        explicit.append(has_unit)
+        z.append(_to_numeric(df.rename(columns={c: "z"}), "z", path, name=c) * factor)
+    n, k = len(df), len(rest)
+    long = pd.DataFrame(
+        {
+            # a unit in the headers is kept, so that the long table's checks never second-guess it
+            ("t_s" if t_unit or dated else "t"): np.tile(t if dated else t * t_factor, k),
+            "plate": np.repeat(list(plates.values()), n),
+            ("z_mm" if all(explicit) else "z"): np.concatenate(z),
+            "_line": np.tile(np.arange(n) + off, k),
+        }
+    )
+    seg = next((c for c in names if c.strip().lower() == "segment"), None)
+    if seg is not None:
+        long.insert(0, "segment", np.tile(df[seg].to_numpy(), k))
+    layout = {"layout": "wide", "time": times[0], "channels": plates}
+    return long, layout
+
+
+def layout_note(layout: dict | None, path: Path | str = "") -> str | None:
+    """One line for stderr naming how a wide table's columns were read (None for a long table)."""
+    if not layout:
+        return None
+    chans = ", ".join(f"{c} -> plate {p}" for c, p in list(layout["channels"].items())[:8])
+    more = " ..." if len(layout["channels"]) > 8 else ""
+    return f"{path}: a wide table: {layout['time']} -> t; {chans}{more} (z)"
 
 
 def _merge(out: pd.DataFrame, axes: list[str]) -> tuple[pd.DataFrame, dict]:
@@ -347,11 +510,12 @@ def _reclock(out: pd.DataFrame, path: Path) -> tuple[pd.DataFrame, dict]:
     `jaxdefl.series.clock.fit_clock`); a step back of more than a recovered interval is an error."""
     from ..series.clock import fit_clock
 
-    t = out["t"].to_numpy().copy()
     seg = pd.factorize(out["segment"])[0]
     plate = out["plate"].to_numpy()
     cut = np.flatnonzero((seg[1:] != seg[:-1]) | (plate[1:] != plate[:-1])) + 1
-    bounds = np.concatenate([[0], cut, [t.size]])
+    bounds = np.concatenate([[0], cut, [len(out)]])
+    out, n_sorted = _sample_order(out, bounds)
+    t = out["t"].to_numpy().copy()
     per_segment: dict[str, list] = {}
     for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
         ts = t[lo:hi]
@@ -382,7 +546,31 @@ def _reclock(out: pd.DataFrame, path: Path) -> tuple[pd.DataFrame, dict]:
                 "drift_ppm": float(np.median([c.drift_ppm for c in clocks])),
             }
         )
-    return out, {"policy": "reclock", "segments": segments}
+    return out, {"policy": "reclock", "segments": segments, "series_sorted": n_sorted}
+
+
+def _sample_order(out: pd.DataFrame, bounds: np.ndarray) -> tuple[pd.DataFrame, int]:
+    """The rows of every (segment, plate) series in sample order, and how many series were
+    sorted. Rows in file order are the samples' order (a jittered stamp may fall behind its
+    predecessor by less than a frame interval); a series whose stamps go back by more than
+    its median frame interval was written out of order (shuffled, or plates interleaved
+    out of order) and is sorted by t, stably."""
+    t = out["t"].to_numpy()
+    order = np.arange(t.size)
+    n_sorted = 0
+    for lo, hi in zip(bounds[:-1], bounds[1:], strict=True):
+        d = np.diff(t[lo:hi])
+        if not (d < 0).any():
+            continue
+        steps = np.diff(np.sort(t[lo:hi]))
+        steps = steps[steps > 0]
+        interval = float(np.median(steps)) if steps.size else 0.0
+        if (d < -interval).any():
+            order[lo:hi] = lo + np.argsort(t[lo:hi], kind="stable")
+            n_sorted += 1
+    if n_sorted:
+        out = out.iloc[order].reset_index(drop=True)
+    return out, n_sorted
 
 
 def timestamp_note(report: dict | None) -> str | None:
@@ -397,10 +585,17 @@ def timestamp_note(report: dict | None) -> str | None:
     iv = np.median([s["interval_s"] for s in segs])
     jit = float(np.sqrt(np.mean([s["jitter_rms_s"] ** 2 for s in segs])))
     drift = np.median([s["drift_ppm"] for s in segs])
+    n_sorted = report.get("series_sorted", 0)
     return (
         f"timestamps reclocked: interval {iv:.9g} s, jitter RMS {jit:.3g} s "
         f"({jit / iv:.2f} frame), drift {drift:+.3g} ppm "
         f"({sum(s['series'] for s in segs)} series in {len(segs)} segment(s))"
+        + (
+            f"; the rows of {n_sorted} series were out of sample order and were sorted by t "
+            "within their plate"
+            if n_sorted
+            else ""
+        )
     )
 
 

@@ -102,6 +102,8 @@ def _bounds(t_seg: np.ndarray, window_s: float | None, step_s: float | None) -> 
     d = np.diff(np.unique(t_seg))
     dt = float(np.median(d)) if d.size else 0.0
     span = t1 - t0 + dt
+    if window_s > span * (1 + 1e-9):  # a window longer than the record is clipped to it
+        return [(t0, t0 + span)]
     n = max(1, int(np.floor((span - window_s) / step_s + 1 + 1e-9)))
     return [(t0 + i * step_s, t0 + i * step_s + window_s) for i in range(n)]
 
@@ -174,7 +176,8 @@ def make_windows(
 
     Windows start at the first timestamp of their segment (shared by all plates, so windows line
     up across plates) and advance by ``step_s``; only windows that fit inside the segment are
-    made (at least one per segment). Without ``window_s`` each segment is one window.
+    made (at least one per segment). A window longer than its segment is clipped to the segment
+    (`check_window_plan` says so). Without ``window_s`` each segment is one window.
 
     Args:
         df: canonical table from `jaxdefl.io.validate_trajectory`.
@@ -286,15 +289,19 @@ def check_window_plan(
     window_s: float | None,
     step_s: float | None,
     source: str = "the table",
-) -> None:
+) -> str | None:
     """Refuse window settings that cannot give a fit or would not fit in memory, before any work.
+
+    Returns:
+        A note for the user when the window is longer than a segment (that segment's window is
+        clipped to it, see `make_windows`), else None.
 
     Raises:
         ConfigError: a window shorter than MIN_WINDOW_FRAMES frame intervals (median spacing of
             the table's timestamps), or a padded batch larger than MAX_BATCH_BYTES.
     """
     if window_s is None:
-        return
+        return None
     step_s = window_s if step_s is None else step_s
     t = df["t"].to_numpy()
     same = (df["plate"].to_numpy()[1:] == df["plate"].to_numpy()[:-1]) & (
@@ -303,7 +310,7 @@ def check_window_plan(
     d = np.diff(t)[same]
     d = d[d > 0]
     if not d.size:
-        return
+        return None
     dt = float(np.median(d))
     if window_s < MIN_WINDOW_FRAMES * dt:
         raise ConfigError(
@@ -321,3 +328,13 @@ def check_window_plan(
             f"~{int(samples):,} samples from {source} would need ~{need / 2**30:.0f} GiB; "
             f"expected at most {MAX_BATCH_BYTES / 2**30:.0f} GiB (use a longer --step)"
         )
+    spans = df.groupby("segment", sort=False)["t"].agg(lambda s: s.max() - s.min()) + dt
+    short = spans[window_s > spans * (1 + 1e-9)]
+    if short.empty:
+        return None
+    which = (
+        f"segment {short.index[0]!r} ({short.iloc[0]:.6g} s)"
+        if len(short) == 1
+        else f"{len(short)} of {len(spans)} segments (the shortest {short.min():.6g} s)"
+    )
+    return f"--window {window_s:g} s is longer than {which} of {source}: clipped to the record"
