@@ -558,7 +558,7 @@ def reconcile_file(
             outs.figure(out / f"{level}.png", fig, dpi=110)
             figs.append(f"{level}.png")
             plt.close(fig)
-        outs.text(out / "report.md", reconcile_markdown(rec, d, figs, str(recording), str(config)))
+        outs.text(out / "report.md", reconcile_markdown(rec, d, figs, str(recording), str(config), str(out)))
     verdicts = ", ".join(f"{r['metric']} {r['verdict']}" for r in d["levels"])
     names = ", ".join(e["id"] for e in rec.effects) or "none"
     console.print(f"effects: {names}; {verdicts} -> {out / 'report.md'}")
