@@ -35,6 +35,7 @@ import numpy as np
 from .._errors import ConfigError, InputError, Interrupted
 from .._signals import check_interrupt
 from ..io.output import Outputs, format_table
+from ..progress import wrote
 from ..settings import MonitorSettings
 from .detect import DetectorSettings
 from .engine import SNAPSHOT_COLUMNS, Monitor
@@ -354,6 +355,12 @@ def run_monitor(
             f"{source.name}: the source ended after {mon.frames} frames, before the monitor could start "
             f"(it fits the first {mon.init_s:g} s)"
         )
+    wrote(
+        "monitor",
+        *(out / n for n in OUTPUT_NAMES if (out / n).exists()),
+        detail=f"{mon.frames} frames, {len(log.alarms)} alarm(s); stopped: {reason}"
+        + ("; still learning" if learning else ""),
+    )
     tracked = max(mon.tracker.frames if mon.started else 0, 1)
     return {
         "frames": mon.frames,
