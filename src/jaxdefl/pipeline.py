@@ -403,6 +403,7 @@ def _demo_into(out: Path, duration_s: float, seed: int) -> Path:
     from .frames import extract_recording
     from .io.recording import open_recording
     from .report.summary import write_demo_report
+    from .simulate import load_config
 
     t0 = time.perf_counter()
     console.print(
@@ -412,7 +413,7 @@ def _demo_into(out: Path, duration_s: float, seed: int) -> Path:
     sim = _demo_recording(out, duration_s, seed)
     t_sim = time.perf_counter() - t0
     t1 = time.perf_counter()
-    console.print(f"jaxdefl demo: extracting the plates from {sim / 'recording.zarr'}", markup=False)
+    console.print("jaxdefl demo: extracting the plates from every simulated frame", markup=False)
     rec = open_recording(sim / "recording.zarr")
     traj = extract_recording(rec, realtime=False)
     write_trajectory(traj, out / "trajectories.csv")
@@ -450,6 +451,7 @@ def _demo_into(out: Path, duration_s: float, seed: int) -> Path:
             timings=dict(
                 simulate_s=t_sim, extract_s=t_extract, fit_whole_s=t_whole, fit_windows_s=t_windowed
             ),
+            cfg=load_config(config_dir() / DEMO_CONFIG),
         )
     console.print(f"jaxdefl demo: done in {time.perf_counter() - t0:.1f} s", markup=False)
     return report

@@ -26,7 +26,8 @@ from rich.progress import (
 
 __all__ = ["PLAIN_EVERY_S", "console", "interactive", "progress_bar", "status", "wrote"]
 
-console = Console(stderr=True)
+# soft_wrap: a long line is never broken at 80 columns in a log (a terminal wraps it itself)
+console = Console(stderr=True, soft_wrap=True)
 PLAIN_EVERY_S = 5.0  # seconds between plain progress lines off a terminal
 
 

@@ -57,9 +57,13 @@ def _frames_lines(rec) -> list[str]:
 
 
 def plot_level(rec, level: str):
-    """Bars of the distances before and after, with the null band, for one level's metrics."""
+    """Bars of the distances before and after, with the null band, for one level's metrics.
+
+    The figure is wide enough for its title with a single metric, the y range leaves headroom
+    above the tallest bar (a symlog axis autoscales flush with it), and the legend sits below
+    the axes, where it hides no bar."""
     rows = [r for r in rec.levels if r["level"] == level]
-    fig, ax = plt.subplots(figsize=(1.6 + 1.3 * len(rows), 3.4), constrained_layout=True)
+    fig, ax = plt.subplots(figsize=(max(5.0, 1.6 + 1.3 * len(rows)), 3.8), constrained_layout=True)
     x = np.arange(len(rows))
     before = [r["before"] for r in rows]
     after = [r["after"] for r in rows]
@@ -71,9 +75,13 @@ def plot_level(rec, level: str):
     ax.plot([], [], "k--", label="null band (95 %)")
     ax.set_xticks(x, [r["metric"] for r in rows], rotation=20)
     ax.set_yscale("symlog", linthresh=1e-3)
+    values = np.array([v for v in before + after + null if v is not None], float)
+    top = float(np.nanmax(values[np.isfinite(values)])) if np.isfinite(values).any() else 1.0
+    ax.set_ylim(0.0, max(top, 1e-3) * 3.0)  # headroom: half a decade above the tallest bar
+    ax.set_xlim(-0.6, len(rows) - 0.4)
     ax.set_ylabel("distance recording - simulation")
-    ax.set_title(f"{level}: recording against simulation")
-    ax.legend(fontsize=7)
+    ax.set_title(f"{level}: recording against simulation", fontsize=10)
+    fig.legend(fontsize=7, loc="outside lower center", ncol=3, frameon=False)
     return fig
 
 
