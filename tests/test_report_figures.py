@@ -195,6 +195,7 @@ def test_the_defective_lds_is_named_for_its_plate():
     text = reference_md(cmp, cfg)
     assert "Plate 9's ΔA = +0.778 mm" in text and "marked defective in the config" in text
     assert "lds.defective_plate = 9" in text and "Plate 5" not in text and "Plate 7" not in text
+    assert "on the other plates the camera and the LDS differ by 0.081 mm at most" in text
     # a large difference on a sound sensor is not blamed on it
     cmp.loc[0, "delta_amplitude_mm"] = 0.5
     assert "no sensor of the config is marked defective there" in reference_md(cmp, cfg)
