@@ -502,8 +502,8 @@ def test_interrupts_at_random_moments_of_every_command(work, sig):
     )
     _check_interrupt(
         work,
-        ["simulate", str(cfg), "--out", "sim2", "--duration", "10"],
-        ["simulate", str(cfg), "--out", "sim2", "--duration", "20"],
+        ["simulate", str(cfg), "--out", "sim2", "--duration", "10", "--session", "day1"],
+        ["simulate", str(cfg), "--out", "sim2", "--duration", "20", "--session", "day1"],
         ["sim2/truth.csv", "sim2/lds.csv", "sim2/config.json"],
         delays=sorted(rng.uniform(0.3, 8.0, 2 if few else 3)),
         sig=sig,

@@ -108,9 +108,26 @@ def test_axes_default_to_the_columns_present_and_missing_ones_are_errors(tmp_pat
 
 
 @pytest.mark.slow
-def test_demo_runs_frames_to_report(tmp_path):
+def test_demo_runs_frames_to_report(tmp_path, capsys):
     out = tmp_path / "demo"
     assert main(["demo", "--out", str(out), "--duration", "20"]) == 0
+    # off a terminal: plain lines, each step named, and the closing line (issue 25.16)
+    err = capsys.readouterr().err
+    assert f"jaxdefl demo: wrote {out / 'summary.md'}" in err and "\x1b" not in err and "\r" not in err
+    assert "jaxdefl demo: extracting" in err and "jaxdefl demo: emcee posteriors" in err
+    # the summary says why plates are missing, which windows have no fit and why, and which
+    # LDS is defective (issue 25.17)
+    summary = (out / "summary.md").read_text()
+    assert "lie whole inside the image" in summary and "outside the camera's view" in summary
+    assert "marked defective in the config (`lds.defective_plate = 9`" in summary
+    windows = pd.read_csv(out / "estimates_30s.csv")
+    bad = windows[windows["status"] != "converged"]
+    if len(bad):
+        assert f"{len(bad)} of {len(windows)} windows have no fit" in summary
+        for r in bad.itertuples():
+            assert f"plate {r.plate} {r.axis}, window" in summary and f"`{r.status}`" in summary
+    else:
+        assert "Every window was fitted." in summary
     for name in (
         "summary.md",
         "frame.png",

@@ -78,7 +78,8 @@ def test_wheel_installs_and_runs_the_demo_elsewhere(tmp_path):
         text=True,
     )
     assert sim.returncode == 0, sim.stderr
-    assert (elsewhere / "sim" / "truth.csv").is_file()
+    # exp1 holds Experiment I's 16 sessions: each in its own folder
+    assert (elsewhere / "sim" / "cam3_10fps_1hz" / "truth.csv").is_file()
     demo = subprocess.run(
         [sys.executable, "-m", "jaxdefl", "demo", "--duration", "12", "--out", "demo"],
         cwd=elsewhere,

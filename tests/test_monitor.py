@@ -452,3 +452,24 @@ def test_replay_of_a_logger_table_with_a_repeated_stamp_takes_a_timestamp_policy
         assert abs(z7.f0_hz - 3.068 * (1 - 7e-5)) < 4 * z7.sigma_f0_hz  # on the logger's clock
     assert main(["monitor", str(table), "--out", str(tmp_path / "f"), "--timestamps", "reclock"]) == 2
     assert "applies to --replay of a table" in capsys.readouterr().err
+
+
+def test_a_replay_shorter_than_the_learning_says_it_never_left_learning(tmp_path, capsys):
+    """Issue 25.15: a 1-min record against 5 min of learning gives no alarm and says why; with
+    1-s blocks (60 of them: 1 min) the same monitor leaves learning and says nothing of it."""
+    cfg = _tiny_config(tmp_path, duration=80.0)
+    traj, _ = simulate_trajectories(cfg, 80.0, 0)
+    traj.to_csv(tmp_path / "traj.csv", index=False)
+    out = tmp_path / "short"
+    assert main(["monitor", "--replay", str(tmp_path / "traj.csv"), "--out", str(out), "--speed", "0"]) == 0
+    err = capsys.readouterr().err
+    stop = [json.loads(x) for x in (out / "events.jsonl").read_text().splitlines()][-1]
+    assert stop["state"] == "stopped" and stop["still_learning"] is True
+    for text in (stop["message"], err):
+        assert "never left `learning`" in text and "5 min" in text and "--block 5 s" in text
+    out = tmp_path / "long"
+    args = ["monitor", "--replay", str(tmp_path / "traj.csv"), "--out", str(out), "--speed", "0"]
+    assert main([*args, "--block", "1"]) == 0
+    events = [json.loads(x) for x in (out / "events.jsonl").read_text().splitlines()]
+    assert any(e.get("state") == "monitoring" for e in events)
+    assert "still_learning" not in events[-1] and "never left" not in capsys.readouterr().err

@@ -194,6 +194,8 @@ def test_reconcile_cli_on_frames_with_a_camera_warm_up(tmp_path):
     slow = next(x for x in d["levels"] if x["metric"] == "slow_mm")
     assert slow["before"] > 3 * slow["null_95"] and slow["after"] <= slow["null_95"], slow
     assert (out / "report.md").read_text().count("reconciled") >= 1
+    # off a terminal: the steps as plain lines and the closing line (issue 25.16)
+    assert f"jaxdefl reconcile: wrote {out / 'report.md'}" in r.stderr and "\x1b" not in r.stderr
     # the frames level: a warm-up moves the ranges, not their noise (a frame recording only)
     frames = {x["metric"]: x for x in d["levels"] if x["level"] == "frames"}
     assert set(frames) == {"range_noise", "valid_share"} and (out / "frames.png").exists()

@@ -121,7 +121,8 @@ def test_deterministic_for_a_seed_and_independent_of_chunking(tmp_path):
 
 def test_cli_simulate_writes_the_recording(tmp_path):
     out = tmp_path / "rec"
-    assert main(["simulate", str(CONFIGS / "exp2_tof_3hz.toml"), "--out", str(out), "--duration", "5"]) == 0
+    cfg = str(CONFIGS / "exp2_tof_3hz.toml")
+    assert main(["simulate", cfg, "--out", str(out), "--duration", "5", "--session", "day1"]) == 0
     rng, amp, t, attrs = _read(out)
     assert rng.shape == amp.shape == (len(t), 144, 176) and 90 <= len(t) <= 100
     assert t.dtype == np.float64 and 1.7e9 <= t[0] < 1.7e9 + 1 and np.all(np.diff(t) > 0)

@@ -103,7 +103,8 @@ def simulate(
     duration: Annotated[float | None, typer.Option(help="Override the recording duration, s.")] = None,
     seed: Annotated[int | None, typer.Option(help="Random seed (default: from the config).")] = None,
     session: Annotated[
-        str | None, typer.Option(help="A [[session]] of the config (default: the first).")
+        str | None,
+        typer.Option(help="A [[session]] of the config (default: every session, each in DIR/<session>/)."),
     ] = None,
     live: Annotated[
         bool,
@@ -120,17 +121,10 @@ def simulate(
 
     with _flag_names(SIMULATE_FLAGS):
         s = SimulateSettings(**_flag_values(locals(), SIMULATE_FLAGS))  # before any input is read
+        from . import pipeline
+
         with _locked(out, "simulate", wait):
-            if s.live:
-                from .simulate import write_live
-
-                write_live(
-                    config, out, duration_s=s.duration_s, seed=s.seed, speed=s.speed, session=s.session
-                )
-                return
-            from .simulate import simulate_to_dir
-
-            simulate_to_dir(config, out, duration_s=s.duration_s, seed=s.seed, session=s.session)
+            pipeline.simulate_file(config, out, s)
 
 
 @app.command()
@@ -164,10 +158,10 @@ def extract(
 
     with _flag_names(EXTRACT_FLAGS):
         settings = ExtractSettings(**_flag_values(locals(), EXTRACT_FLAGS))  # before any input is read
-        from .frames import extract_to_table
+        from . import pipeline
 
         with _locked(out, "extract", wait):
-            extract_to_table(recording, out, settings)
+            pipeline.extract_file(recording, out, settings)
 
 
 @app.command()

@@ -8,6 +8,7 @@ import time
 from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pandas as pd
@@ -15,7 +16,6 @@ import pandas as pd
 from . import __version__
 from ._configs import config_dir
 from ._errors import ConfigError, JaxdeflError, ParameterError
-from .fit import Estimates, compare_with_reference, estimate_windows, fit_reference
 from .io import (
     layout_note,
     load_table,
@@ -25,19 +25,34 @@ from .io import (
     write_trajectory,
 )
 from .io.output import TABLE_SUFFIXES, Outputs
-from .progress import console, progress_bar
+from .progress import console, progress_bar, status, wrote
 from .series import check_window_plan
-from .settings import DiagnoseSettings, FitSettings, ReconcileSettings, RunSettings
+from .settings import (
+    DiagnoseSettings,
+    ExtractSettings,
+    FitSettings,
+    ReconcileSettings,
+    RunSettings,
+    SimulateSettings,
+)
 from .status import UnitStatus
 
-__all__ = ["demo", "diagnose_file", "fit_file", "run_file"]
+if TYPE_CHECKING:
+    from .fit import Estimates
+
+__all__ = ["demo", "diagnose_file", "extract_file", "fit_file", "run_file", "simulate_file"]
 
 
 @contextmanager
 def _progress(total: int, label: str, enabled: bool):
-    """A rich progress bar with ETA when there is enough work to watch; else a no-op."""
-    if not enabled or total <= 4096:
+    """A progress bar with ETA when there is enough work to watch, else a status line (both
+    plain lines off a terminal, `jaxdefl.progress`); a no-op when not ``enabled``."""
+    if not enabled:
         yield lambda k: None
+        return
+    if total <= 4096:
+        with status(f"{label} ({total}) ..."):
+            yield lambda k: None
         return
     with progress_bar() as bar:
         task = bar.add_task(label, total=total)
@@ -46,7 +61,8 @@ def _progress(total: int, label: str, enabled: bool):
 
 def _estimate(df: pd.DataFrame, progress: bool = True, **kw) -> Estimates:
     """`jaxdefl.fit.estimate_table` with a progress bar when there is enough work to watch."""
-    from .fit import windows_for
+    # `jaxdefl.fit` (and JAX) imported where used: `simulate` and `extract` never load them
+    from .fit import estimate_windows, windows_for
 
     w = windows_for(df, **{k: kw.pop(k) for k in ("axes", "window_s", "step_s") if k in kw})
     with _progress(len(w), "fitting windows", progress) as advance:
@@ -176,6 +192,8 @@ def fit_file(
     tab = est.table
     comparison = ref_tab = unc = post = None
     if ref is not None:
+        from .fit import compare_with_reference, fit_reference
+
         ref_tab = fit_reference(ref, est, model=spec, **kw).table
         comparison = compare_with_reference(tab, ref_tab)
     if posterior is not None:
@@ -213,9 +231,18 @@ def fit_file(
         if (note := timestamp_note(rep)) is not None:
             console.print(f"  {name}: {note}", highlight=False, soft_wrap=True)
     counts = tab["status"].value_counts().to_dict()
-    console.print(
-        f"[bold]jaxdefl fit[/]: {len(tab)} windows in {time.perf_counter() - t0:.1f} s -> {out} "
-        f"({', '.join(f'{k} {v}' for k, v in counts.items())})"
+    written = [out, paths["sidecar"]]
+    if ref_tab is not None:
+        written += [paths["reference"], paths["comparison"]]
+    if unc is not None:
+        written.append(paths["uncertainty"])
+        if post is not None:
+            written.append(paths["posterior"])
+    wrote(
+        "fit",
+        *written,
+        detail=f"{len(tab)} windows, {', '.join(f'{k} {v}' for k, v in counts.items())}; "
+        f"{time.perf_counter() - t0:.1f} s",
     )
     if comparison is not None:
         for _, r in comparison.iterrows():
@@ -231,6 +258,72 @@ def _plates(df: pd.DataFrame) -> str:
     return "plates " + ", ".join(map(str, p[:8].tolist())) + (" ..." if p.size > 8 else "")
 
 
+def simulate_file(config: Path, out: Path, settings: SimulateSettings) -> list[Path]:
+    """`jaxdefl simulate`: the recording of ``config`` in ``out``; returns the folders written.
+
+    A config with several ``[[session]]`` entries and no session picked (``--session`` or the
+    config's ``recording.session``) makes every session, each in ``out/<session name>/``; one
+    session, or a config without sessions, is written to ``out`` itself. With ``live``, the
+    measured centroids are appended to ``out/trajectory.csv`` as they come
+    (`jaxdefl.simulate.write_live`).
+    """
+    import tomllib
+
+    from ._configs import resolve_config
+    from .simulate import load_config, simulate_to_dir, write_live
+    from .simulate.config import list_sessions
+
+    s, out, t0 = settings, Path(out), time.perf_counter()
+    load_config(config, s.session)  # every error before anything is written
+    if s.live:
+        write_live(config, out, duration_s=s.duration_s, seed=s.seed, speed=s.speed, session=s.session)
+        wrote("simulate", out / "trajectory.csv", detail=f"live, {time.perf_counter() - t0:.1f} s")
+        return [out]
+    raw = tomllib.loads(resolve_config(config).read_text())
+    names = list_sessions(raw)
+    picked = s.session or raw.get("recording", {}).get("session") or None
+    if len(names) <= 1 or picked is not None or len(set(names)) < len(names):
+        simulate_to_dir(config, out, duration_s=s.duration_s, seed=s.seed, session=s.session)
+        made = picked or (names[0] if names else None)
+        wrote(
+            "simulate",
+            *(out / n for n in ("recording.zarr", "truth.csv", "lds.csv", "config.json")),
+            detail=(f"session {made} of {len(names)}; " if len(names) > 1 else "")
+            + f"{time.perf_counter() - t0:.1f} s",
+        )
+        return [out]
+    console.print(
+        f"jaxdefl simulate: {config} has {len(names)} sessions ({', '.join(names)}): each goes to "
+        f"{out}/<session>/ (--session NAME makes one, in {out} itself)",
+        markup=False,
+        highlight=False,
+        soft_wrap=True,
+    )
+    dirs = []
+    for k, name in enumerate(names):
+        console.print(
+            f"jaxdefl simulate: session {k + 1}/{len(names)}: {name}", markup=False, highlight=False
+        )
+        dirs.append(simulate_to_dir(config, out / name, duration_s=s.duration_s, seed=s.seed, session=name))
+    wrote(
+        "simulate",
+        *dirs,
+        detail=f"{len(dirs)} sessions, each with recording.zarr, truth.csv, lds.csv and config.json; "
+        f"{time.perf_counter() - t0:.1f} s",
+    )
+    return dirs
+
+
+def extract_file(recording: Path, out: Path, settings: ExtractSettings) -> None:
+    """`jaxdefl extract`: the plates of every frame of ``recording`` to the table ``out``
+    (`jaxdefl.frames.extract_to_table`), with a closing line."""
+    from .frames import extract_to_table
+
+    t0 = time.perf_counter()
+    extract_to_table(recording, out, settings)
+    wrote("extract", out, detail=f"{time.perf_counter() - t0:.1f} s")
+
+
 def run_file(config: Path, out: Path, settings: RunSettings) -> pd.DataFrame:
     """`jaxdefl run`: a campaign config to ``out`` (see `jaxdefl.bulk`); ``settings``
     (`jaxdefl.settings.RunSettings`, validated when made): the scheduler, and the timestamp
@@ -241,12 +334,19 @@ def run_file(config: Path, out: Path, settings: RunSettings) -> pd.DataFrame:
     campaign = load_campaign(config)
     if settings.timestamps is not None:
         campaign = replace(campaign, processing=replace(campaign.processing, timestamps=settings.timestamps))
+    console.print(
+        f"jaxdefl run: campaign {campaign.name}: {len(campaign.recordings)} recording(s) -> {out}",
+        markup=False,
+        highlight=False,
+    )
     units = run_campaign(campaign, out, scheduler=settings.scheduler)
     n_ok = int((units["status"] == UnitStatus.OK).sum())
-    console.print(
-        f"[bold]jaxdefl run[/]: {campaign.name}: {n_ok}/{len(units)} recordings estimated "
-        f"({int(units['skipped'].sum())} reused) in {time.perf_counter() - t0:.1f} s "
-        f"-> {Path(out) / 'report.md'}"
+    written = [Path(out) / n for n in ("report.md", "per_day.csv", "results.zarr")]
+    wrote(
+        "run",
+        *([p for p in written if p.exists()] or [out]),
+        detail=f"{campaign.name}: {n_ok}/{len(units)} recordings estimated, "
+        f"{int(units['skipped'].sum())} reused; {time.perf_counter() - t0:.1f} s",
     )
     failed = units[units["status"] != UnitStatus.OK]
     for r in failed.itertuples():
@@ -302,13 +402,16 @@ def demo(out: Path, duration_s: float = 120.0, seed: int = 1) -> Path:
     finally:
         outs.discard()
         shutil.rmtree(staging, ignore_errors=True)
+    wrote("demo", out / report.name, detail=f"figures and tables in {out}")
     return out / report.name
 
 
 def _demo_into(out: Path, duration_s: float, seed: int) -> Path:
+    from .fit import compare_with_reference, fit_reference
     from .frames import extract_recording
     from .io.recording import open_recording
     from .report.summary import write_demo_report
+    from .simulate import load_config
 
     t0 = time.perf_counter()
     console.print(
@@ -318,6 +421,7 @@ def _demo_into(out: Path, duration_s: float, seed: int) -> Path:
     sim = _demo_recording(out, duration_s, seed)
     t_sim = time.perf_counter() - t0
     t1 = time.perf_counter()
+    console.print("jaxdefl demo: extracting the plates from every simulated frame", markup=False)
     rec = open_recording(sim / "recording.zarr")
     traj = extract_recording(rec, realtime=False)
     write_trajectory(traj, out / "trajectories.csv")
@@ -326,33 +430,38 @@ def _demo_into(out: Path, duration_s: float, seed: int) -> Path:
     truth = read_trajectory(sim / "truth.csv")
     t1 = time.perf_counter()
     traj_v = read_trajectory(out / "trajectories.csv")
+    console.print("jaxdefl demo: fitting the whole record and 30-s windows", markup=False)
     whole = _estimate(traj_v, keep=tuple(range(3 * traj_v["plate"].nunique())))
     t_whole = time.perf_counter() - t1
     t1 = time.perf_counter()
     windowed = _estimate(traj_v, window_s=30.0)
     t_windowed = time.perf_counter() - t1
-    true_fit = _estimate(truth, axes=("z",), progress=False)
-    ref = fit_reference(lds, whole)
+    with status("jaxdefl demo: the simulator's truth and the LDS fitted ..."):
+        true_fit = _estimate(truth, axes=("z",), progress=False)
+        ref = fit_reference(lds, whole)
     comparison = compare_with_reference(whole.table, ref.table)
     write_estimates(whole.table, out / "estimates_whole.csv")
     write_estimates(windowed.table, out / "estimates_30s.csv")
-    uncertainty = check_uncertainty(windowed, out / "estimates_30s.csv", n_posterior=3, seed=seed)
+    with status("jaxdefl demo: emcee posteriors of 3 windows against the linearised σ's ..."):
+        uncertainty = check_uncertainty(windowed, out / "estimates_30s.csv", n_posterior=3, seed=seed)
     write_estimates(ref.table, out / "estimates_lds.csv")
     write_estimates(comparison, out / "comparison_lds.csv")
-    report = write_demo_report(
-        out,
-        rec,
-        traj_v,
-        whole,
-        windowed,
-        comparison,
-        true_fit.table,
-        uncertainty,
-        timings=dict(simulate_s=t_sim, extract_s=t_extract, fit_whole_s=t_whole, fit_windows_s=t_windowed),
-    )
-    console.print(
-        f"[bold]jaxdefl demo[/]: report in {out.parent / report.name} ({time.perf_counter() - t0:.1f} s)"
-    )
+    with status("jaxdefl demo: figures and summary.md ..."):
+        report = write_demo_report(
+            out,
+            rec,
+            traj_v,
+            whole,
+            windowed,
+            comparison,
+            true_fit.table,
+            uncertainty,
+            timings=dict(
+                simulate_s=t_sim, extract_s=t_extract, fit_whole_s=t_whole, fit_windows_s=t_windowed
+            ),
+            cfg=load_config(config_dir() / DEMO_CONFIG),
+        )
+    console.print(f"jaxdefl demo: done in {time.perf_counter() - t0:.1f} s", markup=False)
     return report
 
 
@@ -400,33 +509,6 @@ def _check_diagnosis_memory(df: pd.DataFrame, traj: Path, settings: DiagnoseSett
         )
 
 
-@contextmanager
-def _working(what: str, every_s: float = 20.0):
-    """A long phase is never silent: rich's spinner on a terminal; elsewhere a line when it
-    starts and one every ``every_s`` s while it lasts (stderr)."""
-    if console.is_terminal:
-        with console.status(f"{what} ..."):
-            yield
-        return
-    import threading
-
-    t0 = time.perf_counter()
-    done = threading.Event()
-    console.print(f"{what} ...", highlight=False, soft_wrap=True)
-
-    def beat() -> None:
-        while not done.wait(every_s):
-            console.print(f"{what} ... {time.perf_counter() - t0:.0f} s", highlight=False, soft_wrap=True)
-
-    thread = threading.Thread(target=beat, daemon=True)
-    thread.start()
-    try:
-        yield
-    finally:
-        done.set()
-        thread.join()
-
-
 def diagnose_file(
     traj: Path,
     out: Path,
@@ -449,7 +531,7 @@ def diagnose_file(
     outs.reserve(out.with_suffix(".md"), "the diagnosis report")
     settings = settings.with_camera(_camera_facts(config))
     # the tables as read: `run_diagnosis` validates them (once; validation sorts every row)
-    with _working(f"diagnose: reading {traj}"):
+    with status(f"diagnose: reading {traj}"):
         df = load_table(traj)
         ref = load_table(reference) if reference is not None else None
     _check_diagnosis_memory(df, traj, settings)
@@ -457,7 +539,7 @@ def diagnose_file(
     def on_round(r: int, eid: str | None) -> None:
         console.print(f"round {r + 1}: " + (f"located [bold]{eid}[/bold]" if eid else "nothing more to add"))
 
-    with _working("diagnose: validating, fitting the nominal model and searching the effects"):
+    with status("diagnose: validating, fitting the nominal model and searching the effects"):
         diag = run_diagnosis(
             df, ref, settings, source=str(traj), reference_source=str(reference), on_round=on_round
         )
@@ -479,9 +561,13 @@ def diagnose_file(
         outs.json(out, d)
         written = write_diagnosis_report(diag, d, out, outs, figures=figures)
     names = ", ".join(e["id"] for e in d["effects"]) or "none"
-    console.print(
-        f"effects: {names}; unexplained: {len(d['unexplained'])}; RMS {d['nominal']['rms_mm']:.4f} -> "
-        f"{d['final']['rms_mm']:.4f} mm; {diag.seconds:.1f} s -> {out}, {written[0]}"
+    wrote(
+        "diagnose",
+        *written,
+        out,
+        detail=f"effects: {names}; unnamed: {len(d.get('unnamed') or [])}; unexplained: "
+        f"{len(d['unexplained'])}; RMS {d['nominal']['rms_mm']:.4f} -> {d['final']['rms_mm']:.4f} mm; "
+        f"{diag.seconds:.1f} s",
     )
     return d
 
@@ -557,15 +643,14 @@ def reconcile_file(
     df = _reconcile_input(recording, settings.segment, timestamps)
     ref = read_reference(reference, timestamps=timestamps) if reference is not None else None
     settings = replace(settings, diagnosis=settings.diagnosis.with_camera(_camera_facts(config)))
-    with console.status("reconciling ...") as status:
-        status.update("reconcile: simulating and extracting a calibration clip ...")
+    with status("jaxdefl reconcile: simulating and extracting a calibration clip ...") as step:
         calibration = calibrate(cfg, seconds=10.0, seed=seed)
         rec = reconcile(
             df,
             ref,
             settings,
             source=str(recording),
-            on_step=lambda msg: status.update(f"reconcile: {msg} ..."),
+            on_step=lambda msg: step.update(f"jaxdefl reconcile: {msg} ..."),
             calibration=calibration,
         )
     if _is_frames(recording):
@@ -574,7 +659,7 @@ def reconcile_file(
         from .reconcile.frames import frame_levels
         from .simulate.injection import FRAME_LEVELS
 
-        with console.status("reconcile: comparing the frames with the frame simulator's ..."):
+        with status("jaxdefl reconcile: comparing the frames with the frame simulator's ..."):
             frames_policy = "reclock" if timestamps == "reclock" else "strict"
             shown = tuple(s for s in rec.specs if s.level in FRAME_LEVELS)
             rec.levels[:0] = frame_levels(
@@ -619,8 +704,15 @@ def reconcile_file(
             outs.figure(out / f"{level}.png", fig, dpi=110)
             figs.append(f"{level}.png")
             plt.close(fig)
-        outs.text(out / "report.md", reconcile_markdown(rec, d, figs, str(recording), str(config)))
+        outs.text(out / "report.md", reconcile_markdown(rec, d, figs, str(recording), str(config), str(out)))
     verdicts = ", ".join(f"{r['metric']} {r['verdict']}" for r in d["levels"])
     names = ", ".join(e["id"] for e in rec.effects) or "none"
-    console.print(f"effects: {names}; {verdicts} -> {out / 'report.md'}")
+    wrote(
+        "reconcile",
+        out / "report.md",
+        out / "reconcile.json",
+        out / "reconciled.toml",
+        *(out / f for f in figs),
+        detail=f"effects: {names}; {verdicts}",
+    )
     return d

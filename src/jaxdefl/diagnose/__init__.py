@@ -10,7 +10,16 @@ Public surface:
 - `EFFECT_IDS`, `load_effects()`: the library of candidate effects.
 """
 
-from ._search import ALPHA, DELTA_BIC_MAX, Diagnosis, diagnose, run_diagnosis
+from ._search import ALPHA, ALPHA_NAMED, DELTA_BIC_MAX, Diagnosis, diagnose, run_diagnosis
 from .effects import EFFECT_IDS, load_effects
 
-__all__ = ["ALPHA", "DELTA_BIC_MAX", "Diagnosis", "EFFECT_IDS", "diagnose", "load_effects", "run_diagnosis"]
+__all__ = [
+    "ALPHA",
+    "ALPHA_NAMED",
+    "DELTA_BIC_MAX",
+    "Diagnosis",
+    "EFFECT_IDS",
+    "diagnose",
+    "load_effects",
+    "run_diagnosis",
+]

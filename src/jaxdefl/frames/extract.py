@@ -198,21 +198,14 @@ def extract_recording(
     device: str | None = None,
 ) -> pd.DataFrame:
     """Stream a `jaxdefl.io.recording.Recording` through the extraction, chunk by chunk."""
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+    from ..progress import progress_bar
 
     rec = recording
     geo = PlateGeometry(rec.plate_x_mm, rec.camera_x_mm) if rec.plate_x_mm is not None else None
     ex = Extractor(rec.intrinsics, rec.kind, geo, realtime, source=str(rec.path), device=device)
     parts = []
-    with Progress(
-        TextColumn("extract {task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeRemainingColumn(),
-        disable=not progress,
-        transient=True,
-    ) as bar:
-        task = bar.add_task(rec.path.name, total=rec.n_frames)
+    with progress_bar(progress) as bar:
+        task = bar.add_task(f"extract {rec.path.name} (frames)", total=rec.n_frames)
         for ch in rec.chunks(chunk_frames):
             check_interrupt()
             cents, plates = ex.run(ch.frames, ch.amplitude)

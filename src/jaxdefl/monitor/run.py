@@ -35,6 +35,7 @@ import numpy as np
 from .._errors import ConfigError, InputError, Interrupted
 from .._signals import check_interrupt
 from ..io.output import Outputs, format_table
+from ..progress import wrote
 from ..settings import MonitorSettings
 from .detect import DetectorSettings
 from .engine import SNAPSHOT_COLUMNS, Monitor
@@ -327,16 +328,22 @@ def run_monitor(
         reason = f"interrupted ({err})"
         raise
     finally:
+        learning = _still_learning(mon)
         stop = {
             "event": "state",
             "state": "stopped",
             "t": mon.t_last if np.isfinite(mon.t_last) else None,
             "reason": reason,
             "frames": mon.frames,
-            "message": f"stopped: {reason}; {mon.frames} frames, {len(log.alarms)} alarm(s)",
+            "message": f"stopped: {reason}; {mon.frames} frames, {len(log.alarms)} alarm(s)"
+            + (f"; {learning}" if learning else ""),
         }
+        if learning:
+            stop["still_learning"] = True
         log.event(stop)
         disp.event(stop)
+        if learning:
+            print(f"jaxdefl monitor: warning: {learning}", file=sys.stderr, flush=True)
         if mon.started:
             log.rows(mon.snapshot())
         log.close()
@@ -348,6 +355,12 @@ def run_monitor(
             f"{source.name}: the source ended after {mon.frames} frames, before the monitor could start "
             f"(it fits the first {mon.init_s:g} s)"
         )
+    wrote(
+        "monitor",
+        *(out / n for n in OUTPUT_NAMES if (out / n).exists()),
+        detail=f"{mon.frames} frames, {len(log.alarms)} alarm(s); stopped: {reason}"
+        + ("; still learning" if learning else ""),
+    )
     tracked = max(mon.tracker.frames if mon.started else 0, 1)
     return {
         "frames": mon.frames,
@@ -355,6 +368,21 @@ def run_monitor(
         "update_ms_per_frame": 1e3 * mon.update_seconds / tracked,
         "reason": reason,
     }
+
+
+def _still_learning(mon: Monitor) -> str | None:
+    """Why no alarm could be raised, when the monitor never left ``learning``; else None."""
+    if not mon.started or mon.detector.state != "learning":
+        return None
+    st = mon.detector.settings
+    need_s = st.learn_blocks * st.block_s
+    have_s = len(mon.detector.learning) * st.block_s
+    return (
+        f"it never left `learning`, so no change could be alarmed: the references are learnt on "
+        f"{need_s / 60:g} min of data ({st.learn_blocks} blocks of --block {st.block_s:g} s) after "
+        f"the first {mon.init_s:g} s that start the tracker, and it had {have_s:.0f} s; give it at "
+        f"least {(mon.init_s + need_s) / 60:.1f} min of data"
+    )
 
 
 class _Reference:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import matplotlib
@@ -11,7 +12,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-__all__ = ["plot_effect", "diagnosis_markdown", "write_diagnosis_report"]
+from ..diagnose import ALPHA, ALPHA_NAMED, DELTA_BIC_MAX  # noqa: E402
+
+__all__ = ["Findings", "plot_effect", "diagnosis_markdown", "selection_rule", "write_diagnosis_report"]
 
 
 def _binned(t: np.ndarray, r: np.ndarray, nbins: int = 120):
@@ -88,9 +91,178 @@ def _fmt_param(v: dict) -> str:
     return str(val)
 
 
+def _where(u: dict) -> str:
+    return f"plates {', '.join(map(str, u['plates']))} ({', '.join(u['axes'])})"
+
+
+def _value(params: dict, name: str):
+    v = params.get(name)
+    return v.get("value") if isinstance(v, dict) else v
+
+
+@dataclass(frozen=True)
+class Findings:
+    """What a diagnosis found, as its report shows it: the summary sentence, the advice and the
+    tables are all written from this one structure, so they cannot disagree.
+
+    named: DIAG.json's ``effects``; unnamed: its generic terms; unexplained: the residual tests
+    that still fail; nominal_p, final_p: the whiteness p-values of the table; trajectory,
+    reference, config: what the next commands are run on.
+    """
+
+    named: tuple[dict, ...]
+    unnamed: tuple[dict, ...]
+    unexplained: tuple[dict, ...]
+    nominal_p: float
+    final_p: float
+    trajectory: str = "TRAJ.csv"
+    reference: str | None = None
+    config: str | None = None
+
+    @classmethod
+    def of(cls, d: dict) -> Findings:
+        s = d.get("settings") or {}
+        return cls(
+            named=tuple(d["effects"]),
+            unnamed=tuple(d.get("unnamed") or ()),
+            unexplained=tuple(d["unexplained"]),
+            nominal_p=float(d["nominal"]["whiteness_p"]),
+            final_p=float(d["final"]["whiteness_p"]),
+            trajectory=s.get("trajectory") or "TRAJ.csv",
+            reference=s.get("reference"),
+            config=s.get("config"),
+        )
+
+    @property
+    def nothing(self) -> bool:
+        """No term of any kind and no residual test failing: the nominal model suffices."""
+        return not (self.named or self.unnamed or self.unexplained) and self.nominal_p >= ALPHA
+
+    def summary(self) -> str:
+        """The report's one-sentence verdict."""
+        if self.nothing:
+            return (
+                "**No effect located**: the residuals are consistent with the nominal model "
+                f"(whiteness p = {self.nominal_p:.2g})."
+            )
+        parts = []
+        if self.named:
+            n = len(self.named)
+            parts.append(
+                f"**{n} effect{'s' if n > 1 else ''} located**: "
+                + ", ".join(f"`{e['id']}`" for e in self.named)
+            )
+        else:
+            parts.append("**No named effect**")
+        if self.unnamed:
+            m = len(self.unnamed)
+            big = max(self.unnamed, key=lambda u: u["rms_before_mm"] - u["rms_after_mm"])
+            parts.append(
+                f"{'and' if self.named else 'but'} {m} unnamed term{'s' if m > 1 else ''} outside the "
+                f"vocabulary ({', '.join(u['kind'] for u in self.unnamed)}; the largest, `{big['kind']}` "
+                f"on {_where(big)}, takes the residual RMS from {big['rms_before_mm']:.4g} to "
+                f"{big['rms_after_mm']:.4g} mm)"
+            )
+        elif not self.named:
+            parts.append(
+                f"but the nominal residuals are not white (whiteness p = {self.nominal_p:.2g})"
+                if self.nominal_p < ALPHA
+                else "but residual tests fail"
+            )
+        lead = ", ".join(parts)
+        if self.unexplained:
+            tail = (
+                f"Structure remains that no term models ({len(self.unexplained)} residual "
+                "test(s) fail): see *Unexplained structure*."
+            )
+        elif self.final_p < ALPHA:
+            tail = f"The final residuals are still not white (whiteness p = {self.final_p:.2g})."
+        else:
+            tail = f"The final residuals are white (whiteness p = {self.final_p:.2g})."
+        return f"{lead}. {tail} See *What to do next*."
+
+    def advice(self) -> list[str]:
+        """A sentence of advice and the next command for each finding that asks for one."""
+        traj = self.trajectory
+        stem = Path(traj).stem or "traj"
+        config = self.config or "CONFIG.toml"
+        out = []
+        if self.named:
+            out.append(
+                "Simulate the named physics and check that it accounts for the difference between "
+                f"the recording and its simulation: `jaxdefl reconcile {traj} --config {config} "
+                f"--out {stem}_reconcile`."
+            )
+        for u in self.unnamed:
+            out.append(_unnamed_advice(u, traj, stem, self.reference))
+        if self.unexplained or (not self.named and not self.unnamed and self.nominal_p < ALPHA):
+            what = "; ".join(sorted({u["description"] for u in self.unexplained})) or (
+                "the residual is not white noise"
+            )
+            out.append(
+                f"Structure that no term models ({what}): compare the recording with its simulation, "
+                "statistic by statistic, to see where it departs: "
+                f"`jaxdefl reconcile {traj} --config {config} --out {stem}_reconcile`."
+            )
+        return out
+
+
+def _unnamed_advice(u: dict, traj: str, stem: str, reference: str | None) -> str:
+    """One sentence of advice and the next command for an unnamed term, by its kind."""
+    where = _where(u)
+    par = u["parameters"]
+    if u["kind"] == "line":
+        f = _value(par, "freq_hz")
+        at = f" at {f:.4g} Hz" if isinstance(f, float) else ""
+        return (
+            f"`line`{at} on {where}: a vibration that is not the loading (a mode of the structure, a "
+            "machine nearby, the camera mount); fit it beside the loading line so it does not bias "
+            f"the estimates: `jaxdefl fit {traj} --lines 2 --out {stem}_lines.csv`."
+        )
+    if u["kind"] == "envelope":
+        if par.get("form") == "exponential":
+            return (
+                f"`envelope` on {where}: the motion dies away (a free decay); fit the damped model: "
+                f"`jaxdefl fit {traj} --model damped --out {stem}_damped.csv`."
+            )
+        return (
+            f"`envelope` on {where}: the loading amplitude changes during the record (a load ramp, a "
+            "changing stiffness); follow it in windows: "
+            f"`jaxdefl fit {traj} --window 30 --out {stem}_30s.csv`."
+        )
+    # trend: a slow change of the mean
+    if reference is None:
+        return (
+            f"`trend` on {where}: the mean wanders or steps (a camera warming up or moved, a support "
+            "settling); a reference sensor tells the camera's drift from the structure's: "
+            f"`jaxdefl diagnose {traj} --reference LDS.csv --out {stem}_diag.json`."
+        )
+    return (
+        f"`trend` on {where}: the mean wanders or steps although the reference does not (the camera "
+        "or its mount moved); windowed estimates take their own offset and are hardly affected: "
+        f"`jaxdefl fit {traj} --window 30 --out {stem}_30s.csv`."
+    )
+
+
+def selection_rule() -> str:
+    """How the search accepts a term, in words, with the levels it uses (`jaxdefl.diagnose`)."""
+    return (
+        "A named effect is accepted when its likelihood-ratio statistic 2 Δlog L (against AR(1) "
+        "noise for mean terms, frame-common noise discounted by its design effect) exceeds the χ² "
+        f"critical value at the family-wise level α = {ALPHA_NAMED:g} split over the effects "
+        "screened and the trials of the effect's own scan (Bonferroni: the look-elsewhere effect), "
+        "its signature's p-value passes the same level, and the RMS of the series it touches goes "
+        "down; BIC only chooses between competing explanations that pass. Structure the named "
+        "effects leave is then modelled by generic unnamed terms (line, envelope, trend), each "
+        f"kept when ΔBIC < {DELTA_BIC_MAX:g}. The final residuals are tested for whiteness at "
+        f"α = {ALPHA:g}; what fails is reported as unexplained."
+    )
+
+
 def diagnosis_markdown(d: dict, figures: list[str]) -> str:
     """The DIAG.json dict as a report a structural engineer can read."""
     inp, nom, fin = d["input"], d["nominal"], d["final"]
+    found = Findings.of(d)
     lines = [
         "# Diagnosis: what the nominal model leaves out",
         "",
@@ -104,24 +276,26 @@ def diagnosis_markdown(d: dict, figures: list[str]) -> str:
         )
         + ".",
         "",
+        found.summary(),
+        "",
         "The nominal model is the thesis' harmonic (eq. 5.29) per plate and axis plus white noise; "
         "with a reference, the camera's z of a plate with an LDS is expected to move exactly as the LDS "
-        "(only its offset is free). Effects are added one at a time when the Bayesian information "
-        "criterion improves by more than 10 (ΔBIC < −10) and their signature test survives the "
-        "multiple-testing correction; RMS is the likelihood-equivalent noise σ over the series an effect "
-        "touches (the plain residual RMS for mean terms).",
+        "(only its offset is free). " + selection_rule() + " RMS is the likelihood-equivalent noise σ "
+        "over the series a term touches (the plain residual RMS for mean terms).",
         "",
         "| | RMS (mm) | BIC | whiteness p |",
         "|---|---|---|---|",
-        f"| nominal | {nom['rms_mm']:.4f} | {nom['bic']:.1f} | {nom['whiteness_p']:.3g} |",
-        f"| final | {fin['rms_mm']:.4f} | {fin['bic']:.1f} | {fin['whiteness_p']:.3g} |",
+        f"| nominal | {nom['rms_mm']:.4f} | {nom['bic']:.1f} | {found.nominal_p:.3g} |",
+        f"| final | {fin['rms_mm']:.4f} | {fin['bic']:.1f} | {found.final_p:.3g} |",
         "",
     ]
-    if not d["effects"] and d["unexplained"]:
-        lines += ["**No effect located**, but the residuals are not white: see *Unexplained structure*.", ""]
-    elif not d["effects"]:
-        lines += ["**No effect located**: the residuals are consistent with the nominal model.", ""]
-    for k, e in enumerate(d["effects"]):
+    for k, e in enumerate(found.named):
+        test = (
+            f"2 Δlog L {e['lr']:.1f} against {e['lr_critical']:.1f} (χ² with {e.get('lr_dof', '?')} dof, "
+            f"{e.get('trials', 1):.0f} trials), "
+            if e.get("lr") is not None and e.get("lr_critical") is not None
+            else ""
+        )
         lines += [
             f"## {k + 1}. `{e['id']}`",
             "",
@@ -130,19 +304,18 @@ def diagnosis_markdown(d: dict, figures: list[str]) -> str:
             f"- where: plates {', '.join(map(str, e['plates']))}, axes {', '.join(e['axes'])}, "
             f"t {e['t_start']:.3f} – {e['t_end']:.3f} s"
             + (f", band {e['band_hz'][0]:.4f} – {e['band_hz'][1]:.4f} Hz" if e.get("band_hz") else ""),
-            f"- evidence: ΔBIC {e['delta_bic']:.1f}, signature p {e['p_value']:.2g}; RMS "
+            f"- evidence: {test}signature p {e['p_value']:.2g}, ΔBIC {e['delta_bic']:.1f}; RMS "
             f"{e['rms_before_mm']:.4f} → {e['rms_after_mm']:.4f} mm",
             "- parameters: " + "; ".join(f"{name} = {_fmt_param(v)}" for name, v in e["parameters"].items()),
         ]
         if k < len(figures):
             lines += ["", f"![{e['id']}]({figures[k]})"]
         lines.append("")
-    if d.get("unnamed"):
+    if found.unnamed:
         lines += ["## Structure outside the vocabulary (unnamed, modelled)", ""]
-        for u in d["unnamed"]:
-            where = f"plates {', '.join(map(str, u['plates']))} ({', '.join(u['axes'])})"
+        for u in found.unnamed:
             lines += [
-                f"- `{u['kind']}` on {where}: {u['explanation']}",
+                f"- `{u['kind']}` on {_where(u)}: {u['explanation']}",
                 f"  ΔBIC {u['delta_bic']:.1f}; residual RMS {u['rms_before_mm']:.4g} → "
                 f"{u['rms_after_mm']:.4g} mm; "
                 + "; ".join(
@@ -151,13 +324,16 @@ def diagnosis_markdown(d: dict, figures: list[str]) -> str:
                 ),
             ]
         lines.append("")
-    if d["unexplained"]:
+    if found.unexplained:
         lines += ["## Unexplained structure", ""]
-        for u in d["unexplained"]:
-            where = f"plates {', '.join(map(str, u['plates']))} ({', '.join(u['axes'])})"
+        for u in found.unexplained:
             band = f", near {0.5 * (u['band_hz'][0] + u['band_hz'][1]):.4f} Hz" if u.get("band_hz") else ""
-            lines.append(f"- {u['description']}: {where}{band}, p = {u['p_value']:.2g} (test `{u['test']}`)")
+            lines.append(
+                f"- {u['description']}: {_where(u)}{band}, p = {u['p_value']:.2g} (test `{u['test']}`)"
+            )
         lines.append("")
+    if advice := found.advice():
+        lines += ["## What to do next", ""] + [f"- {a}" for a in advice] + [""]
     if d["cannot_tell"]:
         lines += ["## Cannot tell", ""]
         lines += [f"- `{c['id']}`: {c['reason']}" for c in d["cannot_tell"]]

@@ -15,14 +15,31 @@ from ..spectral import THESIS_ALPHAS, significance_level  # noqa: E402
 __all__ = ["plot_fit", "plot_frame", "plot_periodogram"]
 
 
+# the significance lines, from the strictest (highest) down: ordered colours of one sequential
+# map and a line style each, so that lines a few tenths apart stay apart in print and in grey
+_LEVEL_STYLES = ("-", "--", "-.", ":", (0, (5, 1.5)), (0, (3, 1, 1, 1, 1, 1)))
+
+
 def plot_periodogram(freq_hz, power, n_indep, path: Path, title: str = "", alphas=THESIS_ALPHAS):
-    """Lomb normalised periodogram with the thesis' significance levels (as in its Fig. 5.16)."""
-    fig, ax = plt.subplots(figsize=(7, 3.6), constrained_layout=True)
-    ax.semilogy(freq_hz, np.maximum(power, 1e-3), lw=0.7, color="k")
-    for a in alphas:
+    """Lomb normalised periodogram with the thesis' significance levels (as in its Fig. 5.16).
+
+    The levels are drawn from the strictest α down, each in its own colour (ordered along one
+    colour map) and line style, and the legend, outside the axes, lists them in that order with
+    the power each one stands at."""
+    fig, ax = plt.subplots(figsize=(8, 3.6), constrained_layout=True)
+    ax.semilogy(freq_hz, np.maximum(power, 1e-3), lw=0.7, color="k", label="$P_N$")
+    ordered = sorted(alphas)
+    cmap = plt.get_cmap("plasma")
+    for k, a in enumerate(ordered):
         z = float(significance_level(a, n_indep))
-        ax.axhline(z, ls="--", lw=0.8, color=plt.cm.viridis(a / max(alphas)), label=f"α = {a:g}")
-    ax.legend(fontsize=7, loc="upper right", ncol=2, title="significance", title_fontsize=7)
+        ax.axhline(
+            z,
+            ls=_LEVEL_STYLES[k % len(_LEVEL_STYLES)],
+            lw=1.1,
+            color=cmap(0.85 * k / max(len(ordered) - 1, 1)),
+            label=f"α = {a:g} ($P_N$ = {z:.1f})",
+        )
+    fig.legend(fontsize=7, loc="outside right upper", title="significance", title_fontsize=7)
     ax.set_xlabel("frequency (Hz)")
     ax.set_ylabel("normalised power $P_N$")
     ax.set_title(title, fontsize=9)

@@ -2,13 +2,18 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from pathlib import Path
+
 import matplotlib
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-__all__ = ["plot_level", "reconcile_markdown"]
+from .diagnosis import selection_rule  # noqa: E402
+
+__all__ = ["ReconcileFindings", "plot_level", "reconcile_markdown"]
 
 _MEANING = {
     "noise_mm": "short-term noise of the residual",
@@ -52,9 +57,13 @@ def _frames_lines(rec) -> list[str]:
 
 
 def plot_level(rec, level: str):
-    """Bars of the distances before and after, with the null band, for one level's metrics."""
+    """Bars of the distances before and after, with the null band, for one level's metrics.
+
+    The figure is wide enough for its title with a single metric, the y range leaves headroom
+    above the tallest bar (a symlog axis autoscales flush with it), and the legend sits below
+    the axes, where it hides no bar."""
     rows = [r for r in rec.levels if r["level"] == level]
-    fig, ax = plt.subplots(figsize=(1.6 + 1.3 * len(rows), 3.4), constrained_layout=True)
+    fig, ax = plt.subplots(figsize=(max(5.0, 1.6 + 1.3 * len(rows)), 3.8), constrained_layout=True)
     x = np.arange(len(rows))
     before = [r["before"] for r in rows]
     after = [r["after"] for r in rows]
@@ -66,9 +75,13 @@ def plot_level(rec, level: str):
     ax.plot([], [], "k--", label="null band (95 %)")
     ax.set_xticks(x, [r["metric"] for r in rows], rotation=20)
     ax.set_yscale("symlog", linthresh=1e-3)
+    values = np.array([v for v in before + after + null if v is not None], float)
+    top = float(np.nanmax(values[np.isfinite(values)])) if np.isfinite(values).any() else 1.0
+    ax.set_ylim(0.0, max(top, 1e-3) * 3.0)  # headroom: half a decade above the tallest bar
+    ax.set_xlim(-0.6, len(rows) - 0.4)
     ax.set_ylabel("distance recording - simulation")
-    ax.set_title(f"{level}: recording against simulation")
-    ax.legend(fontsize=7)
+    ax.set_title(f"{level}: recording against simulation", fontsize=10)
+    fig.legend(fontsize=7, loc="outside lower center", ncol=3, frameon=False)
     return fig
 
 
@@ -78,28 +91,174 @@ def _num(v) -> str:
     return str(v)
 
 
-def reconcile_markdown(rec, d: dict, figures: list[str], recording: str, config: str) -> str:
+# what to do about a metric that stays apart: a sentence of advice and the next command
+# ({rec}: the recording, {cfg}: its config, {out}: the reconcile folder, {stem}: a name)
+_ADVICE = {
+    "noise_mm": (
+        "the residual's short-term noise is not the simulated camera's: set the config's camera "
+        "noise (`noise_scale`, `modulation_mhz`, `integration_time_ms`) to the recording's level and "
+        "reconcile again",
+        "jaxdefl reconcile {rec} --config {out}/reconciled.toml --out {out}_2",
+    ),
+    "slow_mm": (
+        "a slow residual (a drift, a jump, a camera moved) that the named effects do not reproduce: "
+        "the diagnosis' unnamed `trend` terms say where; a reference sensor tells the camera's "
+        "drift from the structure's",
+        "jaxdefl diagnose {rec} --reference LDS.csv --out {stem}_diag.json",
+    ),
+    "line_ratio": (
+        "lines in the residual spectrum that the simulation lacks (a mode, a machine nearby): the "
+        "diagnosis' unnamed `line` terms give their frequencies; fit them beside the loading",
+        "jaxdefl fit {rec} --lines 2 --out {stem}_lines.csv",
+    ),
+    "frame_common": (
+        "the plates of a frame share more (or less) noise than the simulated camera's: set the "
+        "config's `centroid_residual_mm` and `correlated_spatial_fraction` to the recording's and "
+        "reconcile again",
+        "jaxdefl reconcile {rec} --config {out}/reconciled.toml --out {out}_2",
+    ),
+    "outlier_rate": (
+        "the recording has more samples beyond 4.5 σ than its simulation (mixed pixels at plate "
+        "edges, drop-outs read as positions): look at where they fall in the diagnosis",
+        "jaxdefl diagnose {rec} --out {stem}_diag.json",
+    ),
+    "envelope": (
+        "the harmonic's amplitude or phase changes from window to window more than simulated (a "
+        "load ramp, a changing stiffness): follow it in windows",
+        "jaxdefl fit {rec} --window 30 --out {stem}_30s.csv",
+    ),
+    "range_noise": (
+        "the camera's pixel range noise is not the configured sensor's: set the config's noise "
+        "(`modulation_mhz`, `integration_time_ms`, `noise_scale`) first, it changes every other level",
+        "jaxdefl reconcile {rec} --config {out}/reconciled.toml --out {out}_2",
+    ),
+    "valid_share": (
+        "the share of valid pixel ranges differs from the simulated camera's (saturation, low "
+        "amplitude, multipath): check the camera's standoff and the scene in the config",
+        "jaxdefl reconcile {rec} --config {out}/reconciled.toml --out {out}_2",
+    ),
+}
+
+
+@dataclass(frozen=True)
+class ReconcileFindings:
+    """What a reconciliation found, as its report shows it: the summary sentence, the advice and
+    the tables are all written from this one structure.
+
+    rows: the levels' metrics with their verdicts; named: the effects simulated or not;
+    unnamed, unexplained: what the diagnosis found outside the vocabulary; recording, config,
+    out: what the next commands are run on.
+    """
+
+    rows: tuple[dict, ...]
+    named: tuple[dict, ...]
+    unnamed: tuple[dict, ...]
+    unexplained: tuple[dict, ...]
+    recording: str = "RECORDING"
+    config: str = "CONFIG.toml"
+    out: str = "reconcile_out"
+
+    @classmethod
+    def of(cls, rec, d: dict, recording: str, config: str, out: str = "reconcile_out") -> ReconcileFindings:
+        rows = tuple({**r, "verdict": r.get("verdict") or rec.verdict(r)} for r in rec.levels)
+        diag = rec.diagnosis or {}
+        return cls(
+            rows=rows,
+            named=tuple(rec.effects),
+            unnamed=tuple(diag.get("unnamed") or ()),
+            unexplained=tuple(d.get("unexplained") or diag.get("unexplained") or ()),
+            recording=recording,
+            config=config,
+            out=out,
+        )
+
+    def metrics(self, verdict: str) -> list[str]:
+        return list(dict.fromkeys(r["metric"] for r in self.rows if r["verdict"] == verdict))
+
+    def summary(self) -> str:
+        apart, fixed = self.metrics("still apart"), self.metrics("reconciled")
+        named = ", ".join(f"`{e['id']}`" for e in self.named)
+        if apart:
+            n = len(dict.fromkeys(r["metric"] for r in self.rows if r["verdict"] != "not measured"))
+            text = (
+                f"**Still apart**: {len(apart)} of {n} metrics ({', '.join(apart)}) stay outside their "
+                "null band"
+                + (
+                    f" with the named effects ({named}) simulated"
+                    if named
+                    else "; the diagnosis named no effect"
+                )
+            )
+        elif fixed:
+            text = (
+                f"**Reconciled**: every metric that differed ({', '.join(fixed)}) is back inside its "
+                f"null band with the named effects ({named or 'none'}) simulated"
+            )
+        else:
+            text = "**Agreed already**: every metric measured is inside its null band as set up"
+        if self.unnamed:
+            m = len(self.unnamed)
+            text += (
+                f"; the diagnosis also modelled {m} unnamed term{'s' if m > 1 else ''} outside the "
+                f"vocabulary ({', '.join(u['kind'] for u in self.unnamed)}), which the simulation does "
+                "not reproduce"
+            )
+        if self.unexplained:
+            text += f"; {len(self.unexplained)} residual structure(s) stay unexplained"
+        return text + "." + (" See *What to do next*." if self.advice() else "")
+
+    def advice(self) -> list[str]:
+        fill = dict(
+            rec=self.recording, cfg=self.config, out=self.out, stem=Path(self.recording).stem or "rec"
+        )
+        out = []
+        for m in self.metrics("still apart"):
+            sentence, cmd = _ADVICE.get(
+                m,
+                (
+                    "a statistic the simulation does not reproduce",
+                    "jaxdefl diagnose {rec} --out {stem}_diag.json",
+                ),
+            )
+            out.append(f"`{m}`: {sentence}: `{cmd.format(**fill)}`.")
+        if self.unnamed and not self.metrics("still apart"):
+            out.append(
+                "The unnamed terms are not simulated; read them in the diagnosis: "
+                f"`jaxdefl diagnose {fill['rec']} --out {fill['stem']}_diag.json`."
+            )
+        return out
+
+
+def reconcile_markdown(rec, d: dict, figures: list[str], recording: str, config: str, out: str = "") -> str:
+    """The reconcile report; its summary, advice and tables come from one `ReconcileFindings`."""
+    found = ReconcileFindings.of(rec, d, recording, config, out or "reconcile_out")
     lines = [
         "# jaxdefl reconcile",
+        "",
+        found.summary(),
         "",
         f"Recording `{recording}` against the simulation of `{config}` (the same frame times, plates "
         f"and fitted harmonics, f0 = {rec.f0_hz:.6f} Hz, white noise at each series' level). Each "
         "distance is the recording's against the simulation's statistics; the null band is the "
-        "95th percentile of the same distance between repeated simulations.",
+        "95th percentile of the same distance between repeated simulations. The effects are those "
+        "the diagnosis names (`jaxdefl diagnose`): " + selection_rule(),
         "",
         "| level | metric | what it measures | before | after | null 95 % | verdict |",
         "|---|---|---|---|---|---|---|",
     ]
-    for r in rec.levels:
+    for r in found.rows:
         lines.append(
             f"| {r['level']} | {r['metric']} | {_MEANING.get(r['metric'], '')} | {r['before']:.4g} | "
-            f"{r['after']:.4g} | {r['null_95']:.4g} | {rec.verdict(r)} |"
+            f"{r['after']:.4g} | {r['null_95']:.4g} | {r['verdict']} |"
         )
     lines += _frames_lines(rec)
     lines += ["", "## Physics named by the diagnosis", ""]
-    if not rec.effects:
-        lines.append("None: the diagnosis found nothing beyond the nominal model.")
-    for e in rec.effects:
+    if not found.named:
+        lines.append(
+            "None of the vocabulary"
+            + (": see the unnamed structure below." if found.unnamed or found.unexplained else ".")
+        )
+    for e in found.named:
         params = ", ".join(f"{k} = {_num(v)}" for k, v in e["parameters"].items() if v is not None)
         lines.append(
             f"- **{e['id']}** (plates {', '.join(map(str, e['plates'])) or 'all'}; ΔBIC "
@@ -108,27 +267,27 @@ def reconcile_markdown(rec, d: dict, figures: list[str], recording: str, config:
         )
         if e.get("explanation"):
             lines.append(f"  {e['explanation']}")
-    unexplained = d.get("unexplained", [])
-    if unexplained:
-        lines += ["", "## Structure the vocabulary does not explain", ""]
-        for u in unexplained:
-            lines.append(f"- {u}")
-    apart = [r["metric"] for r in rec.levels if rec.verdict(r) == "still apart"]
+    if found.unnamed or found.unexplained:
+        lines += ["", "## Structure the vocabulary does not name (not simulated)", ""]
+        for u in found.unnamed:
+            lines.append(f"- unnamed `{u['kind']}`: {u.get('explanation', '')}")
+        for u in found.unexplained:
+            lines.append(f"- unexplained: {_unexplained_text(u)}")
+    lines += ["", "## What to do next", ""]
+    lines += [f"- {a}" for a in found.advice()] or [
+        "- Nothing: the simulation with the named physics reproduces the recording."
+    ]
     lines += [
-        "",
-        "## Reading it",
-        "",
-        (
-            "Every metric that differed is back inside its null band: the simulation with the named "
-            "physics reproduces the recording."
-            if not apart
-            else f"Still outside the null band: {', '.join(apart)}. The named effects do not account for "
-            "all of the difference there; either their simulated form is simpler than the recording's "
-            "(e.g. one amplitude for every plate), or physics outside the vocabulary is at work."
-        ),
         "",
         f"The reconciled simulation config is `{d['config']}` (`jaxdefl simulate {d['config']} --out DIR`).",
         "",
     ]
     lines += [f"![{f}]({f})" for f in figures]
     return "\n".join(lines) + "\n"
+
+
+def _unexplained_text(u) -> str:
+    if not isinstance(u, dict):
+        return str(u)
+    where = f"plates {', '.join(map(str, u.get('plates', [])))} ({', '.join(u.get('axes', []))})"
+    return f"{u.get('description', u.get('test', ''))}: {where}, p = {u.get('p_value', float('nan')):.2g}"

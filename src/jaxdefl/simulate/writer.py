@@ -264,7 +264,8 @@ def simulate_to_dir(
 def _write_recording(cfg: SimConfig, outs: Outputs, out: Path, duration: float, seed: int, progress: bool):
     """Render and write everything to the temporary paths of ``outs`` (committed by the caller)."""
     import zarr
-    from rich.progress import BarColumn, Progress, TextColumn, TimeRemainingColumn
+
+    from ..progress import progress_bar
 
     effective = cfg.to_dict()
     effective["recording"]["duration_s"] = duration
@@ -306,15 +307,8 @@ def _write_recording(cfg: SimConfig, outs: Outputs, out: Path, duration: float, 
     nblocks = int(np.ceil(duration / LDS_BLOCK_S))
     _append_csv(lds_block(cfg, seed, 0, 0.0), lds_path, True)
     lds_done = 0
-    with Progress(
-        TextColumn("simulate {task.description}"),
-        BarColumn(),
-        TextColumn("{task.completed}/{task.total} frames"),
-        TimeRemainingColumn(),
-        disable=not progress,
-        transient=True,
-    ) as bar:
-        task = bar.add_task(f"{cfg.camera.sensor} {cfg.recording.segment}", total=len(idx))
+    with progress_bar(progress) as bar:
+        task = bar.add_task(f"simulate {cfg.camera.sensor} {cfg.recording.segment} (frames)", total=len(idx))
         for s in range(0, len(idx), chunk):
             check_interrupt()
             fi, ti = idx[s : s + chunk], t[s : s + chunk]
