@@ -458,3 +458,22 @@ def test_echo_and_one_line_bound_any_text():
     assert len(line) <= MESSAGE_CHARS and "\n" not in line and "\x00" not in line
     assert line.startswith("a b\\x00") and line.endswith(f"(message cut at {MESSAGE_CHARS} characters)")
     assert one_line("short") == "short"
+
+
+# -- diagnose on long records -----------------------------------------------------------------
+
+
+def test_diagnose_says_its_phases_and_refuses_more_memory_than_available(work, capsys, monkeypatch):
+    import jaxdefl._resources as res
+
+    args = ["diagnose", work / "traj.csv", "--out", work / "d.json", "--effects", "drift", "--no-figures"]
+    monkeypatch.setattr(res, "available_memory", lambda: 1 << 20)
+    code, err = run_cli(args, capsys)
+    assert code == 2 and len(err) == 1, err
+    assert "diagnosing 2,3" in err[0] and "1.0 MiB are available" in err[0] and "--segment" in err[0], err
+    assert not (work / "d.json").exists()
+    monkeypatch.setattr(res, "available_memory", lambda: None)
+    capsys.readouterr()
+    assert main([str(a) for a in args]) == 0
+    text = capsys.readouterr().err  # not a terminal: each long phase says it starts
+    assert "diagnose: reading" in text and "diagnose: validating, fitting the nominal model" in text

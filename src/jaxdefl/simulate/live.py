@@ -24,6 +24,7 @@ import numpy as np
 import pandas as pd
 
 from .._errors import ConfigError, ParameterError
+from .._resources import check_disk
 from .._signals import check_interrupt
 from .config import SimConfig, load_config
 from .injection import measurement_faults
@@ -70,6 +71,9 @@ def camera_blocks(
         yield t, xyz + noise
 
 
+_CSV_BYTES_PER_ROW = 80  # segment, t to the microsecond, plate, x, y, z to 6 decimals
+
+
 def write_live(
     config: Path | str,
     out_dir: Path | str,
@@ -88,14 +92,18 @@ def write_live(
     """
     cfg = load_config(config, session)
     duration = cfg.recording.duration_s if duration_s is None else float(duration_s)
-    if not np.isfinite(duration) or duration < 0:
-        raise ParameterError("duration_s", f"expected a duration >= 0 s, got {duration:g}")
+    if not np.isfinite(duration) or duration <= 0:
+        raise ParameterError("duration_s", f"expected a duration > 0 s, got {duration:g}")
     if not np.isfinite(speed) or speed <= 0:
         raise ParameterError("speed", f"expected a factor > 0, got {speed:g}")
     seed = cfg.recording.seed if seed is None else int(seed)
     out = Path(out_dir)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out}: is a file; expected a directory")
+    rows = int(duration * cfg.camera.frame_rate_hz) * cfg.plates.count
+    check_disk(
+        _CSV_BYTES_PER_ROW * rows, out, f"--duration {duration:g}: {rows:,} rows", "a shorter duration"
+    )
     out.mkdir(parents=True, exist_ok=True)
     path = out / "trajectory.csv"
     per = max(1, int(round(cfg.camera.frame_rate_hz)))
