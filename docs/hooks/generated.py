@@ -171,9 +171,7 @@ def effect_reference() -> str:
         params = "<br>".join(_param_text(p) for p in entry.params)
         d = diagnosed.get(eid)
         told = "no" if d is None else ("yes, against an LDS" if d.needs_reference else "yes")
-        out.append(
-            f"| `{eid}` {{ #{eid} }} | {entry.level} | {params} | {_cell(entry.meaning)} | {told} |"
-        )
+        out.append(f"| `{eid}` {{ #{eid} }} | {entry.level} | {params} | {_cell(entry.meaning)} | {told} |")
     only = [eid for eid in EFFECT_IDS if eid not in REGISTRY]
     out += [
         "",
