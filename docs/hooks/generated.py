@@ -100,7 +100,6 @@ def cli_reference() -> str:
     from jaxdefl.cli import app
 
     root = typer.main.get_command(app)
-    root_ctx = root.context_class(root, info_name="jaxdefl")
     out = [
         "Generated from the command tree of `jaxdefl.cli` at build time; "
         "`jaxdefl COMMAND --help` prints the same.",
@@ -117,8 +116,10 @@ def cli_reference() -> str:
     commands = getattr(root, "commands", {})
     out += ["", "Commands: " + ", ".join(f"[`{n}`](#{n})" for n in commands), ""]
     for name, cmd in commands.items():
-        ctx = cmd.context_class(cmd, info_name=name, parent=root_ctx)
-        usage = " ".join(["jaxdefl", name, *cmd.collect_usage_pieces(ctx)])
+        args = [
+            p.name.upper() if p.required else f"[{p.name.upper()}]" for p in cmd.params if _is_argument(p)
+        ]
+        usage = " ".join(["jaxdefl", name, "[OPTIONS]", *args])
         out += [f"## `{name}` {{ #{name} }}", "", "```text", usage, "```", ""]
         if cmd.help:
             out += [cmd.help.strip(), ""]
