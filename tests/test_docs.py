@@ -198,3 +198,45 @@ def test_readme_is_a_front_page_whose_links_resolve():
     assert local, "the README links into the docs"
     for link in local:
         assert (ROOT / link).exists(), link
+
+
+def _documented_calls():
+    """(file, command, flags) of every `jaxdefl COMMAND ...` line in the README's and the docs'
+    bash blocks (continuation lines of a usage block included)."""
+    files = [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]
+    for path in files:
+        for block in re.findall(r"```bash\n(.*?)```", path.read_text(), flags=re.S):
+            command = None
+            for line in block.splitlines():
+                code = line.split("#", 1)[0]
+                m = re.match(r"\s*(?:\S+=\S+\s+)?jaxdefl\s+(?:--debug\s+)?([a-z]+)", code)
+                if m:
+                    command = m.group(1)
+                elif not line.startswith(" "):
+                    command = None
+                if command is not None:
+                    for segment in code.split("&&"):
+                        if "jaxdefl" in segment and not re.search(
+                            rf"jaxdefl\s+(--debug\s+)?{command}\b", segment
+                        ):
+                            continue
+                        yield (
+                            path.relative_to(ROOT),
+                            command,
+                            re.findall(r"(?<![\w-])--[a-z][a-z-]*", segment),
+                        )
+
+
+def test_documented_commands_and_flags_exist():
+    import typer
+
+    from jaxdefl.cli import app
+
+    commands = typer.main.get_command(app).commands
+    calls = list(_documented_calls())
+    assert len(calls) > 20
+    for path, command, flags in calls:
+        assert command in commands, (path, command)
+        known = {o for p in commands[command].params for o in (*p.opts, *p.secondary_opts)}
+        unknown = set(flags) - known - {"--debug", "--help"}
+        assert not unknown, (str(path), command, sorted(unknown))
