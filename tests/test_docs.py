@@ -200,6 +200,10 @@ def test_readme_is_a_front_page_whose_links_resolve():
         assert (ROOT / link).exists(), link
 
 
+_CALL = re.compile(r"\s*(?:\S+=\S+\s+)?jaxdefl\s+(?:--debug\s+)?([a-z]+)")
+_FLAG = re.compile(r"(?<![\w-])--[a-z][a-z-]*")
+
+
 def _documented_calls():
     """(file, command, flags) of every `jaxdefl COMMAND ...` line in the README's and the docs'
     bash blocks (continuation lines of a usage block included)."""
@@ -209,22 +213,16 @@ def _documented_calls():
             command = None
             for line in block.splitlines():
                 code = line.split("#", 1)[0]
-                m = re.match(r"\s*(?:\S+=\S+\s+)?jaxdefl\s+(?:--debug\s+)?([a-z]+)", code)
-                if m:
+                if m := _CALL.match(code):
                     command = m.group(1)
                 elif not line.startswith(" "):
                     command = None
-                if command is not None:
-                    for segment in code.split("&&"):
-                        if "jaxdefl" in segment and not re.search(
-                            rf"jaxdefl\s+(--debug\s+)?{command}\b", segment
-                        ):
-                            continue
-                        yield (
-                            path.relative_to(ROOT),
-                            command,
-                            re.findall(r"(?<![\w-])--[a-z][a-z-]*", segment),
-                        )
+                if command is None:
+                    continue
+                for segment in code.split("&&"):  # `jaxdefl simulate ... && jaxdefl reconcile ...`
+                    if (m := _CALL.match(segment)) and m.group(1) != command:
+                        continue
+                    yield path.relative_to(ROOT), command, _FLAG.findall(segment)
 
 
 def test_documented_commands_and_flags_exist():
