@@ -21,7 +21,7 @@ stacked frames; the erosion
 by `erode` (kornia, a row then a column) and by kornia with the 3x3 square at once; index
 lists by `flat_indices` (numpy on the CPU) and torch's `nonzero`.
 
-Figures: see README.md (Extracting the plates), measured with the command above.
+Figures: see docs/benchmarks.md (Extraction), measured with the command above.
 """
 
 from __future__ import annotations

@@ -601,7 +601,7 @@ def model_columns(
     tab: pd.DataFrame, fit: HarmonicFit, spec: SignalModel, kappa: np.ndarray | None = None
 ) -> tuple[pd.DataFrame, list[str]]:
     """The estimates table of a `SignalModel`: the default columns describe the first
-    component, and each further component gets its own (see README, "Signal models").
+    component, and each further component gets its own (see docs/guide/fit-models.md).
 
     ``tab`` has ``t_start``, ``t_mid``, ``t_centre``, ``n`` and ``status`` (a windows table).
     Phases are at ``t_mid``; for a damped model the amplitude and phase are the initial ones, at
