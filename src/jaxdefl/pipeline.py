@@ -531,7 +531,7 @@ def diagnose_file(
     outs.reserve(out.with_suffix(".md"), "the diagnosis report")
     settings = settings.with_camera(_camera_facts(config))
     # the tables as read: `run_diagnosis` validates them (once; validation sorts every row)
-    with status(f"diagnose: reading {traj}"):
+    with status(f"jaxdefl diagnose: reading {traj}"):
         df = load_table(traj)
         ref = load_table(reference) if reference is not None else None
     _check_diagnosis_memory(df, traj, settings)
@@ -539,7 +539,7 @@ def diagnose_file(
     def on_round(r: int, eid: str | None) -> None:
         console.print(f"round {r + 1}: " + (f"located [bold]{eid}[/bold]" if eid else "nothing more to add"))
 
-    with status("diagnose: validating, fitting the nominal model and searching the effects"):
+    with status(f"jaxdefl diagnose: {traj} against the nominal model ..."):
         diag = run_diagnosis(
             df, ref, settings, source=str(traj), reference_source=str(reference), on_round=on_round
         )
