@@ -476,4 +476,4 @@ def test_diagnose_says_its_phases_and_refuses_more_memory_than_available(work, c
     capsys.readouterr()
     assert main([str(a) for a in args]) == 0
     text = capsys.readouterr().err  # not a terminal: each long phase says it starts
-    assert "diagnose: reading" in text and "diagnose: validating, fitting the nominal model" in text
+    assert "jaxdefl diagnose: reading" in text and "against the nominal model" in text
