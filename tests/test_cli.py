@@ -357,3 +357,14 @@ def test_pyproject_licence_is_spdx_so_setuptools_prints_no_deprecation(monkeypat
     assert not setuptools.specifier.contains(Version("76.9")) and setuptools.specifier.contains(
         Version("77.0")
     )
+
+
+def test_fit_of_a_shuffled_table_with_reclock_equals_the_ordered_fit(recording, capsys):
+    traj = pd.read_csv(recording / "traj.csv")
+    traj.sample(frac=1.0, random_state=4).to_csv(recording / "shuffled.csv", index=False)
+    args = ["--axes", "z", "--timestamps", "reclock"]
+    assert main(["fit", str(recording / "shuffled.csv"), "--out", str(recording / "a.csv"), *args]) == 0
+    assert "sorted by t within their plate" in " ".join(capsys.readouterr().err.split())
+    assert main(["fit", str(recording / "traj.csv"), "--out", str(recording / "b.csv"), *args]) == 0
+    a, b = pd.read_csv(recording / "a.csv"), pd.read_csv(recording / "b.csv")
+    pd.testing.assert_frame_equal(a, b)
