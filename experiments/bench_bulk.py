@@ -120,11 +120,12 @@ print(json.dumps({"run_s": run_s, "in_process_s": time.perf_counter() - t_start,
 """
 
 
-def run(cfg: Path, out: Path, scheduler: str) -> dict:
-    """`jaxdefl run` in a fresh process: its wall time from the parent, python start included."""
+def run(cfg: Path, out: Path, scheduler: str, cache: str) -> dict:
+    """`jaxdefl run` in a fresh process: its wall time from the parent, python start included.
+    ``cache`` is the persistent JIT cache directory ("" for none)."""
     if out.exists():
         shutil.rmtree(out)
-    env = {**os.environ, "JAXDEFL_CACHE_DIR": os.environ.get("JAXDEFL_CACHE_DIR", "")}
+    env = {**os.environ, "JAXDEFL_CACHE_DIR": cache}
     t0 = time.perf_counter()
     res = subprocess.run(
         [sys.executable, "-c", _CHILD, str(cfg), str(out), scheduler],
@@ -211,6 +212,12 @@ def main():
     ap.add_argument("--loop-whole", type=int, default=4, help="loop whole-record fits per round")
     ap.add_argument("--lds", action="store_true", help="add 300-Hz LDS tables (LDS comparison)")
     ap.add_argument("--schedulers", default="none,local:2", help="comma list; 'none' is required")
+    ap.add_argument(
+        "--no-cache",
+        action="store_true",
+        help="no persistent JIT cache (every run compiles); by default a fresh cache directory is "
+        "filled by round 1 (cold) and used by the later rounds, as a user's second run would",
+    )
     args = ap.parse_args()
     print(f"load: {os.getloadavg()[0]:.1f} {os.getloadavg()[1]:.1f} {os.getloadavg()[2]:.1f} (1/5/15 min)")
     with tempfile.TemporaryDirectory() as tmp:
@@ -224,16 +231,18 @@ def main():
             f"{args.window:g} s, ~{n_rows / 1e6:.1f} M rows{' + LDS at 300 Hz' if args.lds else ''} "
             f"(made in {time.perf_counter() - t0:.1f} s)"
         )
+        cache = "" if args.no_cache else str(tmp / "jit-cache")
         rng = np.random.default_rng(27)
         ratios, runs = [], []
         for k in range(args.rounds):
-            r = run(cfg, tmp / "out-none", "none")
+            r = run(cfg, tmp / "out-none", "none", cache)
             lp = run_loop(tmp / "full", args.days, args.window, rng, args.loop_sample, args.loop_whole)
             loop_s = lp["read_s"] + lp["windows_s"] + lp["whole_s"]
             ratios.append(loop_s / r["wall_s"])
             runs.append(r)
+            cold = " (cold JIT cache)" if k == 0 and cache else ""
             print(
-                f"round {k + 1}: jaxdefl run {r['wall_s']:6.1f} s (fresh process; "
+                f"round {k + 1}{cold}: jaxdefl run {r['wall_s']:6.1f} s (fresh process; "
                 f"{r['ok']}/{args.days} units "
                 f"ok, peak RSS {r['peak_rss_mb']:.0f} MB) | loop {loop_s:6.1f} s (read {lp['read_s']:.1f}, "
                 f"{lp['n_windows']} windows {lp['windows_s']:.1f}, whole records {lp['whole_s']:.1f}) | "
@@ -256,7 +265,7 @@ def main():
         print(f"  {'sum of stages':36s} {total:7.2f} s; run_campaign {best['run_s']:.2f} s")
         rows = {"none": best}
         for sched in [x for x in args.schedulers.split(",") if x and x != "none"]:
-            r = run(cfg, tmp / f"out-{sched.replace(':', '')}", sched)
+            r = run(cfg, tmp / f"out-{sched.replace(':', '')}", sched, cache)
             rows[sched] = r
             print(
                 f"scheduler {sched}: {r['wall_s']:.1f} s fresh process, units ok {r['ok']}/{args.days}, "
@@ -264,14 +273,14 @@ def main():
                 + ", ".join(f"{m:.0f}" for m in r["workers_peak_rss_mb"])
                 + " MB (cluster start-up and per-worker JIT compilation included)"
             )
-        r2 = run(short, tmp / "out-short", "none")
+        r2 = run(short, tmp / "out-short", "none", cache)
         print(
             f"peak RSS in-process: 2 days {r2['peak_rss_mb']:.0f} MB, {args.days} days "
             f"{best['peak_rss_mb']:.0f} MB (ratio {best['peak_rss_mb'] / r2['peak_rss_mb']:.2f})"
         )
         for sched in rows:
             if sched != "none":
-                r2d = run(short, tmp / "out-short", sched)
+                r2d = run(short, tmp / "out-short", sched, cache)
                 print(
                     f"peak RSS on {sched}: 2 days max worker {max(r2d['workers_peak_rss_mb']):.0f} MB, "
                     f"{args.days} days max worker {max(rows[sched]['workers_peak_rss_mb']):.0f} MB"
