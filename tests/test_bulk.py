@@ -60,6 +60,13 @@ def test_campaign_tables_follow_the_truth(tmp_path):
     assert ds.sizes["day"] == 3 and ds.sizes["window"] == 2
     for name in ("report.md", "fatigue.png", "profile.png", "units.csv"):
         assert (tmp_path / "out" / name).exists()
+    # every unit records its stages' seconds (bench_bulk.py's breakdown), inside its own time
+    for man in (tmp_path / "out" / "units").glob("*/manifest.json"):
+        man = json.loads(man.read_text())
+        stages = man["stage_seconds"]
+        assert {"reading", "validation", "windowing", "kernel", "whole-record fit", "residual"} <= set(stages)
+        assert {"LDS comparison", "writing"} <= set(stages)
+        assert min(stages.values()) >= 0 and sum(stages.values()) <= man["seconds"] + 0.01
 
 
 def test_bad_units_get_reasons_and_the_rest_finishes(tmp_path):

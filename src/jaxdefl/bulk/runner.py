@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import os
 import time
+from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from pathlib import Path
 
 import pandas as pd
@@ -15,6 +17,34 @@ from .store import digest_text
 from .units import estimate_unit, unit_inputs
 
 __all__ = ["run_campaign"]
+
+
+# Units run side by side in-process: a unit's Python stages (reading, windowing, tables) hold
+# the GIL while the other's kernels (XLA, numpy, pyarrow release it) run on the second core.
+UNIT_THREADS = 2
+
+
+def _run_in_process(recs, inputs, campaign: Campaign, out: Path, config_hash: str):
+    """Yield the manifests of the units, run on UNIT_THREADS threads (at most that many
+    started at a time, so that an interrupt leaves the rest for a rerun)."""
+    todo = list(zip(recs, inputs, strict=True))
+    threads = max(1, min(UNIT_THREADS, os.cpu_count() or 1))
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        running: set = set()
+        try:
+            while todo or running:
+                while todo and len(running) < threads:
+                    check_interrupt()  # finished units are kept; the rest waits for a rerun
+                    rec, inp = todo.pop(0)
+                    running.add(pool.submit(estimate_unit, rec, campaign.processing, out, config_hash, inp))
+                done, running = wait(running, return_when=FIRST_COMPLETED)
+                for fut in done:
+                    yield fut.result()
+                release_memory()
+        finally:
+            todo.clear()
+            for fut in running:
+                fut.cancel()
 
 
 def run_campaign(
@@ -40,10 +70,8 @@ def run_campaign(
     with progress_bar() if progress else NoBar() as bar:
         task = bar.add_task("estimating recordings", total=len(recs))
         if scheduler == "none":
-            for rec, inp in zip(recs, inputs, strict=True):
-                check_interrupt()  # finished units are kept; the rest waits for a rerun
-                manifests.append(estimate_unit(rec, campaign.processing, out, config_hash, inp))
-                release_memory()
+            for man in _run_in_process(recs, inputs, campaign, out, config_hash):
+                manifests.append(man)
                 bar.advance(task)
         else:
             from dask.distributed import as_completed

@@ -5,6 +5,8 @@ They run in-process or as dask tasks unchanged (top-level functions, picklable a
 
 from __future__ import annotations
 
+import time
+from contextlib import contextmanager
 from pathlib import Path
 
 import pandas as pd
@@ -27,6 +29,16 @@ def unit_inputs(rec: Recording) -> dict:
         if p is not None:
             out[name] = digest_path(p) if Path(p).exists() else "missing"
     return out
+
+
+@contextmanager
+def _stage(stages: dict[str, float], name: str):
+    """Add the seconds of the ``with`` block to ``stages[name]``."""
+    t0 = time.perf_counter()
+    try:
+        yield
+    finally:
+        stages[name] = stages.get(name, 0.0) + time.perf_counter() - t0
 
 
 def _csv(df: pd.DataFrame) -> str:
@@ -57,17 +69,24 @@ def estimate_unit(
     invalid file, no valid samples) is recorded in the manifest with its reason; it never raises.
     """
     from ..fit import compare_with_reference, estimate_table, fit_reference, signal_model
-    from ..io import read_reference, read_trajectory
+    from ..io import load_table, read_reference, read_trajectory, validate_trajectory
 
     inputs = unit_inputs(rec) if inputs is None else inputs
     tag = dict(day=rec.day, camera=rec.camera, cycles=rec.cycles)
+    extra = dict(tag)  # the manifest's extra fields: the tags, then the stage times
+
+    stages: dict[str, float] = {}  # seconds per stage, kept in the manifest
 
     def work(unit_dir: Path) -> list[str]:
         if rec.failed:
             raise JaxdeflError(rec.failed)
         if inputs.get("trajectories") == "missing":
             raise JaxdeflError(f"{rec.trajectories}: file not found")
-        traj = read_trajectory(rec.trajectories, timestamps=proc.timestamps)
+        with _stage(stages, "reading"):
+            raw = load_table(rec.trajectories)
+        with _stage(stages, "validation"):
+            traj = validate_trajectory(raw, rec.trajectories, timestamps=proc.timestamps)
+        del raw
         axes = tuple(a for a in proc.axes if a in traj.columns)
         kw = dict(
             fmin_hz=proc.fmin_hz,
@@ -76,7 +95,11 @@ def estimate_unit(
             fap_max=proc.fap_max,
             model=signal_model(proc.model, proc.harmonics, proc.lines),
         )
-        whole = estimate_table(traj, axes=axes, **kw)
+        clocks: dict = {}  # the series' frame clocks, fitted once for the record and its windows
+        whole_t: dict[str, float] = {}
+        whole = estimate_table(traj, axes=axes, clocks=clocks, timings=whole_t, **kw)
+        stages["windowing"] = stages.get("windowing", 0.0) + whole_t.pop("windowing")
+        stages["whole-record fit"] = sum(whole_t.values())
         if not (whole.table["status"] == Status.CONVERGED).any():
             raise JaxdeflError(
                 f"{rec.trajectories}: no plate and axis could be fitted "
@@ -84,7 +107,15 @@ def estimate_unit(
             )
         outputs = {"whole.csv": whole.table.assign(**tag)}
         if proc.window_s is not None:
-            win = estimate_table(traj, axes=axes, window_s=proc.window_s, step_s=proc.step_s, **kw)
+            win = estimate_table(
+                traj,
+                axes=axes,
+                window_s=proc.window_s,
+                step_s=proc.step_s,
+                clocks=clocks,
+                timings=stages,
+                **kw,
+            )
             outputs["windows.csv"] = win.table.assign(**tag)
         if proc.correct_motion_artefact and rec.frame_rate_hz is not None:
             for name in list(outputs):
@@ -96,15 +127,18 @@ def estimate_unit(
         if rec.lds is not None:
             if inputs.get("lds") == "missing":
                 raise JaxdeflError(f"{rec.lds}: file not found")
-            ref = fit_reference(read_reference(rec.lds, timestamps=proc.timestamps), whole, **kw)
-            outputs["lds.csv"] = ref.table.assign(**tag)
-            outputs["comparison.csv"] = compare_with_reference(whole.table, ref.table).assign(**tag)
-        for name, df in outputs.items():
-            atomic_write_text(unit_dir / name, _csv(df))
+            with _stage(stages, "LDS comparison"):
+                ref = fit_reference(read_reference(rec.lds, timestamps=proc.timestamps), whole, **kw)
+                outputs["lds.csv"] = ref.table.assign(**tag)
+                outputs["comparison.csv"] = compare_with_reference(whole.table, ref.table).assign(**tag)
+        with _stage(stages, "writing"):
+            for name, df in outputs.items():
+                atomic_write_text(unit_dir / name, _csv(df))
+        extra["stage_seconds"] = {k: round(v, 4) for k, v in stages.items()}
         return list(outputs)
 
     unit_dir = Path(out_dir) / "units" / rec.unit_id
-    return run_unit(unit_dir, rec.unit_id, inputs, config_hash, work, extra=tag)
+    return run_unit(unit_dir, rec.unit_id, inputs, config_hash, work, extra=extra)
 
 
 def read_unit_tables(out_dir: Path, manifests: list[dict], name: str) -> pd.DataFrame:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
@@ -70,6 +71,7 @@ def estimate_windows(
     on_block: Callable[[int], None] | None = None,
     workers: int | None = None,
     model: SignalModel | None = None,
+    timings: dict[str, float] | None = None,
 ) -> Estimates:
     """Estimate f0, A and their σ's for every window; failures become statuses.
 
@@ -85,7 +87,11 @@ def estimate_windows(
         workers: threads running blocks at once (default: one per core).
         model: the signal model (default: the thesis' harmonic + offset); other models add
             columns (see `jaxdefl.fit.models.model_columns`).
+        timings: if given, ``kernel`` and ``residual`` are increased by the seconds of this
+            call spent in the periodogram + fit and in the residual statistics (the call's wall
+            time split in the proportion of the blocks' thread times).
     """
+    t_call = time.perf_counter()
     if model is not None and model.is_default:
         model = None
     b = len(w)
@@ -104,6 +110,7 @@ def estimate_windows(
 
     def run(rows: np.ndarray):
         # Whole-batch arrays indexed by ``rows``: no copy of the windows per block.
+        t_block = time.perf_counter()
         rowset = set(rows.tolist())
         p = lomb_peaks(
             w,
@@ -128,6 +135,7 @@ def estimate_windows(
             search = dict(fmin_hz=fmin_hz, fmax_hz=fmax_hz, oversampling=oversampling)
             f = fit_model(w, p, rows[go], model, weights=weights, **search)
         converged = f.converged[rows]
+        t_fit = time.perf_counter()
         # Model adequacy and σ's honest under coloured noise (`residual_noise`), on this
         # thread: numpy releases the GIL, so the blocks' statistics run side by side.
         ok = rows[converged]
@@ -136,16 +144,20 @@ def estimate_windows(
             noise = residual_noise(w, resid, f.f0_hz, rows=ok)
         else:
             noise = model_residual_noise(w, f, model, rows, resid)
-        return rows, p, np.where(go & ~converged, Status.DID_NOT_CONVERGE, st), f, noise
+        took = (t_fit - t_block, time.perf_counter() - t_fit)
+        return rows, p, np.where(go & ~converged, Status.DID_NOT_CONVERGE, st), f, noise, took
 
     # Blocks run on a thread per core: XLA and the FFTs release the GIL.
     workers = max(1, os.cpu_count() or 1) if workers is None else max(1, workers)
     size = min(block, max(256, -(-todo.size // workers)))
     blocks = [todo[i : i + size] for i in range(0, todo.size, size)]
     resid = np.empty_like(w.y)  # rows filled by their block
+    spent = {"kernel": 0.0, "residual": 0.0}  # thread seconds of the blocks
     noise_parts = []
     with ThreadPoolExecutor(max_workers=workers) as pool:
-        for rows, p, st, f, noise in (fut.result() for fut in [pool.submit(run, r) for r in blocks]):
+        for rows, p, st, f, noise, took in (fut.result() for fut in [pool.submit(run, r) for r in blocks]):
+            spent["kernel"] += took[0]
+            spent["residual"] += took[1]
             for k in per:
                 per[k][rows] = getattr(p, k)[rows]
             method[rows] = p.method[rows]
@@ -157,6 +169,10 @@ def estimate_windows(
                 on_block(rows.size)
             check_interrupt()
     fit = _merge_fits(b, fit_parts)
+    if timings is not None:
+        wall, busy = time.perf_counter() - t_call, sum(spent.values()) or 1.0
+        for k, v in spent.items():
+            timings[k] = timings.get(k, 0.0) + wall * v / busy
     periodogram = Periodogram(
         per["freq_hz"],
         per["power"],

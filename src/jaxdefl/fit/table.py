@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 
 import pandas as pd
@@ -19,9 +20,10 @@ def windows_for(
     axes: tuple[str, ...] = ("z", "x", "y"),
     window_s: float | None = None,
     step_s: float | None = None,
+    clocks: dict | None = None,
 ) -> Windows:
     """The windows `estimate_table` fits (see `jaxdefl.series.make_windows`)."""
-    return make_windows(df, axes=axes, window_s=window_s, step_s=step_s)
+    return make_windows(df, axes=axes, window_s=window_s, step_s=step_s, clocks=clocks)
 
 
 def estimate_table(
@@ -36,15 +38,24 @@ def estimate_table(
     keep: tuple[int, ...] = (),
     on_block: Callable[[int], None] | None = None,
     model: SignalModel | None = None,
+    clocks: dict | None = None,
+    timings: dict[str, float] | None = None,
 ) -> Estimates:
     """Windows of a validated trajectory table, estimated (see `estimate_windows`).
+
+    ``clocks`` shares the series' frame clocks between calls on the same table (see
+    `jaxdefl.series.make_windows`); ``timings`` gets the seconds of ``windowing`` added, and
+    those of `estimate_windows`.
 
     Raises:
         ConfigError: a false-alarm limit outside (0, 1], bad window settings or axes.
     """
     if not 0 < fap_max <= 1:
         raise ConfigError(f"--fap-max: expected a probability in (0, 1], got {fap_max:g}")
-    w = windows_for(df, axes=axes, window_s=window_s, step_s=step_s)
+    t0 = time.perf_counter()
+    w = windows_for(df, axes=axes, window_s=window_s, step_s=step_s, clocks=clocks)
+    if timings is not None:
+        timings["windowing"] = timings.get("windowing", 0.0) + time.perf_counter() - t0
     return estimate_windows(
         w,
         fmin_hz=fmin_hz,
@@ -54,4 +65,5 @@ def estimate_table(
         keep=keep,
         on_block=on_block,
         model=model,
+        timings=timings,
     )

@@ -171,6 +171,7 @@ def make_windows(
     window_s: float | None = None,
     step_s: float | None = None,
     min_samples: int = 16,
+    clocks: dict | None = None,
 ) -> Windows:
     """Cut a validated trajectory table into windows for every segment, plate and axis.
 
@@ -185,6 +186,8 @@ def make_windows(
         window_s: window length in s, or None for one window per segment.
         step_s: window step in s (default: ``window_s``).
         min_samples: windows with fewer valid samples get status ``too_few_samples``.
+        clocks: a dict shared by calls on the same table (say the whole record and its
+            windows): each series' frame clock is fitted once and kept there.
 
     Raises:
         ConfigError: a non-positive window or step, or an axis missing from the table.
@@ -212,11 +215,16 @@ def make_windows(
             # it when its stamps scatter about it (a constant offset aside: a logger restart
             # keeps its own exact grid) by at most SNAP_MAX of a frame; else its own clock is
             # fitted in `_pack`.
-            if last[0] is not None and np.array_equal(last[0], t_all):
+            known = None if clocks is None else clocks.get((seg, int(plate)))
+            if known is not None and np.array_equal(known[0], t_all):
+                clk = known[1]
+            elif last[0] is not None and np.array_equal(last[0], t_all):
                 clk = last[1]
             else:
                 clk = fit_clock(t_all - t_all[0])
-                last = (t_all, clk)
+            last = (t_all, clk)
+            if clocks is not None:
+                clocks[(seg, int(plate))] = last
             dt_all, k_all = clk.dt, clk.k
             resid = t_all - t_all[0] - clk.t if np.isfinite(clk.dt) else np.full(t_all.size, np.nan)
             whole = {}  # the clock of a window without missing values, shared by the axes
