@@ -199,7 +199,8 @@ class ReconcileFindings:
         if self.unnamed:
             m = len(self.unnamed)
             text += (
-                f"; the diagnosis also modelled {m} unnamed term{'s' if m > 1 else ''} outside the "
+                f"; {'it' if not self.named else 'the diagnosis'} also modelled {m} unnamed "
+                f"term{'s' if m > 1 else ''} outside the "
                 f"vocabulary ({', '.join(u['kind'] for u in self.unnamed)}), which the simulation does "
                 "not reproduce"
             )
@@ -241,7 +242,7 @@ def reconcile_markdown(rec, d: dict, figures: list[str], recording: str, config:
         f"and fitted harmonics, f0 = {rec.f0_hz:.6f} Hz, white noise at each series' level). Each "
         "distance is the recording's against the simulation's statistics; the null band is the "
         "95th percentile of the same distance between repeated simulations. The effects are those "
-        "the diagnosis names (`jaxdefl diagnose`): " + selection_rule(),
+        "the diagnosis names (`jaxdefl diagnose`). " + selection_rule(),
         "",
         "| level | metric | what it measures | before | after | null 95 % | verdict |",
         "|---|---|---|---|---|---|---|",
