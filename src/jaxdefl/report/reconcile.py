@@ -278,9 +278,12 @@ def reconcile_markdown(rec, d: dict, figures: list[str], recording: str, config:
     lines += [f"- {a}" for a in found.advice()] or [
         "- Nothing: the simulation with the named physics reproduces the recording."
     ]
+    session = (d.get("settings") or {}).get("session")
+    pick = f" --session {session}" if session else ""  # a config of several sessions makes them all
     lines += [
         "",
-        f"The reconciled simulation config is `{d['config']}` (`jaxdefl simulate {d['config']} --out DIR`).",
+        f"The reconciled simulation config is `{d['config']}` "
+        f"(`jaxdefl simulate {d['config']}{pick} --out DIR`).",
         "",
     ]
     lines += [f"![{f}]({f})" for f in figures]
