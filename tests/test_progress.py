@@ -75,7 +75,10 @@ def tables(tmp_path):
 
 def test_fit_and_diagnose_end_with_what_they_wrote(tables, capsys):
     out = tables / "est.csv"
-    assert main(["fit", str(tables / "traj.csv"), "--out", str(out), "--reference", str(tables / "lds.csv")]) == 0
+    assert (
+        main(["fit", str(tables / "traj.csv"), "--out", str(out), "--reference", str(tables / "lds.csv")])
+        == 0
+    )
     paths = _wrote(capsys.readouterr().err, "fit")
     assert paths[0] == str(out) and all(Path(p).is_file() for p in paths)
     assert any(p.endswith("_comparison.csv") for p in paths)
@@ -141,3 +144,13 @@ def test_monitor_and_run_end_with_what_they_wrote(tmp_path, capsys):
     assert main(["monitor", "--replay", str(traj), "--out", str(mon), "--speed", "0"]) == 0
     paths = _wrote(capsys.readouterr().err, "monitor")
     assert str(mon / "events.jsonl") in paths and all(Path(p).exists() for p in paths)
+
+
+def test_on_a_terminal_progress_is_a_live_rich_bar(monkeypatch):
+    from rich.progress import Progress
+
+    monkeypatch.setattr(progress, "interactive", lambda: True)
+    assert isinstance(progress.progress_bar(), Progress)
+    assert isinstance(progress.progress_bar(enabled=False), progress._NoProgress)
+    monkeypatch.setattr(progress, "interactive", lambda: False)
+    assert isinstance(progress.progress_bar(), progress.PlainProgress)

@@ -227,3 +227,27 @@ def test_every_metric_has_advice_and_a_command():
     assert set(METRICS) <= set(_ADVICE) and set(_MEANING) <= set(_ADVICE)
     assert all(cmd.startswith("jaxdefl ") for _, cmd in _ADVICE.values())
     assert np.all([len(s) > 40 for s, _ in _ADVICE.values()])
+
+
+def test_reconcile_advice_runs_on_what_each_command_reads(diagnoses):
+    """diagnose and fit read trajectory tables: for a frame recording the advice extracts it
+    first; reconcile reads the frames themselves. An effect named on several series is listed
+    once, with its count."""
+    rows = [_row("slow_mm", 2.0, 1.5, 0.3), _row("envelope", 0.2, 0.15, 0.1, "estimates")]
+    rows.append(_row("noise_mm", 0.5, 0.5, 0.1))
+    rec = _rec(rows, [_effect("drift"), _effect("drift"), _effect("outliers")], diagnoses["unnamed"])
+    d = {"config": "reconciled.toml", "unexplained": []}
+    md = reconcile_markdown(rec, d, [], "sim/recording.zarr", "exp.toml", "rec_out")
+    commands = re.findall(r"`(jaxdefl \w+ [^`]+)`", md)
+    assert not [c for c in commands if c.split()[1] in ("diagnose", "fit") and ".zarr" in c], commands
+    assert "jaxdefl extract sim/recording.zarr --out recording_trajectories.csv" in commands
+    assert (
+        "jaxdefl diagnose recording_trajectories.csv --reference LDS.csv --out recording_diag.json"
+        in commands
+    )
+    assert "jaxdefl reconcile sim/recording.zarr --config rec_out/reconciled.toml --out rec_out_2" in commands
+    summary = next(line for line in md.splitlines() if line.startswith("**"))
+    assert "(`drift` ×2, `outliers`)" in summary
+    # a table needs no extraction
+    md = reconcile_markdown(rec, d, [], "traj.csv", "exp.toml", "rec_out")
+    assert "jaxdefl extract" not in md and "`jaxdefl fit traj.csv --window 30 --out traj_30s.csv`" in md

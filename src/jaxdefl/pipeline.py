@@ -684,7 +684,7 @@ def reconcile_file(
             "recording": str(recording),
             "config": str(config),
             "reference": str(reference) if reference else None,
-            "session": session,
+            "session": session if session is not None else (cfg.recording.session or None),
             "segment": str(df["segment"].iat[0]),
             "null_sims": settings.n_null,
             "seed": seed,

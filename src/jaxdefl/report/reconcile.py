@@ -92,7 +92,8 @@ def _num(v) -> str:
 
 
 # what to do about a metric that stays apart: a sentence of advice and the next command
-# ({rec}: the recording, {cfg}: its config, {out}: the reconcile folder, {stem}: a name)
+# ({rec}: the recording, {table}: its trajectory table, {out}: the reconcile folder,
+# {stem}: a name)
 _ADVICE = {
     "noise_mm": (
         "the residual's short-term noise is not the simulated camera's: set the config's camera "
@@ -104,12 +105,12 @@ _ADVICE = {
         "a slow residual (a drift, a jump, a camera moved) that the named effects do not reproduce: "
         "the diagnosis' unnamed `trend` terms say where; a reference sensor tells the camera's "
         "drift from the structure's",
-        "jaxdefl diagnose {rec} --reference LDS.csv --out {stem}_diag.json",
+        "jaxdefl diagnose {table} --reference LDS.csv --out {stem}_diag.json",
     ),
     "line_ratio": (
         "lines in the residual spectrum that the simulation lacks (a mode, a machine nearby): the "
         "diagnosis' unnamed `line` terms give their frequencies; fit them beside the loading",
-        "jaxdefl fit {rec} --lines 2 --out {stem}_lines.csv",
+        "jaxdefl fit {table} --lines 2 --out {stem}_lines.csv",
     ),
     "frame_common": (
         "the plates of a frame share more (or less) noise than the simulated camera's: set the "
@@ -120,12 +121,12 @@ _ADVICE = {
     "outlier_rate": (
         "the recording has more samples beyond 4.5 σ than its simulation (mixed pixels at plate "
         "edges, drop-outs read as positions): look at where they fall in the diagnosis",
-        "jaxdefl diagnose {rec} --out {stem}_diag.json",
+        "jaxdefl diagnose {table} --out {stem}_diag.json",
     ),
     "envelope": (
         "the harmonic's amplitude or phase changes from window to window more than simulated (a "
         "load ramp, a changing stiffness): follow it in windows",
-        "jaxdefl fit {rec} --window 30 --out {stem}_30s.csv",
+        "jaxdefl fit {table} --window 30 --out {stem}_30s.csv",
     ),
     "range_noise": (
         "the camera's pixel range noise is not the configured sensor's: set the config's noise "
@@ -177,7 +178,10 @@ class ReconcileFindings:
 
     def summary(self) -> str:
         apart, fixed = self.metrics("still apart"), self.metrics("reconciled")
-        named = ", ".join(f"`{e['id']}`" for e in self.named)
+        counts: dict[str, int] = {}
+        for e in self.named:
+            counts[e["id"]] = counts.get(e["id"], 0) + 1
+        named = ", ".join(f"`{k}`" + (f" ×{n}" if n > 1 else "") for k, n in counts.items())
         if apart:
             n = len(dict.fromkeys(r["metric"] for r in self.rows if r["verdict"] != "not measured"))
             text = (
@@ -199,7 +203,8 @@ class ReconcileFindings:
         if self.unnamed:
             m = len(self.unnamed)
             text += (
-                f"; the diagnosis also modelled {m} unnamed term{'s' if m > 1 else ''} outside the "
+                f"; {'it' if not self.named else 'the diagnosis'} also modelled {m} unnamed "
+                f"term{'s' if m > 1 else ''} outside the "
                 f"vocabulary ({', '.join(u['kind'] for u in self.unnamed)}), which the simulation does "
                 "not reproduce"
             )
@@ -208,23 +213,33 @@ class ReconcileFindings:
         return text + "." + (" See *What to do next*." if self.advice() else "")
 
     def advice(self) -> list[str]:
-        fill = dict(
-            rec=self.recording, cfg=self.config, out=self.out, stem=Path(self.recording).stem or "rec"
-        )
+        stem = Path(self.recording).stem or "rec"
+        # diagnose and fit read trajectory tables: a frame recording is extracted first
+        frames = Path(self.recording).suffix.lower() not in (".csv", ".parquet", ".pq", ".gz", ".txt")
+        table = f"{stem}_trajectories.csv" if frames else self.recording
+        fill = dict(rec=self.recording, table=table, cfg=self.config, out=self.out, stem=stem)
+
+        def command(cmd: str) -> str:
+            text = f"`{cmd.format(**fill)}`"
+            if frames and "{table}" in cmd:
+                text = f"`jaxdefl extract {self.recording} --out {table}`, then " + text
+            return text
+
         out = []
         for m in self.metrics("still apart"):
             sentence, cmd = _ADVICE.get(
                 m,
                 (
                     "a statistic the simulation does not reproduce",
-                    "jaxdefl diagnose {rec} --out {stem}_diag.json",
+                    "jaxdefl diagnose {table} --out {stem}_diag.json",
                 ),
             )
-            out.append(f"`{m}`: {sentence}: `{cmd.format(**fill)}`.")
+            out.append(f"`{m}`: {sentence}: {command(cmd)}.")
         if self.unnamed and not self.metrics("still apart"):
             out.append(
                 "The unnamed terms are not simulated; read them in the diagnosis: "
-                f"`jaxdefl diagnose {fill['rec']} --out {fill['stem']}_diag.json`."
+                + command("jaxdefl diagnose {table} --out {stem}_diag.json")
+                + "."
             )
         return out
 
@@ -241,7 +256,7 @@ def reconcile_markdown(rec, d: dict, figures: list[str], recording: str, config:
         f"and fitted harmonics, f0 = {rec.f0_hz:.6f} Hz, white noise at each series' level). Each "
         "distance is the recording's against the simulation's statistics; the null band is the "
         "95th percentile of the same distance between repeated simulations. The effects are those "
-        "the diagnosis names (`jaxdefl diagnose`): " + selection_rule(),
+        "the diagnosis names (`jaxdefl diagnose`). " + selection_rule(),
         "",
         "| level | metric | what it measures | before | after | null 95 % | verdict |",
         "|---|---|---|---|---|---|---|",
@@ -277,9 +292,12 @@ def reconcile_markdown(rec, d: dict, figures: list[str], recording: str, config:
     lines += [f"- {a}" for a in found.advice()] or [
         "- Nothing: the simulation with the named physics reproduces the recording."
     ]
+    session = (d.get("settings") or {}).get("session")
+    pick = f" --session {session}" if session else ""  # a config of several sessions makes them all
     lines += [
         "",
-        f"The reconciled simulation config is `{d['config']}` (`jaxdefl simulate {d['config']} --out DIR`).",
+        f"The reconciled simulation config is `{d['config']}` "
+        f"(`jaxdefl simulate {d['config']}{pick} --out DIR`).",
         "",
     ]
     lines += [f"![{f}]({f})" for f in figures]
