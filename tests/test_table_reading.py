@@ -4,6 +4,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from jaxdefl._errors import InputError
 from jaxdefl.io import load_table, read_trajectory, validate_trajectory
 from jaxdefl.io.trajectory import _read_numeric_csv
 
@@ -52,4 +53,8 @@ def test_anything_but_plain_numbers_goes_to_pandas(tmp_path, text):
     path = tmp_path / "t.csv"
     path.write_text(text)
     assert _read_numeric_csv(path) is None
+    if text.startswith("t,plate,z,z"):  # pandas would read the second z as z.1: refused instead
+        with pytest.raises(InputError, match=r"column 'z' appears twice"):
+            load_table(path)
+        return
     pd.testing.assert_frame_equal(load_table(path), pd.read_csv(path, comment="#"))
