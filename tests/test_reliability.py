@@ -477,3 +477,19 @@ def test_diagnose_says_its_phases_and_refuses_more_memory_than_available(work, c
     assert main([str(a) for a in args]) == 0
     text = capsys.readouterr().err  # not a terminal: each long phase says it starts
     assert "diagnose: reading" in text and "diagnose: validating, fitting the nominal model" in text
+
+
+def test_extract_chunk_frames_is_bounded_by_its_memory(sim, capsys, monkeypatch):
+    """A batch is min(--chunk-frames, frames) frames: refused when its estimate passes the
+    budget (here lowered to 100 MiB so that the 200 frames of the test recording pass it)."""
+    import jaxdefl._resources as res
+
+    monkeypatch.setattr(res, "MEMORY_BUDGET_BYTES", 100 << 20)
+    store = sim / "sim" / "recording.zarr"
+    out = sim / "t.csv"
+    code, err = run_cli(["extract", store, "--out", out, "--chunk-frames", "1000000"], capsys)
+    assert code == 2 and len(err) == 1, err
+    n = open_recording(store).n_frames
+    assert f"--chunk-frames: batches of {n} frames of 176x144 would need" in err[0], err[0]
+    most = (100 << 20) // (24 * 176 * 144)
+    assert f"at most {most:,} frames per batch), got 1,000,000" in err[0] and not out.exists()
