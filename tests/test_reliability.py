@@ -180,7 +180,7 @@ def test_concurrent_runs_at_random_moments_never_leave_a_partial_store(tmp_path)
             assert "in use by jaxdefl run (pid" in refused, refused
         with xr.open_zarr(out / "results.zarr") as ds:
             assert set(ds.data_vars) == want
-        assert not list(out.rglob(f"{TMP}*")) and not list(out.rglob(".*.tmp"))
+        assert not list(out.rglob(f"{TMP}*")) and not list(out.rglob(".*.zarr.tmp"))
         assert not lock_path(out).exists()
 
 
@@ -217,6 +217,24 @@ def test_a_file_output_removes_only_its_own_temporaries(work, capsys):
     assert run_cli(["fit", work / "traj.csv", "--out", work / "EST.csv"], capsys)[0] == 0
     assert not any(p.exists() for p in mine)
     assert all(p.exists() for p in others)  # another command's, under another lock
+
+
+def test_the_sweep_spares_a_folder_where_another_command_writes(tmp_path):
+    out = tmp_path / "o"
+    (out / "sub").mkdir(parents=True)
+    dead = [out / f"{TMP}0123abcd-x.csv", out / ".results.zarr.tmp", out / ".notes.tmp"]
+    alive = out / "sub" / f"{TMP}0123abcd-EST.csv"
+    holder = _spawn_holder(out / "sub" / "EST.csv", 60)  # a fit writing into OUT/sub now
+    for p in [*dead, alive]:
+        p.write_text("x")
+    try:
+        with output_lock(out):
+            pass
+    finally:
+        holder.kill()
+        holder.wait()
+    assert [p.exists() for p in dead] == [False, False, True]  # a user's own .tmp file is kept
+    assert alive.exists()
 
 
 @pytest.mark.slow
