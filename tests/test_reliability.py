@@ -511,3 +511,23 @@ def test_extract_chunk_frames_is_bounded_by_its_memory(sim, capsys, monkeypatch)
     assert f"--chunk-frames: batches of {n} frames of 176x144 would need" in err[0], err[0]
     most = (100 << 20) // (24 * 176 * 144)
     assert f"at most {most:,} frames per batch), got 1,000,000" in err[0] and not out.exists()
+
+
+@pytest.mark.parametrize("zarr_format", [2, 3])
+def test_a_short_uncompressed_chunk_is_named(tmp_path, zarr_format):
+    """Without a codec to fail, a short chunk file is still an error naming its frames."""
+    import zarr
+
+    store = tmp_path / "u.zarr"
+    g = zarr.open_group(str(store), mode="w", zarr_format=zarr_format)
+    g.attrs.update(fx=100.0, fy=100.0, cx=4.0, cy=3.0)
+    d = g.create_array("depth", shape=(20, 6, 8), chunks=(5, 6, 8), dtype="float32", compressors=None)
+    d[:] = np.ones((20, 6, 8), np.float32)
+    g.create_array("timestamps", shape=(20,), chunks=(20,), dtype="float64", compressors=None)[:] = np.arange(
+        20.0
+    )
+    with open(store / "depth" / d.metadata.encode_chunk_key((2, 0, 0)), "r+b") as f:
+        f.truncate(100)
+    rec = open_recording(store)
+    with pytest.raises(Exception, match=r"array 'depth': the chunk of frames 10\.\.14 cannot be read"):
+        list(rec.chunks(7))  # the batch 7..13 meets the short chunk 10..14
