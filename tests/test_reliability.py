@@ -531,3 +531,10 @@ def test_a_short_uncompressed_chunk_is_named(tmp_path, zarr_format):
     rec = open_recording(store)
     with pytest.raises(Exception, match=r"array 'depth': the chunk of frames 10\.\.14 cannot be read"):
         list(rec.chunks(7))  # the batch 7..13 meets the short chunk 10..14
+
+
+def test_reconcile_null_sims_are_bounded(work, capsys):
+    args = ["reconcile", work / "traj.csv", "--config", TOF, "--out", work / "r", "--null-sims", "1000000000"]
+    code, err = run_cli(args, capsys)
+    assert code == 2 and len(err) == 1 and "--null-sims: expected at least 5" in err[0], err
+    assert "at most 1000" in err[0] and "got 1000000000" in err[0] and not (work / "r").exists()
