@@ -180,7 +180,7 @@ def test_concurrent_runs_at_random_moments_never_leave_a_partial_store(tmp_path)
             assert "in use by jaxdefl run (pid" in refused, refused
         with xr.open_zarr(out / "results.zarr") as ds:
             assert set(ds.data_vars) == want
-        assert not list(out.rglob(f"{TMP}*")) and not list(out.rglob(".*.tmp"))
+        assert not list(out.rglob(f"{TMP}*")) and not list(out.rglob(".*.zarr.tmp"))
         assert not lock_path(out).exists()
 
 
@@ -217,6 +217,24 @@ def test_a_file_output_removes_only_its_own_temporaries(work, capsys):
     assert run_cli(["fit", work / "traj.csv", "--out", work / "EST.csv"], capsys)[0] == 0
     assert not any(p.exists() for p in mine)
     assert all(p.exists() for p in others)  # another command's, under another lock
+
+
+def test_the_sweep_spares_a_folder_where_another_command_writes(tmp_path):
+    out = tmp_path / "o"
+    (out / "sub").mkdir(parents=True)
+    dead = [out / f"{TMP}0123abcd-x.csv", out / ".results.zarr.tmp", out / ".notes.tmp"]
+    alive = out / "sub" / f"{TMP}0123abcd-EST.csv"
+    holder = _spawn_holder(out / "sub" / "EST.csv", 60)  # a fit writing into OUT/sub now
+    for p in [*dead, alive]:
+        p.write_text("x")
+    try:
+        with output_lock(out):
+            pass
+    finally:
+        holder.kill()
+        holder.wait()
+    assert [p.exists() for p in dead] == [False, False, True]  # a user's own .tmp file is kept
+    assert alive.exists()
 
 
 @pytest.mark.slow
@@ -477,3 +495,46 @@ def test_diagnose_says_its_phases_and_refuses_more_memory_than_available(work, c
     assert main([str(a) for a in args]) == 0
     text = capsys.readouterr().err  # not a terminal: each long phase says it starts
     assert "jaxdefl diagnose: reading" in text and "against the nominal model" in text
+
+
+def test_extract_chunk_frames_is_bounded_by_its_memory(sim, capsys, monkeypatch):
+    """A batch is min(--chunk-frames, frames) frames: refused when its estimate passes the
+    budget (here lowered to 100 MiB so that the 200 frames of the test recording pass it)."""
+    import jaxdefl._resources as res
+
+    monkeypatch.setattr(res, "MEMORY_BUDGET_BYTES", 100 << 20)
+    store = sim / "sim" / "recording.zarr"
+    out = sim / "t.csv"
+    code, err = run_cli(["extract", store, "--out", out, "--chunk-frames", "1000000"], capsys)
+    assert code == 2 and len(err) == 1, err
+    n = open_recording(store).n_frames
+    assert f"--chunk-frames: batches of {n} frames of 176x144 would need" in err[0], err[0]
+    most = (100 << 20) // (24 * 176 * 144)
+    assert f"at most {most:,} frames per batch), got 1,000,000" in err[0] and not out.exists()
+
+
+@pytest.mark.parametrize("zarr_format", [2, 3])
+def test_a_short_uncompressed_chunk_is_named(tmp_path, zarr_format):
+    """Without a codec to fail, a short chunk file is still an error naming its frames."""
+    import zarr
+
+    store = tmp_path / "u.zarr"
+    g = zarr.open_group(str(store), mode="w", zarr_format=zarr_format)
+    g.attrs.update(fx=100.0, fy=100.0, cx=4.0, cy=3.0)
+    d = g.create_array("depth", shape=(20, 6, 8), chunks=(5, 6, 8), dtype="float32", compressors=None)
+    d[:] = np.ones((20, 6, 8), np.float32)
+    g.create_array("timestamps", shape=(20,), chunks=(20,), dtype="float64", compressors=None)[:] = np.arange(
+        20.0
+    )
+    with open(store / "depth" / d.metadata.encode_chunk_key((2, 0, 0)), "r+b") as f:
+        f.truncate(100)
+    rec = open_recording(store)
+    with pytest.raises(Exception, match=r"array 'depth': the chunk of frames 10\.\.14 cannot be read"):
+        list(rec.chunks(7))  # the batch 7..13 meets the short chunk 10..14
+
+
+def test_reconcile_null_sims_are_bounded(work, capsys):
+    args = ["reconcile", work / "traj.csv", "--config", TOF, "--out", work / "r", "--null-sims", "1000000000"]
+    code, err = run_cli(args, capsys)
+    assert code == 2 and len(err) == 1 and "--null-sims: expected at least 5" in err[0], err
+    assert "at most 1000" in err[0] and "got 1000000000" in err[0] and not (work / "r").exists()

@@ -82,9 +82,7 @@ def test_plate_outside_field_of_view(tmp_path):
 
 def test_negative_duration_in_config(tmp_path):
     p = _write(tmp_path, "[recording]\nduration_s = -5\n")
-    with pytest.raises(
-        ConfigError, match=r"key 'recording.duration_s': expected a duration > 0 s, got -5.0"
-    ):
+    with pytest.raises(ConfigError, match=r"key 'recording.duration_s': expected a duration > 0 s, got -5.0"):
         load_config(p)
 
 

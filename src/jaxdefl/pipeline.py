@@ -485,15 +485,18 @@ def _camera_facts(config: Path | None) -> dict:
     return facts
 
 
-# Peak memory of a diagnosis per row of the table (measured: 6.3 GB for 4.85 M rows of 10
-# plates, one axis; the search holds several residual and weight vectors per series at once).
-_DIAGNOSE_BYTES_PER_ROW = 1400
+# Memory a diagnosis adds per row of the table to what the process holds once the table is read
+# (measured peak RSS, 10 plates, one axis: 1.95 GB for 0.97 M rows, 6.1 GB for 4.85 M rows, from
+# ~0.6 GB at the start; the search holds several residual and weight vectors per series at once).
+_DIAGNOSE_BYTES_PER_ROW = 1500
 _DIAGNOSE_SAY_BYTES = 1 << 30  # larger estimates are said before the work starts
 
 
 def _check_diagnosis_memory(df: pd.DataFrame, traj: Path, settings: DiagnoseSettings) -> None:
     """Estimate the diagnosis' memory from the rows it will use; say it when large and refuse it
     when the system has less available."""
+    import resource
+
     from ._resources import check_available_memory, size_text
 
     rows = len(df)
@@ -504,8 +507,11 @@ def _check_diagnosis_memory(df: pd.DataFrame, traj: Path, settings: DiagnoseSett
         need, f"{traj}: diagnosing {rows:,} rows", "diagnose one --segment or a shorter record"
     )
     if need > _DIAGNOSE_SAY_BYTES:
+        held = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024  # Linux: KiB
         console.print(
-            f"diagnose: {traj}: {rows:,} rows, ~{size_text(need)} of memory", highlight=False, soft_wrap=True
+            f"diagnose: {traj}: {rows:,} rows, ~{size_text(held + need)} of memory",
+            highlight=False,
+            soft_wrap=True,
         )
 
 

@@ -259,6 +259,11 @@ class DiagnoseSettings:
         return replace(self, **given) if given else self
 
 
+# Null simulations of `reconcile`: each costs a simulated record and its diagnosis scores; past
+# this, the band's percentiles gain nothing and the command would run for days.
+MAX_NULL_SIMS = 1000
+
+
 @dataclass(frozen=True)
 class ReconcileSettings:
     """Everything `jaxdefl reconcile` (`jaxdefl.reconcile.reconcile`) does besides its paths.
@@ -278,9 +283,11 @@ class ReconcileSettings:
     diagnosis: DiagnoseSettings = field(default_factory=DiagnoseSettings)
 
     def __post_init__(self):
-        if self.n_null < 5:
+        if not 5 <= self.n_null <= MAX_NULL_SIMS:
             raise ParameterError(
-                "n_null", f"expected at least 5 simulations for a 95 % band, got {self.n_null}"
+                "n_null",
+                f"expected at least 5 simulations for a 95 % band and at most {MAX_NULL_SIMS} "
+                f"(each is a whole simulated record), got {self.n_null}",
             )
         if self.n_sims < 1:
             raise ParameterError("n_sims", f"expected at least 1 simulation, got {self.n_sims}")

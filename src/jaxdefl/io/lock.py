@@ -112,16 +112,42 @@ def _try_lock(path: Path) -> int | None:
         os.close(fd)
 
 
+def _held(path: Path) -> bool:
+    """Whether another process holds the lock ``path`` now."""
+    import fcntl
+
+    try:
+        fd = os.open(path, os.O_RDONLY)
+    except OSError:
+        return False
+    try:
+        fcntl.flock(fd, fcntl.LOCK_SH | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return True
+    except OSError:
+        return False
+    finally:
+        os.close(fd)  # closing drops the probe's own shared lock
+    return False
+
+
 def remove_temporaries(out: Path | str) -> list[Path]:
     """Remove the temporary files of killed commands from OUT (call only while holding OUT's
-    lock). A directory output: every ``.jaxdefl-tmp-*`` and ``.*.tmp`` inside it; a file
-    output: the ``.jaxdefl-tmp-*`` names of OUT and its companions beside it. Returns them."""
+    lock). A directory output: every ``.jaxdefl-tmp-*`` and ``.*.zarr.tmp`` inside it, except
+    in a folder where another command holds a lock now (``jaxdefl fit --out OUT/sub/EST.csv``
+    while OUT's lock is held); a file output: the ``.jaxdefl-tmp-*`` names of OUT and its
+    companions beside it. Returns them."""
     out = Path(out)
     found: list[Path] = []
     if out.is_dir():
-        for p in out.rglob(".*"):
-            if p.name.startswith(_TMP_PREFIX) or (p.name.endswith(".tmp") and p.name.count(".") >= 2):
-                found.append(p)
+        for d, dirs, names in os.walk(out):
+            if any(n.endswith(LOCK_SUFFIX) and _held(Path(d) / n) for n in names):
+                dirs.clear()  # another command writes here now: its temporaries are alive
+                continue
+            for n in dirs + names:
+                if n.startswith(_TMP_PREFIX) or (n.startswith(".") and n.endswith(".zarr.tmp")):
+                    found.append(Path(d) / n)
+            dirs[:] = [n for n in dirs if not n.startswith(_TMP_PREFIX)]
     elif out.parent.is_dir():
         stem = re.escape(out.stem)
         pat = re.compile(

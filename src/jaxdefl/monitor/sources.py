@@ -186,6 +186,7 @@ def recording_source(path: Path, follow: bool = False, idle_s: float = 10.0, chu
         done = first.start + len(first.t)
         current = rec
         last = time.monotonic()
+        broken = None  # the error of a store caught between its new shape and its new chunk
         while True:
             got = False
             for ch in current.chunks(chunk, start=done):
@@ -199,9 +200,14 @@ def recording_source(path: Path, follow: bool = False, idle_s: float = 10.0, chu
             if got:
                 last = time.monotonic()
             elif time.monotonic() - last > idle_s:
+                if broken is not None:  # never completed: a damaged store, not a slow writer
+                    raise broken
                 return
             time.sleep(0.1)
-            current = open_recording(path)
+            try:
+                current, broken = open_recording(path), None
+            except InputError as err:  # a chunk appended right now: read it at the next poll
+                broken = err
 
     return Source(str(path), layout, gen(), live=follow)
 
