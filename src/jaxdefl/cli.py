@@ -182,7 +182,7 @@ def diagnose(
         Path, typer.Option("--out", help="Diagnosis to write (JSON; OUT.md and figures beside it).")
     ],
     reference: Annotated[Path | None, typer.Option(help="Reference (LDS) table t, plate, z.")] = None,
-    sensor: Annotated[str | None, typer.Option(help="tof or structured_light.")] = None,
+    sensor: Annotated[str | None, typer.Option(help="tof, structured_light, lds, accelerometer, camera_tracking or logger.")] = None,
     frame_rate: Annotated[float | None, typer.Option("--frame-rate", help="Camera frame rate, Hz.")] = None,
     modulation_mhz: Annotated[
         float | None, typer.Option("--modulation-mhz", help="ToF modulation frequency, MHz.")
