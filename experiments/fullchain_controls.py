@@ -12,7 +12,7 @@ unnamed terms are located structure, not names, and are counted apart. Prints a 
 and the totals per id. Records run in parallel (``--workers``), each through the CLI.
 
 Usage: python experiments/fullchain_controls.py --seeds 1 2 [--configs exp2_tof_1hz ...]
-       [--duration 180] [--workers 2] [--out DIR] [--skip-reconcile] [--src OTHER/src]
+       [--duration 180] [--workers 2] [--out DIR] [--skip-reconcile] [--twins 4] [--src OTHER/src]
 """
 
 from __future__ import annotations
@@ -33,6 +33,7 @@ CONFIGS = ("exp2_tof_1hz", "exp2_tof_3hz", "exp2_kinect_1hz", "exp2_kinect_3hz")
 
 
 SRC = ROOT / "src"
+TWINS = 4
 
 
 def _cli(*args: str, log: Path) -> None:
@@ -44,6 +45,11 @@ def _cli(*args: str, log: Path) -> None:
         done = subprocess.run(cmd, env=env, stdout=fh, stderr=subprocess.STDOUT, cwd=ROOT)
     if done.returncode != 0:
         raise RuntimeError(f"{' '.join(args[:2])} failed (exit {done.returncode}); see {log}")
+
+
+def _twins_flag() -> tuple[str, ...]:
+    """``--twins N`` for this tree's CLI; a baseline tree (``--src``) may not know the flag."""
+    return () if SRC != ROOT / "src" else ("--twins", str(TWINS))
 
 
 def _names(effects: list[dict]) -> list[str]:
@@ -72,7 +78,7 @@ def run_record(config: str, seed: int, duration: float, out: Path, do_reconcile:
         if not diag.exists():
             _cli(
                 "diagnose", str(traj), "--config", cfg, "--reference", str(sim / "lds.csv"),
-                "--out", str(diag), "--no-figures", log=log,
+                "--out", str(diag), "--no-figures", *_twins_flag(), log=log,
             )  # fmt: skip
         d = json.loads(diag.read_text())
         row["diagnose"] = _names(d["effects"])
@@ -81,13 +87,15 @@ def run_record(config: str, seed: int, duration: float, out: Path, do_reconcile:
             for e in d["effects"]
         ]
         row["diagnose_unnamed"] = [u.get("kind", "?") for u in d.get("unnamed", [])]
+        row["diagnose_nominal"] = [e["id"] for e in d.get("nominal_physics", [])]
         row["diagnose_s"] = d.get("seconds")
         if do_reconcile:
             rdir = rec / "reconcile"
             if not (rdir / "reconcile.json").exists():
                 _cli(
                     "reconcile", str(sim / "recording.zarr"), "--config", cfg,
-                    "--reference", str(sim / "lds.csv"), "--out", str(rdir), "--seed", str(seed), log=log,
+                    "--reference", str(sim / "lds.csv"), "--out", str(rdir), "--seed", str(seed),
+                    *_twins_flag(), log=log,
                 )  # fmt: skip
             r = json.loads((rdir / "reconcile.json").read_text())
             row["reconcile"] = _names(r["effects"])
@@ -105,6 +113,20 @@ def run_record(config: str, seed: int, duration: float, out: Path, do_reconcile:
     return row
 
 
+def prewarm(configs, duration: float, twins: int, workers: int) -> None:
+    """Simulate, extract and diagnose each config's twins (`jaxdefl.reconcile.chain`) once, as
+    `diagnose --config` and `reconcile` will ask for them (same settings, so the same cache)."""
+    sys.path.insert(0, str(SRC))
+    from jaxdefl.pipeline import _camera_facts
+    from jaxdefl.reconcile.chain import chain_null
+    from jaxdefl.settings import DiagnoseSettings
+
+    for c in configs:
+        cfg = ROOT / "configs" / f"{c}.toml"
+        settings = DiagnoseSettings().with_camera(_camera_facts(cfg))
+        chain_null(cfg, settings, clip_s=min(60.0, duration), k=twins, with_reference=True, workers=workers)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seeds", type=int, nargs="+", required=True)
@@ -113,15 +135,20 @@ def main() -> None:
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--out", type=Path, default=None, help="work directory (kept; reruns resume)")
     ap.add_argument("--skip-reconcile", action="store_true")
+    ap.add_argument("--twins", type=int, default=4, help="twins of the config (the CLI's --twins)")
     ap.add_argument("--src", type=Path, default=None, help="the jaxdefl source tree to run (a baseline)")
     args = ap.parse_args()
-    if args.src is not None:
-        global SRC
-        SRC = args.src
+    global SRC, TWINS
+    SRC = args.src if args.src is not None else SRC
+    TWINS = args.twins
     out = args.out or Path(tempfile.mkdtemp(prefix="fullchain_"))
     jobs = [(c, s) for s in args.seeds for c in args.configs]
     print(f"{len(jobs)} records ({args.duration:g} s each) -> {out}", flush=True)
     t0 = time.perf_counter()
+    if args.twins > 0 and SRC == ROOT / "src":  # the twins of each config once, before the records share them
+        os.environ.setdefault("JAXDEFL_CACHE", str(out / "cache"))
+        prewarm(args.configs, args.duration, args.twins, args.workers)
+        print(f"twins ready ({time.perf_counter() - t0:.0f} s)", flush=True)
     with ThreadPoolExecutor(args.workers) as pool:
         rows = list(
             pool.map(lambda j: run_record(j[0], j[1], args.duration, out, not args.skip_reconcile), jobs)
@@ -139,6 +166,8 @@ def main() -> None:
             flagged[step] += bool(r.get(step))
         rd = ", ".join(r.get("reconcile_detail", [])) or "-"
         print(f"{name:24s} {', '.join(r['diagnose_detail']) or '-':50s} {rd}")
+        if r.get("diagnose_nominal"):
+            print(f"{'':24s}   nominal physics (within the twins): {', '.join(r['diagnose_nominal'])}")
         if r.get("diagnose_unnamed"):
             print(f"{'':24s}   unnamed (not names): {', '.join(r['diagnose_unnamed'])}")
         if r.get("reconcile_outside"):

@@ -182,7 +182,9 @@ def diagnose(
         Path, typer.Option("--out", help="Diagnosis to write (JSON; OUT.md and figures beside it).")
     ],
     reference: Annotated[Path | None, typer.Option(help="Reference (LDS) table t, plate, z.")] = None,
-    sensor: Annotated[str | None, typer.Option(help="tof, structured_light, lds, accelerometer, camera_tracking or logger.")] = None,
+    sensor: Annotated[
+        str | None, typer.Option(help="tof, structured_light, lds, accelerometer, camera_tracking or logger.")
+    ] = None,
     frame_rate: Annotated[float | None, typer.Option("--frame-rate", help="Camera frame rate, Hz.")] = None,
     modulation_mhz: Annotated[
         float | None, typer.Option("--modulation-mhz", help="ToF modulation frequency, MHz.")
@@ -200,6 +202,7 @@ def diagnose(
         bool, typer.Option("--figures/--no-figures", help="Write a figure per effect.")
     ] = True,
     timestamps: Annotated[str, typer.Option("--timestamps", help=_TIMESTAMPS_HELP)] = "strict",
+    twins: Annotated[int, typer.Option("--twins", help=_TWINS_HELP)] = 4,
 ) -> None:
     """Locate where a recording departs from the nominal model and name the missing physics."""
     from .settings import DIAGNOSE_FLAGS, DiagnoseSettings
@@ -209,7 +212,15 @@ def diagnose(
         _jax_setup()
         from . import pipeline
 
-        pipeline.diagnose_file(traj, out, settings, reference=reference, config=config, figures=figures)
+        pipeline.diagnose_file(
+            traj, out, settings, reference=reference, config=config, figures=figures, twins=twins
+        )
+
+
+_TWINS_HELP = (
+    "With a config: simulated twins of it (rendered, extracted, diagnosed alike) whose findings "
+    "are the sensor's own physics, not missing physics; 0: none."
+)
 
 
 @app.command()
@@ -227,6 +238,7 @@ def reconcile(
     null_sims: Annotated[int, typer.Option(help="Simulations for the null band.")] = 20,
     seed: Annotated[int, typer.Option(help="Random seed of the simulations.")] = 0,
     timestamps: Annotated[str, typer.Option("--timestamps", help=_TIMESTAMPS_HELP)] = "strict",
+    twins: Annotated[int, typer.Option("--twins", help=_TWINS_HELP)] = 4,
 ) -> None:
     """Compare a recording with its simulation, name the missing physics, simulate it, compare again."""
     from .settings import RECONCILE_FLAGS, ReconcileSettings
@@ -236,7 +248,7 @@ def reconcile(
         _jax_setup()
         from . import pipeline
 
-        pipeline.reconcile_file(recording, config, out, settings, reference=reference)
+        pipeline.reconcile_file(recording, config, out, settings, reference=reference, twins=twins)
 
 
 @app.command()

@@ -368,6 +368,17 @@ def _camera_facts(config: Path | None) -> dict:
     return facts
 
 
+def _chain_null(d: dict, config: Path, settings, twins: int, duration_s: float, with_reference: bool) -> dict:
+    """DIAG.json with the twins' null applied (`jaxdefl.reconcile.chain`)."""
+    from .reconcile.chain import apply_chain_null, chain_null
+
+    with console.status(f"simulating, extracting and diagnosing {twins} twins of {config} ..."):
+        null = chain_null(
+            config, settings, clip_s=min(60.0, duration_s), k=twins, with_reference=with_reference
+        )
+    return apply_chain_null(d, null, duration_s)
+
+
 def diagnose_file(
     traj: Path,
     out: Path,
@@ -375,8 +386,12 @@ def diagnose_file(
     reference: Path | None = None,
     config: Path | None = None,
     figures: bool = True,
+    twins: int = 4,
 ) -> dict:
     """`jaxdefl diagnose`: read, diagnose, write OUT.json, OUT.md and a figure per effect.
+
+    With a ``config``, ``twins`` simulated twins of it are the null of every named effect
+    (`jaxdefl.reconcile.chain`): what they find as strongly is the sensor's nominal physics.
 
     ``settings`` were validated whole when they were made (`jaxdefl.settings.DiagnoseSettings`);
     what they do not say of the camera comes from the simulation ``config``, when given.
@@ -404,6 +419,8 @@ def diagnose_file(
         if "timestamps reclocked" in note or "timestamps merged" in note:
             console.print(f"  {note}", highlight=False, soft_wrap=True)
     d = diag.to_json()
+    if config is not None and twins > 0:
+        d = _chain_null(d, config, settings, twins, diag.ctx.duration_s, reference is not None)
     d["settings"] = {
         "jaxdefl_version": __version__,
         "trajectory": str(traj),
@@ -465,6 +482,7 @@ def reconcile_file(
     out: Path,
     settings: ReconcileSettings,
     reference: Path | None = None,
+    twins: int = 4,
 ) -> dict:
     """`jaxdefl reconcile`: DIR/reconcile.json, DIR/reconciled.toml, DIR/report.md and figures.
 
@@ -499,6 +517,20 @@ def reconcile_file(
     with console.status("reconciling ...") as status:
         status.update("reconcile: simulating and extracting a calibration clip ...")
         calibration = calibrate(cfg, seconds=10.0, seed=seed)
+        chain = None
+        if twins > 0:
+            from .reconcile.chain import chain_null
+
+            status.update(f"reconcile: simulating, extracting and diagnosing {twins} twins ...")
+            duration = float(df["t"].max() - df["t"].min())
+            chain = chain_null(
+                config,
+                settings.diagnosis,
+                clip_s=min(60.0, duration),
+                k=twins,
+                with_reference=ref is not None,
+                session=session,
+            )
         rec = reconcile(
             df,
             ref,
@@ -506,6 +538,7 @@ def reconcile_file(
             source=str(recording),
             on_step=lambda msg: status.update(f"reconcile: {msg} ..."),
             calibration=calibration,
+            chain=chain,
         )
     if _is_frames(recording):
         # the frames level: the recording's first seconds against clips of the frame simulator
@@ -532,6 +565,7 @@ def reconcile_file(
         "effects": rec.effects,
         "config": "reconciled.toml",
         "unexplained": rec.diagnosis.get("unexplained", []),
+        "nominal_physics": rec.diagnosis.get("nominal_physics", []),
         "f0_hz": rec.f0_hz,
         "settings": {
             "jaxdefl_version": __version__,

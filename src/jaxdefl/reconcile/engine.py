@@ -27,6 +27,7 @@ from .._errors import ConfigError
 from .._signals import check_interrupt
 from ..settings import ReconcileSettings
 from ..simulate.injection import INJECTABLE, EffectSpec, make_spec
+from .chain import apply_chain_null
 from .metrics import METRICS, TableStats, distance, null_95, table_stats
 from .twin import Twin
 
@@ -275,12 +276,14 @@ def reconcile(
     source: str = "<table>",
     on_step: Callable[[str], None] | None = None,
     calibration=None,
+    chain=None,
 ) -> Reconciliation:
     """Compare a validated one-segment trajectory table with its simulation, before and after the
     diagnosed effects are added to the simulation. ``settings`` (`ReconcileSettings`; default:
     its defaults): the simulations' counts and seed, what the diagnosis knows of the camera.
     ``calibration`` (`calibrate`): what the frame simulator and the extraction make of the sensor
-    (frame-common noise, range gains)."""
+    (frame-common noise, range gains). ``chain`` (`chain.chain_null`): the twins' null; a named
+    effect within it is the sensor's own physics, not simulated (``nominal_physics``)."""
     from ..diagnose import run_diagnosis
 
     say = on_step or (lambda _msg: None)
@@ -288,6 +291,8 @@ def reconcile(
     settings = settings if settings is not None else ReconcileSettings()
     n_sims, n_null, seed = settings.n_sims, settings.n_null, settings.seed
     diag = run_diagnosis(df, reference, settings.diagnosis, source=source).to_json()
+    if chain is not None:
+        diag = apply_chain_null(diag, chain, float(df["t"].max() - df["t"].min()))
     f0s = [s["f0_hz"] for s in diag["nominal"]["series"] if s["axis"] == "z" and np.isfinite(s["f0_hz"])]
     f0 = float(np.median(f0s)) if f0s else float(np.median([s["f0_hz"] for s in diag["nominal"]["series"]]))
     duration = float(df["t"].max() - df["t"].min())
@@ -338,6 +343,8 @@ def reconcile(
                 plates=e.get("plates", []),
                 axes=e.get("axes", []),
                 delta_bic=e.get("delta_bic"),
+                lr=e.get("lr"),
+                null_lr_95=e.get("null_lr_95"),
                 simulated=spec is not None,
                 injected=spec.to_dict() if spec is not None else None,
                 note=why,
