@@ -13,6 +13,7 @@ and the totals per id. Records run in parallel (``--workers``), each through the
 
 Usage: python experiments/fullchain_controls.py --seeds 1 2 [--configs exp2_tof_1hz ...]
        [--duration 180] [--workers 2] [--out DIR] [--skip-reconcile] [--twins 4] [--src OTHER/src]
+       [--report-only]
 """
 
 from __future__ import annotations
@@ -136,6 +137,7 @@ def main() -> None:
     ap.add_argument("--out", type=Path, default=None, help="work directory (kept; reruns resume)")
     ap.add_argument("--skip-reconcile", action="store_true")
     ap.add_argument("--twins", type=int, default=4, help="twins of the config (the CLI's --twins)")
+    ap.add_argument("--report-only", action="store_true", help="print the records of --out finished so far")
     ap.add_argument("--src", type=Path, default=None, help="the jaxdefl source tree to run (a baseline)")
     args = ap.parse_args()
     global SRC, TWINS
@@ -145,14 +147,19 @@ def main() -> None:
     jobs = [(c, s) for s in args.seeds for c in args.configs]
     print(f"{len(jobs)} records ({args.duration:g} s each) -> {out}", flush=True)
     t0 = time.perf_counter()
-    if args.twins > 0 and SRC == ROOT / "src":  # the twins of each config once, before the records share them
+    if (
+        args.twins > 0 and SRC == ROOT / "src" and not args.report_only
+    ):  # the twins of each config once, before the records share them
         os.environ.setdefault("JAXDEFL_CACHE", str(out / "cache"))
         prewarm(args.configs, args.duration, args.twins, args.workers)
         print(f"twins ready ({time.perf_counter() - t0:.0f} s)", flush=True)
-    with ThreadPoolExecutor(args.workers) as pool:
-        rows = list(
-            pool.map(lambda j: run_record(j[0], j[1], args.duration, out, not args.skip_reconcile), jobs)
-        )
+    if args.report_only:  # the records finished so far (a run stopped early)
+        rows = [json.loads(p.read_text()) for c, s in jobs if (p := out / f"{c}_s{s}" / "row.json").exists()]
+    else:
+        with ThreadPoolExecutor(args.workers) as pool:
+            rows = list(
+                pool.map(lambda j: run_record(j[0], j[1], args.duration, out, not args.skip_reconcile), jobs)
+            )
     totals = {"diagnose": Counter(), "reconcile": Counter()}
     flagged = Counter()
     print(f"\n{'record':24s} {'diagnose: false names':50s} reconcile: false names")
