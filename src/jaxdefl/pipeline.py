@@ -420,7 +420,10 @@ def diagnose_file(
             console.print(f"  {note}", highlight=False, soft_wrap=True)
     d = diag.to_json()
     if config is not None and twins > 0:
+        named = d["effects"]
         d = _chain_null(d, config, settings, twins, diag.ctx.duration_s, reference is not None)
+        kept = {id(e) for e in d["effects"]}  # the report lists what DIAG.json keeps
+        diag.accepted = [a for a, e in zip(diag.accepted, named, strict=True) if id(e) in kept]
     d["settings"] = {
         "jaxdefl_version": __version__,
         "trajectory": str(traj),

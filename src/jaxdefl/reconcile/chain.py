@@ -86,9 +86,17 @@ def _twin(args) -> dict[str, float]:
     return best
 
 
+# the code a twin's findings depend on: the simulator, the extraction and the diagnosis
+_TWIN_CODE = ("simulate", "frames", "io", "series", "fit", "spectral", "diagnose")
+_ORCHESTRATION = ("pipeline.py", "cli.py", "progress.py", "__main__.py")
+
+
 def _source_digest() -> str:
+    """A digest of the code that makes the twins (a cached null is stale when it changes)."""
     h = hashlib.sha256()
-    for p in sorted(TWIN_ROOT.rglob("*.py")):
+    top = [p for p in sorted(TWIN_ROOT.glob("*.py")) if p.name not in _ORCHESTRATION]
+    files = top + [p for d in _TWIN_CODE for p in sorted((TWIN_ROOT / d).rglob("*.py"))]
+    for p in files:
         h.update(p.read_bytes())
     return h.hexdigest()[:16]
 
