@@ -182,6 +182,8 @@ def test_reconcile_cli_on_frames_with_a_camera_warm_up(tmp_path):
             str(plain),
             "--out",
             str(out),
+            "--twins",
+            "0",  # the twins' null has its own tests (test_diagnose_sensor.py)
         ],
         capture_output=True,
         text=True,

@@ -199,7 +199,9 @@ def diagnose(
         Path, typer.Option("--out", help="Diagnosis to write (JSON; OUT.md and figures beside it).")
     ],
     reference: Annotated[Path | None, typer.Option(help="Reference (LDS) table t, plate, z.")] = None,
-    sensor: Annotated[str | None, typer.Option(help="tof or structured_light.")] = None,
+    sensor: Annotated[
+        str | None, typer.Option(help="tof, structured_light, lds, accelerometer, camera_tracking or logger.")
+    ] = None,
     frame_rate: Annotated[float | None, typer.Option("--frame-rate", help="Camera frame rate, Hz.")] = None,
     modulation_mhz: Annotated[
         float | None, typer.Option("--modulation-mhz", help="ToF modulation frequency, MHz.")
@@ -218,6 +220,7 @@ def diagnose(
     ] = True,
     timestamps: Annotated[str, typer.Option("--timestamps", help=_TIMESTAMPS_HELP)] = "strict",
     wait: Annotated[bool, typer.Option("--wait", help=_WAIT_HELP)] = False,
+    twins: Annotated[int, typer.Option("--twins", help=_TWINS_HELP)] = 4,
 ) -> None:
     """Locate where a recording departs from the nominal model and name the missing physics."""
     from .settings import DIAGNOSE_FLAGS, DiagnoseSettings
@@ -228,7 +231,15 @@ def diagnose(
         from . import pipeline
 
         with _locked(out, "diagnose", wait):
-            pipeline.diagnose_file(traj, out, settings, reference=reference, config=config, figures=figures)
+            pipeline.diagnose_file(
+                traj, out, settings, reference=reference, config=config, figures=figures, twins=twins
+            )
+
+
+_TWINS_HELP = (
+    "With a config: simulated twins of it (rendered, extracted, diagnosed alike) whose findings "
+    "are the sensor's own physics, not missing physics; 0: none."
+)
 
 
 @app.command()
@@ -247,6 +258,7 @@ def reconcile(
     seed: Annotated[int, typer.Option(help="Random seed of the simulations.")] = 0,
     timestamps: Annotated[str, typer.Option("--timestamps", help=_TIMESTAMPS_HELP)] = "strict",
     wait: Annotated[bool, typer.Option("--wait", help=_WAIT_HELP)] = False,
+    twins: Annotated[int, typer.Option("--twins", help=_TWINS_HELP)] = 4,
 ) -> None:
     """Compare a recording with its simulation, name the missing physics, simulate it, compare again."""
     from .settings import RECONCILE_FLAGS, ReconcileSettings
@@ -257,7 +269,7 @@ def reconcile(
         from . import pipeline
 
         with _locked(out, "reconcile", wait):
-            pipeline.reconcile_file(recording, config, out, settings, reference=reference)
+            pipeline.reconcile_file(recording, config, out, settings, reference=reference, twins=twins)
 
 
 @app.command()

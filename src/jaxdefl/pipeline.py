@@ -515,6 +515,17 @@ def _check_diagnosis_memory(df: pd.DataFrame, traj: Path, settings: DiagnoseSett
         )
 
 
+def _chain_null(d: dict, config: Path, settings, twins: int, duration_s: float, with_reference: bool) -> dict:
+    """DIAG.json with the twins' null applied (`jaxdefl.reconcile.chain`)."""
+    from .reconcile.chain import apply_chain_null, chain_null
+
+    with status(f"jaxdefl diagnose: simulating, extracting and diagnosing {twins} twins of {config} ..."):
+        null = chain_null(
+            config, settings, clip_s=min(60.0, duration_s), k=twins, with_reference=with_reference
+        )
+    return apply_chain_null(d, null, duration_s)
+
+
 def diagnose_file(
     traj: Path,
     out: Path,
@@ -522,8 +533,12 @@ def diagnose_file(
     reference: Path | None = None,
     config: Path | None = None,
     figures: bool = True,
+    twins: int = 4,
 ) -> dict:
     """`jaxdefl diagnose`: read, diagnose, write OUT.json, OUT.md and a figure per effect.
+
+    With a ``config``, ``twins`` simulated twins of it are the null of every named effect
+    (`jaxdefl.reconcile.chain`): what they find as strongly is the sensor's nominal physics.
 
     ``settings`` were validated whole when they were made (`jaxdefl.settings.DiagnoseSettings`);
     what they do not say of the camera comes from the simulation ``config``, when given.
@@ -553,6 +568,11 @@ def diagnose_file(
         if "timestamps reclocked" in note or "timestamps merged" in note:
             console.print(f"  {note}", highlight=False, soft_wrap=True)
     d = diag.to_json()
+    if config is not None and twins > 0:
+        named = d["effects"]
+        d = _chain_null(d, config, settings, twins, diag.ctx.duration_s, reference is not None)
+        kept = {id(e) for e in d["effects"]}  # the report lists what DIAG.json keeps
+        diag.accepted = [a for a, e in zip(diag.accepted, named, strict=True) if id(e) in kept]
     d["settings"] = {
         "jaxdefl_version": __version__,
         "trajectory": str(traj),
@@ -618,6 +638,7 @@ def reconcile_file(
     out: Path,
     settings: ReconcileSettings,
     reference: Path | None = None,
+    twins: int = 4,
 ) -> dict:
     """`jaxdefl reconcile`: DIR/reconcile.json, DIR/reconciled.toml, DIR/report.md and figures.
 
@@ -651,6 +672,20 @@ def reconcile_file(
     settings = replace(settings, diagnosis=settings.diagnosis.with_camera(_camera_facts(config)))
     with status("jaxdefl reconcile: simulating and extracting a calibration clip ...") as step:
         calibration = calibrate(cfg, seconds=10.0, seed=seed)
+        chain = None
+        if twins > 0:
+            from .reconcile.chain import chain_null
+
+            step.update(f"jaxdefl reconcile: simulating, extracting and diagnosing {twins} twins ...")
+            duration = float(df["t"].max() - df["t"].min())
+            chain = chain_null(
+                config,
+                settings.diagnosis,
+                clip_s=min(60.0, duration),
+                k=twins,
+                with_reference=ref is not None,
+                session=session,
+            )
         rec = reconcile(
             df,
             ref,
@@ -658,6 +693,7 @@ def reconcile_file(
             source=str(recording),
             on_step=lambda msg: step.update(f"jaxdefl reconcile: {msg} ..."),
             calibration=calibration,
+            chain=chain,
         )
     if _is_frames(recording):
         # the frames level: the recording's first seconds against clips of the frame simulator
@@ -684,6 +720,7 @@ def reconcile_file(
         "effects": rec.effects,
         "config": "reconciled.toml",
         "unexplained": rec.diagnosis.get("unexplained", []),
+        "nominal_physics": rec.diagnosis.get("nominal_physics", []),
         "f0_hz": rec.f0_hz,
         "settings": {
             "jaxdefl_version": __version__,

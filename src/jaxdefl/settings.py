@@ -96,7 +96,7 @@ MONITOR_FLAGS = {
     "timestamps": "--timestamps",
 }
 AXES = ("z", "x", "y")
-SENSORS = ("tof", "structured_light")
+SENSORS = ("tof", "structured_light", "lds", "accelerometer", "camera_tracking", "logger")
 
 
 def _names(v: tuple[str, ...] | str) -> tuple[str, ...]:

@@ -37,7 +37,10 @@ from functools import cached_property
 
 import numpy as np
 
+from ..settings import SENSORS as SENSOR_KINDS
+
 __all__ = [
+    "SENSOR_KINDS",
     "Series",
     "Harmonic",
     "State",
@@ -272,9 +275,12 @@ class Context:
         t0: epoch (or table) time of t = 0; duration_s: span of the record.
         dt_s: frame interval; n_frames: frames on the clock (max k + 1).
         f0_hz: the loading frequency (median of the nominal fits).
-        sensor: "tof", "structured_light" or None; frame_rate_hz, modulation_mhz: sensor facts
+        sensor: a `SENSOR_KINDS` kind or None (unknown); frame_rate_hz, modulation_mhz: sensor facts
             (frame_rate_hz measured from the table when not given).
         tap_offsets: the ToF tap offsets (fractions of the frame period), default evenly spread.
+        tap_spread_s: the tap spread the nominal model already holds (s; 0: none): with a
+            configured ToF camera the tied series' nominal is the reference seen through its
+            taps (`_context.nominal_tap_spread`), so the reference effects find what remains.
         left_out: series not diagnosed, each ``{"plate", "axis", "status", "n"}`` (status
             ``too_few_samples`` or ``value_out_of_range``, as in the estimates table).
     """
@@ -293,6 +299,7 @@ class Context:
     frame_rate_hz: float | None = None
     modulation_mhz: float | None = None
     tap_offsets: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75)
+    tap_spread_s: float = 0.0
     left_out: tuple[dict, ...] = ()
     _nuisance: dict = field(default_factory=dict, init=False, repr=False, compare=False)
     _noise: dict = field(default_factory=dict, init=False, repr=False, compare=False)
@@ -362,6 +369,11 @@ class Effect(abc.ABC):
             RMS that of a ramp). An effect with its own shape overrides `plausible_rms`.
         noise_structure: it models the noise (its level, its outliers), not the mean: a generic
             mean term that explains the same residual better goes before it (`run_diagnosis`).
+        sensors: the sensor kinds (`SENSOR_KINDS`) that can produce it; on a record of another
+            kind (`Context.sensor`, from the recording, the config or ``--sensor``) it is not a
+            name the diagnosis may give (`cannot_tell`). Default: every kind.
+        causes: {sensor kind: the mechanism that makes it on that sensor}, for explanations
+            (`cause`); a kind not listed gets ``causes["*"]``.
     """
 
     id: str = ""
@@ -372,6 +384,12 @@ class Effect(abc.ABC):
     plausible_unit: str = "noise"
     gate_params: int = 3
     noise_structure: bool = False
+    sensors: tuple[str, ...] = SENSOR_KINDS
+    causes: dict[str, str] = {}  # noqa: RUF012 (read-only class data)
+
+    def cause(self, ctx: Context) -> str:
+        """The mechanism that makes this effect on the record's sensor (for explanations)."""
+        return self.causes.get(ctx.sensor or "*", self.causes.get("*", ""))
 
     def plausible_rms(self, ctx: Context, i: int) -> float:
         """RMS (mm) of the effect's term on series i at a plausible magnitude."""
@@ -412,6 +430,11 @@ class Effect(abc.ABC):
         """Why this effect cannot be told on this record, or None when it can; ``corr``: the
         noise's correlation across the series of a frame (`_correlation.FrameCorrelation`), for
         an effect whose evidence depends on its pattern (`gate_design_effect`)."""
+        if ctx.sensor is not None and ctx.sensor not in self.sensors:
+            return (
+                f"a {ctx.sensor} sensor does not produce it (only {', '.join(self.sensors)}): "
+                "not a name for this record"
+            )
         if self.needs_reference and not ctx.reference:
             return "needs a reference (--reference LDS.csv) on at least one plate"
         if len(ctx.plates) < self.min_plates:

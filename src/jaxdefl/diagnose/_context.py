@@ -18,6 +18,7 @@ from ..settings import DiagnoseSettings
 from ..spectral import lomb_peaks
 from ..status import Status
 from ._base import Context, Harmonic, Series, State, lstsq
+from .effects.shared_fits import tap_response
 
 __all__ = ["build_context"]
 
@@ -51,6 +52,24 @@ def _linear_harmonic(t: np.ndarray, y: np.ndarray, omega: float, t_ref: float) -
 
 def _tied_offset(s: Series, h: Harmonic) -> Harmonic:
     return Harmonic(h.omega, h.C, h.D, float(np.mean(s.y - h.motion(s.t))), h.t_ref, h.sigma_omega)
+
+
+def _through_taps(h: Harmonic, tap_spread_s: float, offsets: tuple[float, ...]) -> Harmonic:
+    """The reference's harmonic as the camera's taps see it: Z = C − iD times H(ω; T) of the
+    four taps at offsets·T after the frame stamp (`tap_response`): a ToF camera's gain loss and
+    lead, part of its nominal physics when its taps are known (thesis Section 5.3)."""
+    if tap_spread_s <= 0:
+        return h
+    z = complex(h.C, -h.D) * complex(tap_response(h.omega, tap_spread_s, offsets))
+    return Harmonic(h.omega, z.real, -z.imag, h.offset, h.t_ref, h.sigma_omega, h.sigma_amplitude)
+
+
+def nominal_tap_spread(settings: DiagnoseSettings) -> float:
+    """The configured sensor's tap spread (s): a ToF camera whose tap offsets are known (a
+    simulation config's) samples its four taps over one frame period; 0 when not known."""
+    if settings.sensor != "tof" or settings.tap_offsets is None or not settings.frame_rate_hz:
+        return 0.0
+    return 1.0 / float(settings.frame_rate_hz)
 
 
 def build_context(
@@ -213,6 +232,8 @@ def build_context(
             for plate in sorted(set(ref["plate"].unique()) - set(ref_harm)):
                 notes.append(f"reference plate {plate}: no significant motion in the LDS; not used")
 
+    taps = settings.tap_offsets if settings.tap_offsets is not None else (0.0, 0.25, 0.5, 0.75)
+    tap_spread = nominal_tap_spread(settings)
     nominal: list[Harmonic] = []
     states: list[State] = []
     for i, (s, h) in enumerate(zip(series, frees, strict=True)):
@@ -227,7 +248,9 @@ def build_context(
                 )
                 ref_harm[s.plate] = hr
             series[i] = s = Series(s.plate, s.axis, s.t, s.y, s.k, tied=True)
-            h_nom = _tied_offset(s, hr)
+            # the camera's modelled lag is nominal: what `timing_error` and `motion_artefact`
+            # find is what remains after it
+            h_nom = _tied_offset(s, _through_taps(hr, tap_spread, taps))
             n_params = 1
         else:
             h_nom = h
@@ -255,7 +278,8 @@ def build_context(
         sensor=settings.sensor,
         frame_rate_hz=float(frame_rate_hz) if frame_rate_hz else 1.0 / float(dt),
         modulation_mhz=settings.modulation_mhz,
-        tap_offsets=settings.tap_offsets if settings.tap_offsets is not None else (0.0, 0.25, 0.5, 0.75),
+        tap_offsets=taps,
+        tap_spread_s=tap_spread,
         left_out=tuple(left_out),
     )
     return ctx, states, notes

@@ -27,10 +27,11 @@ from .._errors import ConfigError
 from .._signals import check_interrupt
 from ..settings import ReconcileSettings
 from ..simulate.injection import INJECTABLE, EffectSpec, make_spec
-from .metrics import METRICS, TableStats, distance, table_stats
+from .chain import apply_chain_null
+from .metrics import METRICS, TableStats, distance, null_95, table_stats
 from .twin import Twin
 
-__all__ = ["Reconciliation", "effect_tables_toml", "reconcile", "specs_from_diagnosis"]
+__all__ = ["Reconciliation", "effect_tables_toml", "keep_shown", "reconcile", "specs_from_diagnosis"]
 
 
 @dataclass
@@ -70,6 +71,26 @@ def _per_range(sizes: dict, value: float, calibration) -> float:
     return float(np.median(ratios)) if ratios else value
 
 
+def _injection_key(eid: str, params: dict, plates: tuple) -> tuple:
+    """What makes two reports of an effect one injection: a range effect is one error of the
+    pixels' ranges and a motion or clock effect one motion of the beam or one clock, whatever
+    axes the diagnosis saw it on; they differ only in what locates them (a jump's time, a line's
+    frequency, a harmonic's order, a mode's number)."""
+    where = {
+        "level_jump": ("t_jump_s", 0),
+        "extra_periodic": ("freq_hz", 3),
+        "mode_shape": ("mode", 0),
+        "harmonic_distortion": ("order", 0),
+        "stiffness_change": ("t_s", 0),
+    }
+    if eid in where:
+        name, digits = where[eid]
+        return (eid, plates, round(float(params[name]), digits))
+    if eid in ("amplitude_modulation", "frequency_modulation") and "freq_hz" in params:
+        return (eid, plates, round(float(params["freq_hz"]), 3))
+    return (eid, plates)
+
+
 def specs_from_diagnosis(
     effects: list[dict], duration_s: float, calibration=None, n_plates: int = 0
 ) -> list[tuple[EffectSpec | None, str]]:
@@ -81,86 +102,88 @@ def specs_from_diagnosis(
     effects are sized in range through the calibration's gains; one seen on at least half of the
     ``n_plates`` plates is taken for the whole image (a camera effect), else for its plates.
     A range effect is one error of the pixels' ranges, seen on every axis of a plate (the centroid
-    moves along its line of sight): the diagnosis may report it once per axis, and it is
-    simulated once (the first report; the others say so)."""
-    out: list[tuple[EffectSpec | None, str]] = []
+    moves along its line of sight), and a motion effect one motion of the beam: the diagnosis
+    may report either once per axis, and it is simulated once (the first report, z first: a
+    motion's size is the mid-span's; the others say so, `_injection_key`)."""
+    out: list[tuple[EffectSpec | None, str] | None] = [None] * len(effects)
     ranges: set = set()
-    for e in effects:
-        eid = e["id"]
-        p = {k: _value(v) for k, v in e.get("parameters", {}).items()}
-        detail = e.get("detail") or {}
-        kind = p.get("kind") or detail.get("kind")
-        plates = tuple(int(x) for x in e.get("plates", ()))
-        params: dict[str, float] = {}
-        if eid not in INJECTABLE:
-            out.append(
-                (None, f"{eid} is not one of the effects the simulator injects ({', '.join(INJECTABLE)})")
-            )
-            continue
-        whole = n_plates > 0 and len(plates) * 2 >= n_plates
-        if eid == "drift":
-            amp = _per_range(detail.get("amplitudes_mm") or {}, p["amplitude_mm"], calibration)
-            # a polynomial drift (slower than the record) is simulated as a warm-up whose time
-            # constant starts at the record's length (`refine_range_effects` fits it)
-            tau = p["tau_s"] if kind == "exponential" and p.get("tau_s") else duration_s
-            params = {"amplitude_mm": amp, "tau_s": tau}
-            plates = () if whole else plates
-        elif eid == "level_jump":
-            size = _per_range(detail.get("sizes_mm") or {}, p["size_mm"], calibration)
-            params = {"t_jump_s": p["t_jump_s"], "size_mm": size}
-            plates = () if whole else plates
-        elif eid == "outliers":
-            scales = {k: abs(float(v)) for k, v in (detail.get("scales_mm") or {}).items()}
-            scale = abs(_per_range(scales, p["scale_mm"], calibration))
-            params = {"fraction": p["fraction"], "scale_mm": scale}
-        elif eid == "timing_error":
-            params = {k: p[k] for k in ("offset_s", "rate_ppm") if p.get(k) is not None}
-            plates = ()
-        elif eid in ("amplitude_modulation", "frequency_modulation"):
-            linear, depth = (
-                ("relative_rate_per_s", "depth")
-                if eid == "amplitude_modulation"
-                else ("drift_hz_per_s", "depth_rad")
-            )
-            if linear in p:  # about the record's middle, as the diagnosis fits it
-                params = {linear: p[linear], "t_ref_s": duration_s / 2}
-            else:
-                phase = detail.get("phase_rad", 0.0)
-                params = {depth: p[depth], "freq_hz": p["freq_hz"], "phase_rad": phase}
-            plates = ()
-        elif eid == "extra_periodic":
-            params = {"freq_hz": p["freq_hz"], "amplitude_mm": p["amplitude_mm"]}
-            plates = ()
-        elif eid == "camera_shake":  # the camera moved: the whole image, a motion alike in law
-            params = {"rms_mm": p["rms_mm"], "corner_hz": p["corner_hz"]}
-            plates = ()
-        elif eid == "stiffness_change":
-            params = {k: p[k] for k in ("t_s", "f0_change", "amplitude_change")}
-            plates = ()
-        elif eid == "harmonic_distortion":
-            params = {
-                "order": p["order"],
-                "amplitude_mm": p["amplitude_mm"],
-                "phase_rad": p.get("phase_rad") or 0.0,
-            }
-            plates = ()
-        elif eid == "mode_shape":  # the diagnosis fits the injection's parameters
-            params = {k: p[k] for k in ("mode", "freq_hz", "amplitude_mm", "phase_rad")}
-            plates = ()
-        if any(v is None or not math.isfinite(float(v)) for v in params.values()):
-            out.append((None, f"{eid}: a parameter was not estimated"))
-            continue
-        if eid in ("drift", "level_jump"):
-            key = (eid, plates, round(float(params["t_jump_s"])) if eid == "level_jump" else None)
-            if key in ranges:
-                out.append((None, f"the same range {eid} as one above, seen on other axes: simulated once"))
-                continue
-            ranges.add(key)
-        try:
-            out.append((make_spec(eid, {k: float(v) for k, v in params.items()}, plates), "simulated"))
-        except ConfigError as err:
-            out.append((None, f"{eid}: fitted parameters outside what can be simulated ({err})"))
+    # z first: a motion effect's amplitude is reported at mid-span, as z sees it
+    order = sorted(range(len(effects)), key=lambda j: "z" not in effects[j].get("axes", ["z"]))
+    for j in order:
+        out[j] = _spec_of(effects[j], duration_s, calibration, n_plates, ranges)
     return out
+
+
+def _spec_of(e: dict, duration_s: float, calibration, n_plates: int, ranges: set):
+    """One diagnosed effect as (spec or None, why); ``ranges``: the injections made so far."""
+    eid = e["id"]
+    p = {k: _value(v) for k, v in e.get("parameters", {}).items()}
+    detail = e.get("detail") or {}
+    kind = p.get("kind") or detail.get("kind")
+    plates = tuple(int(x) for x in e.get("plates", ()))
+    params: dict[str, float] = {}
+    if eid not in INJECTABLE:
+        return None, f"{eid} is not one of the effects the simulator injects ({', '.join(INJECTABLE)})"
+    whole = n_plates > 0 and len(plates) * 2 >= n_plates
+    if eid == "drift":
+        amp = _per_range(detail.get("amplitudes_mm") or {}, p["amplitude_mm"], calibration)
+        # a polynomial drift (slower than the record) is simulated as a warm-up whose time
+        # constant starts at the record's length (`refine_range_effects` fits it)
+        tau = p["tau_s"] if kind == "exponential" and p.get("tau_s") else duration_s
+        params = {"amplitude_mm": amp, "tau_s": tau}
+        plates = () if whole else plates
+    elif eid == "level_jump":
+        size = _per_range(detail.get("sizes_mm") or {}, p["size_mm"], calibration)
+        params = {"t_jump_s": p["t_jump_s"], "size_mm": size}
+        plates = () if whole else plates
+    elif eid == "outliers":
+        scales = {k: abs(float(v)) for k, v in (detail.get("scales_mm") or {}).items()}
+        scale = abs(_per_range(scales, p["scale_mm"], calibration))
+        params = {"fraction": p["fraction"], "scale_mm": scale}
+    elif eid == "timing_error":
+        params = {k: p[k] for k in ("offset_s", "rate_ppm") if p.get(k) is not None}
+        plates = ()
+    elif eid in ("amplitude_modulation", "frequency_modulation"):
+        linear, depth = (
+            ("relative_rate_per_s", "depth")
+            if eid == "amplitude_modulation"
+            else ("drift_hz_per_s", "depth_rad")
+        )
+        if linear in p:  # about the record's middle, as the diagnosis fits it
+            params = {linear: p[linear], "t_ref_s": duration_s / 2}
+        else:
+            phase = detail.get("phase_rad", 0.0)
+            params = {depth: p[depth], "freq_hz": p["freq_hz"], "phase_rad": phase}
+        plates = ()
+    elif eid == "extra_periodic":
+        params = {"freq_hz": p["freq_hz"], "amplitude_mm": p["amplitude_mm"]}
+        plates = ()
+    elif eid == "camera_shake":  # the camera moved: the whole image, a motion alike in law
+        params = {"rms_mm": p["rms_mm"], "corner_hz": p["corner_hz"]}
+        plates = ()
+    elif eid == "stiffness_change":
+        params = {k: p[k] for k in ("t_s", "f0_change", "amplitude_change")}
+        plates = ()
+    elif eid == "harmonic_distortion":
+        params = {
+            "order": p["order"],
+            "amplitude_mm": p["amplitude_mm"],
+            "phase_rad": p.get("phase_rad") or 0.0,
+        }
+        plates = ()
+    elif eid == "mode_shape":  # the diagnosis fits the injection's parameters
+        params = {k: p[k] for k in ("mode", "freq_hz", "amplitude_mm", "phase_rad")}
+        plates = ()
+    if any(v is None or not math.isfinite(float(v)) for v in params.values()):
+        return None, f"{eid}: a parameter was not estimated"
+    key = _injection_key(eid, params, plates)
+    if key in ranges:
+        return None, f"the same {eid} as one above, seen on other axes: simulated once"
+    ranges.add(key)
+    try:
+        return make_spec(eid, {k: float(v) for k, v in params.items()}, plates), "simulated"
+    except ConfigError as err:
+        return None, f"{eid}: fitted parameters outside what can be simulated ({err})"
 
 
 def _range_columns(spec: EffectSpec, t: np.ndarray, tau: float | None = None) -> np.ndarray:
@@ -223,6 +246,23 @@ def refine_range_effects(twin: Twin, df: pd.DataFrame, specs: tuple[EffectSpec, 
     return tuple(out)
 
 
+_NOT_SHOWN = (
+    "{} changes nothing in the trajectory simulation of this recording (it cannot render it here): "
+    "not simulated, so 'after' would not test it"
+)
+
+
+def keep_shown(twin: Twin, mapped: list, seed: int = 0) -> list[tuple[EffectSpec | None, str]]:
+    """``mapped`` (spec or None, why) with None and the reason where the twin's output does not
+    change by the spec: `simulated` means the simulation shows the effect, so what the twin
+    cannot render (a mode without the plates' places along the span, one plate's clipping) is
+    said, not claimed."""
+    return [
+        (spec, why) if spec is None or twin.shows(spec, seed) else (None, _NOT_SHOWN.format(spec.id))
+        for spec, why in mapped
+    ]
+
+
 def _median_distance(r: TableStats, sims: list[TableStats], metric: str) -> float:
     d = [distance(r, s, metric) for s in sims]
     d = [x for x in d if np.isfinite(x)]
@@ -236,12 +276,14 @@ def reconcile(
     source: str = "<table>",
     on_step: Callable[[str], None] | None = None,
     calibration=None,
+    chain=None,
 ) -> Reconciliation:
     """Compare a validated one-segment trajectory table with its simulation, before and after the
     diagnosed effects are added to the simulation. ``settings`` (`ReconcileSettings`; default:
     its defaults): the simulations' counts and seed, what the diagnosis knows of the camera.
     ``calibration`` (`calibrate`): what the frame simulator and the extraction make of the sensor
-    (frame-common noise, range gains)."""
+    (frame-common noise, range gains). ``chain`` (`chain.chain_null`): the twins' null; a named
+    effect within it is the sensor's own physics, not simulated (``nominal_physics``)."""
     from ..diagnose import run_diagnosis
 
     say = on_step or (lambda _msg: None)
@@ -249,6 +291,8 @@ def reconcile(
     settings = settings if settings is not None else ReconcileSettings()
     n_sims, n_null, seed = settings.n_sims, settings.n_null, settings.seed
     diag = run_diagnosis(df, reference, settings.diagnosis, source=source).to_json()
+    if chain is not None:
+        diag = apply_chain_null(diag, chain, float(df["t"].max() - df["t"].min()))
     f0s = [s["f0_hz"] for s in diag["nominal"]["series"] if s["axis"] == "z" and np.isfinite(s["f0_hz"])]
     f0 = float(np.median(f0s)) if f0s else float(np.median([s["f0_hz"] for s in diag["nominal"]["series"]]))
     duration = float(df["t"].max() - df["t"].min())
@@ -261,6 +305,8 @@ def reconcile(
     specs = refine_range_effects(twin, df, specs, calibration)
     refined = iter(specs)
     mapped = [(next(refined) if spec is not None else None, why) for spec, why in mapped]
+    mapped = keep_shown(twin, mapped, seed)
+    specs = tuple(spec for spec, _ in mapped if spec is not None)
     rec = table_stats(df, f0)
     nominal, fixed, null = [], [], []
     for m in range(n_sims):
@@ -274,9 +320,7 @@ def reconcile(
 
     levels = []
     for metric, level in METRICS.items():
-        nd = [_median_distance(p, nominal, metric) for p in null]
-        nd = [x for x in nd if np.isfinite(x)]
-        band = float(np.quantile(nd, 0.95)) if nd else float("nan")
+        band, how = null_95([_median_distance(p, nominal, metric) for p in null])
         if metric == "frame_common" and calibration is not None:
             # the simulator's share was measured on a short clip: its error widens the band
             band = math.hypot(band, 1.96 * calibration.frame_common_se)
@@ -287,6 +331,7 @@ def reconcile(
                 before=_median_distance(rec, nominal, metric),
                 after=_median_distance(rec, fixed, metric),
                 null_95=band,
+                null_method=how,
             )
         )
     effects = []
@@ -298,6 +343,8 @@ def reconcile(
                 plates=e.get("plates", []),
                 axes=e.get("axes", []),
                 delta_bic=e.get("delta_bic"),
+                lr=e.get("lr"),
+                null_lr_95=e.get("null_lr_95"),
                 simulated=spec is not None,
                 injected=spec.to_dict() if spec is not None else None,
                 note=why,

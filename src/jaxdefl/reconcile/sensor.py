@@ -10,6 +10,9 @@ of the configured experiment (same seed, so the noise cancels in differences):
 - ``gain``: per plate and axis, how far the extracted centroid moves when every pixel's range
   reads 1 mm farther (the transfer of a range effect such as a warm-up into trajectories; the
   extraction's depth classification and 3D geometry set it, not 1).
+
+and one of the config: each plate's position along the span (``plate_xi``, x / L), where the
+beam's other bending modes (`mode_shape`) move it.
 """
 
 from __future__ import annotations
@@ -35,6 +38,7 @@ class SensorCalibration:
     gain: dict[tuple[int, str], float]  # (plate, axis) -> d centroid / d range (mm/mm)
     seconds: float
     frame_common_se: float = 0.0  # its standard error from the clip's length (Fisher z)
+    plate_xi: dict[int, float] = dataclasses.field(default_factory=dict)  # plate -> x / span
 
     def gain_of(self, plate: int, axis: str) -> float:
         return self.gain.get((int(plate), axis), 1.0 if axis == "z" else 0.0)
@@ -106,4 +110,5 @@ def calibrate(cfg: SimConfig, seconds: float = 10.0, seed: int = 0) -> SensorCal
         gain,
         seconds,
         float(np.sqrt(np.mean(np.square(se)))) if se else 0.0,
+        {i + 1: float(x) / cfg.beam.span_mm for i, x in enumerate(cfg.plate_x_mm())},
     )

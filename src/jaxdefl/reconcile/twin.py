@@ -8,7 +8,10 @@ shared by the plates of a frame as the frame simulator shares it (`SensorCalibra
 them: range effects through the calibrated range-to-centroid gains of each plate and axis (z
 alone, gain 1, without a calibration), timing errors on the written stamps, motion effects on the
 harmonic (AM, FM) and on z in the beam's shape (extra lines, harmonics; the shape is the plates'
-z amplitudes over the largest).
+z amplitudes over the largest), other bending modes on z in their own shape at each plate's place
+along the span (known from the config's calibration only). What the twin cannot render (a mode
+without a calibration, one plate's clipping) leaves its output unchanged: `reconcile` checks
+each effect and says so.
 """
 
 from __future__ import annotations
@@ -19,7 +22,13 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from ..simulate.injection import EffectSpec, motion_modulations, range_offset, stamp_times
+from ..simulate.injection import (
+    EffectSpec,
+    mode_displacement,
+    motion_modulations,
+    range_offset,
+    stamp_times,
+)
 from .metrics import short_term_noise
 
 __all__ = ["Twin"]
@@ -67,6 +76,14 @@ class Twin:
         top = max(amps.values(), default=0.0)
         self.shape = {p: (a / top if top > 0 else 0.0) for p, a in amps.items()}
 
+    def shows(self, effect: EffectSpec, seed: int = 0) -> bool:
+        """Whether ``effect`` changes the simulated table (same seed, with and without it)."""
+        a, b = self.simulate((), seed), self.simulate((effect,), seed)
+        cols = [c for c in ("t", "x", "y", "z") if c in a]
+        x, y = a[cols].to_numpy(float), b[cols].to_numpy(float)
+        same = (x == y) | (np.isnan(x) & np.isnan(y))
+        return not bool(same.all())
+
     def simulate(self, effects: tuple[EffectSpec, ...] = (), seed: int = 0) -> pd.DataFrame:
         """A table like the recording (same rows), rendered with ``effects``."""
         out = self.df.copy()
@@ -92,6 +109,10 @@ class Twin:
                 shape = self.shape.get(s.plate, 0.0)
                 for f in extra:
                     y = y + shape * f(t, theta + math.pi / 2)
+                xi = cal.plate_xi.get(s.plate) if cal is not None else None
+                modal = mode_displacement(effects, t, np.array([xi])) if xi is not None else None
+                if modal is not None:  # another bending mode, in its own shape at the plate
+                    y = y + modal[:, 0]
             if off is not None:
                 g_range = cal.gain_of(s.plate, s.axis) if cal is not None else float(s.axis == "z")
                 y = y + g_range * off[self.frame[s.rows], s.plate]

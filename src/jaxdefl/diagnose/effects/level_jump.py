@@ -89,6 +89,11 @@ def _cusum(ctx: Context, i: int, st: State):
 class LevelJump(Effect):
     id = "level_jump"
     meaning = "a step of the measured position (structured-light instability, integration-time change)"
+    causes = {  # noqa: RUF012
+        "structured_light": "a structured-light re-calibration or a knock",
+        "tof": "an integration-time change or a knock",
+        "*": "a re-zeroing of the sensor, a slip of its mounting or a knock",
+    }
     plausible, plausible_unit, gate_params = 0.15, "noise", 2  # a step of 0.3 σ at mid-record
 
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
@@ -165,8 +170,7 @@ class LevelJump(Effect):
                 (t_j, sig_t, size, size_sigma),
                 f"The measured position of {where} steps by {size:+.3f} mm at t = {t_j:.2f} s "
                 f"and stays there: {who}"
-                " changed its level — a structured-light re-calibration, an integration-time change or "
-                "a knock.",
+                f" changed its level — {self.cause(ctx)}.",
                 {
                     "mode": "per_series",
                     "sizes_mm": {ctx.series[i].key: float(d) for i, d in zip(kept, deltas, strict=True)},
@@ -211,8 +215,7 @@ class LevelJump(Effect):
             2 * n_splits * n_axes,  # splits × axes, common or per series
             (t_j, sig_t, size, size_sigma),
             f"All of {where} step by {size:+.3f} mm at t = {t_j:.2f} s and stay there: the camera "
-            "changed its levels at once — a structured-light re-calibration or an integration-time "
-            "change.",
+            f"changed its levels at once — {self.cause(ctx)}.",
             {"mode": "common"},
         )
 

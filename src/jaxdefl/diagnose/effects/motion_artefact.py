@@ -47,6 +47,7 @@ P_MAX = 5e-3  # weaker signatures cannot pass the search's level (α = 0.05 over
 class MotionArtefact(TiedEffect):
     id = "motion_artefact"
     meaning = "gain loss and lag of the camera against the LDS from its sequential four-phase sampling"
+    sensors = ("tof",)  # only a four-phase (ToF) camera samples its taps in sequence
     plausible, plausible_unit, gate_params = 0.001, "seconds", 1  # 1 ms of lag against the LDS
 
     def propose_tied(self, ctx: Context, states: list[State], model, period: float) -> list[Proposal]:

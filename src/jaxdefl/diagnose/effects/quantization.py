@@ -340,7 +340,15 @@ def _joint(ctx: Context, states: list[State], use: list[int], h: dict, q: float,
 
 class Quantization(Effect):
     id = "quantization"
-    meaning = "depth measured in steps (structured-light disparity quantisation)"
+    meaning = "depth measured in steps (structured-light disparity quantisation, a logger's ADC)"
+    # A ToF camera's range is a 14-bit phase (a lattice of ~0.3 mm per pixel, averaged away over
+    # a plate's pixels): no lattice a plate's centroid can show. Disparity, ADCs and trackers do.
+    sensors = ("structured_light", "lds", "accelerometer", "camera_tracking", "logger")
+    causes = {  # noqa: RUF012
+        "structured_light": "the structured-light camera measures disparity in fractions of a pixel",
+        "camera_tracking": "the tracker reports positions on a sub-pixel lattice",
+        "*": "the sensor's converter (ADC) reports its readings in steps",
+    }
     plausible, plausible_unit, gate_params = 0.3, "noise", 2  # a step of about σ (RMS q/√12)
     dithers: tuple[float, ...] = DITHERS  # the grid of σ_d/q ((0.0,): the hard staircase alone)
 
@@ -534,9 +542,8 @@ class Quantization(Effect):
             band_hz=None,
             explanation=(
                 f"The depth of {where} moves in steps of {q:.3f} mm (levels at {o:.3f} mm + k·{q:.3f} mm), "
-                f"smoothed by {best['dither']:.3f} mm of pixel noise before the rounding: the "
-                "structured-light camera measures disparity in fractions of a pixel, so a smooth "
-                "motion is recorded as a staircase."
+                f"smoothed by {best['dither']:.3f} mm of noise before the rounding: "
+                f"{self.cause(ctx)}, so a smooth motion is recorded as a staircase."
             ),
             detail={
                 "offsets_mm": {ctx.series[i].key: best["offsets"][i] for i in kept},

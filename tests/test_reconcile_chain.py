@@ -1,0 +1,141 @@
+"""Reconcile against the simulator's chain (issue 23): `simulated` only where the twin shows the
+effect, one injection for an effect reported on several axes, null bands that are 95th
+percentiles."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from jaxdefl.io import validate_trajectory
+from jaxdefl.reconcile import SensorCalibration, Twin, specs_from_diagnosis
+from jaxdefl.reconcile.engine import keep_shown
+from jaxdefl.reconcile.frames import pooled_null_95
+from jaxdefl.reconcile.metrics import null_95
+from jaxdefl.simulate.effects import make_case
+from jaxdefl.simulate.injection import make_spec
+
+# one plausible spec per id the diagnosis can hand to the simulator
+SPECS = {
+    "drift": {"amplitude_mm": 1.0, "tau_s": 30.0},
+    "level_jump": {"t_jump_s": 20.0, "size_mm": 0.5},
+    "camera_shake": {"rms_mm": 0.3, "corner_hz": 0.05},
+    "outliers": {"fraction": 0.05, "scale_mm": 5.0},
+    "timing_error": {"offset_s": 0.005},
+    "amplitude_modulation": {"depth": 0.1, "freq_hz": 0.1},
+    "frequency_modulation": {"depth_rad": 0.2, "freq_hz": 0.1},
+    "extra_periodic": {"freq_hz": 2.3, "amplitude_mm": 0.3},
+    "harmonic_distortion": {"order": 2, "amplitude_mm": 0.2},
+    "mode_shape": {"mode": 2, "freq_hz": 4.1, "amplitude_mm": 0.3, "phase_rad": 0.0},
+    "stiffness_change": {"t_s": 20.0, "f0_change": 0.01, "amplitude_change": 0.02},
+}
+
+
+@pytest.fixture(scope="module")
+def twin_parts():
+    traj, _, truth = make_case(3, [], minutes=1.0, sensor="tof")
+    df = validate_trajectory(traj)
+    plates = sorted(int(p) for p in df["plate"].unique())
+    # the plates' places along the span, as `calibrate` reads them from a config
+    cal = SensorCalibration({}, {}, 0.0, 0.0, {p: (p - 0.5) / (len(plates) + 1) for p in plates})
+    return df, truth["recording"]["f0_hz"], cal
+
+
+@pytest.mark.parametrize("eid", sorted(SPECS))
+def test_every_id_the_diagnosis_maps_changes_the_twins_output(eid, twin_parts):
+    df, f0, cal = twin_parts
+    spec = make_spec(eid, SPECS[eid])
+    twin = Twin(df, f0, cal)
+    assert twin.shows(spec, seed=1)
+    base, with_it = twin.simulate((), 1), twin.simulate((spec,), 1)
+    cols = ["t", "x", "y", "z"]
+    assert np.nanmax(np.abs(base[cols].to_numpy() - with_it[cols].to_numpy())) > 1e-4
+    # kept as simulated
+    assert keep_shown(twin, [(spec, "simulated")], 1)[0][0] is spec
+
+
+def test_an_effect_the_twin_cannot_render_is_not_called_simulated(twin_parts):
+    df, f0, _ = twin_parts
+    mode = make_spec("mode_shape", SPECS["mode_shape"])
+    clip = make_spec("clipping", {"plate": int(df["plate"].iloc[0]), "level_mm": 0.5})
+    twin = Twin(df, f0)  # no calibration: the plates' places along the span are unknown
+    out = keep_shown(twin, [(mode, "simulated"), (clip, "simulated")], 1)
+    assert [s for s, _ in out] == [None, None]
+    assert all("changes nothing" in why for _, why in out)
+    # a mode with the plates' places moves z in its own shape (antisymmetric for n = 2)
+    cal = SensorCalibration({}, {}, 0.0, 0.0, {1: 0.25, 2: 0.75})
+    d = (
+        Twin(df, f0, cal).simulate((mode,), 1)["z"].to_numpy()
+        - Twin(df, f0, cal).simulate((), 1)["z"].to_numpy()
+    )
+    p = df["plate"].to_numpy()
+    if {1, 2} <= set(p):
+        np.testing.assert_allclose(d[p == 1][:50], -d[p == 2][:50], atol=1e-9)
+
+
+def test_a_motion_effect_reported_on_each_axis_is_injected_once():
+    def line(axis, amp, freq=2.3):
+        return {
+            "id": "extra_periodic",
+            "plates": [1, 2, 3],
+            "axes": [axis],
+            "parameters": {"freq_hz": {"value": freq}, "amplitude_mm": {"value": amp}},
+        }
+
+    def harmonic(axis):
+        return {
+            "id": "harmonic_distortion",
+            "plates": [1, 2],
+            "axes": [axis],
+            "parameters": {"order": {"value": 2}, "amplitude_mm": {"value": 0.1}},
+        }
+
+    effects = [
+        line("x", 0.05),
+        line("z", 0.4),
+        line("y", 0.02),
+        line("z", 0.3, 5.1),
+        harmonic("x"),
+        harmonic("z"),
+    ]
+    mapped = specs_from_diagnosis(effects, duration_s=300.0, n_plates=4)
+    specs = [s for s, _ in mapped if s is not None]
+    assert sorted((s.id, s.p("freq_hz") if s.id == "extra_periodic" else 0) for s in specs) == [
+        ("extra_periodic", 2.3),
+        ("extra_periodic", 5.1),
+        ("harmonic_distortion", 0),
+    ]
+    # the z report carries the mid-span amplitude the simulator injects
+    assert mapped[1][0] is not None and mapped[1][0].p("amplitude_mm") == 0.4
+    assert mapped[0][0] is None and "simulated once" in mapped[0][1]
+    assert mapped[4][0] is None and mapped[5][0] is not None
+
+
+def test_lognormal_null_band_is_a_95th_percentile_of_the_next_draw():
+    rng = np.random.default_rng(0)
+    exceed = []
+    for _ in range(2000):
+        d = np.exp(rng.normal(-1.0, 0.5, 9))
+        band, how = null_95(d[:8])
+        assert how == "lognormal"
+        exceed.append(d[8] > band)
+    # a prediction bound: 5 % of new draws above it, whatever n (binomial σ 0.5 %)
+    assert abs(np.mean(exceed) - 0.05) < 0.015
+    band, how = null_95(rng.random(40))
+    assert how == "empirical" and 0.8 < band < 1.0
+
+
+def test_pooled_frames_band_is_a_95th_percentile_where_four_clips_give_an_80th():
+    rng = np.random.default_rng(1)
+    m, s = 10, 0.05
+    ours, empirical = [], []
+    for _ in range(2000):
+        clips = [rng.normal(0, s, m) for _ in range(5)]
+        band = pooled_null_95(clips[:4])
+        dist = lambda r: math.sqrt(np.mean(r**2))  # noqa: E731
+        ours.append(dist(clips[4]) > band)
+        empirical.append(dist(clips[4]) > np.quantile([dist(c) for c in clips[:4]], 0.95))
+    assert abs(np.mean(ours) - 0.05) < 0.015
+    assert np.mean(empirical) > 0.15  # what the band from 4 clips' order statistic gave
