@@ -74,6 +74,7 @@ SEARCHED = {
 }
 LINE_SHARE = 0.03  # a line carries at least this share of the record's variance
 LINES_MAX = 6
+SIDEBAND_CYCLES = 3.0  # a peak this close (in 1/T) to a line is that line's envelope
 SLOW_CYCLES = 2.5  # below this many cycles over the record, motion is the load path
 SLOW_SHARE = 0.6  # quasi-static: the slow part holds this share of the variance
 LINES_SHARE_MIN = 0.5  # broadband: the strongest lines hold less than this share
@@ -118,7 +119,11 @@ def value_lattice(y: np.ndarray) -> float | None:
     written from binary floats), checked on every spacing. Values averaged over many rounded
     pixels (a plate's centroid) are not on a lattice: None.
     """
-    u = np.unique(np.asarray(y, float)[np.isfinite(y)])
+    y = np.asarray(y, float)
+    y = y[np.isfinite(y)]
+    scale = float(np.max(np.abs(y))) if y.size else 0.0
+    # values equal but for their last binary digits (a decimal written from a product) are one
+    u = np.unique(np.round(y / scale, 10) * scale) if scale > 0 else np.unique(y)
     if u.size < 8:
         return None
     d = np.diff(u)
@@ -129,8 +134,10 @@ def value_lattice(y: np.ndarray) -> float | None:
     # the smallest spacing may be a rounding artefact of a decimal written from a binary
     # float (1.22070e-3 and 1.22071e-3): take the median of the spacings within 2 % of it
     q = float(np.median(d[d < 1.02 * q]))
-    k = d / q
-    if np.max(np.abs(k - np.rint(k))) > 0.05:
+    # an ADC's step is not exactly uniform (its calibration's rounding): the spacings of
+    # neighbouring values are checked, where the error of a multiple stays small
+    k = d[d < 20.5 * q] / q
+    if k.size < 0.5 * d.size or np.mean(np.abs(k - np.rint(k)) < 0.1) < 0.9:
         return None
     return q
 
@@ -158,13 +165,23 @@ def _lines(g: np.ndarray, dt: float, n_max: int = LINES_MAX) -> tuple[list[float
     freq = np.fft.rfftfreq(m, dt)
     lo = max(1, int(math.ceil(SLOW_CYCLES / (n * dt) * m * dt)))  # lines faster than the load path
     out_f, out_s = [], []
-    for _ in range(n_max):
+    blocked: list[tuple[int, int]] = []
+    while len(out_f) < n_max:
         p = np.abs(np.fft.rfft(r, m)) ** 2
         p[:lo] = 0.0
+        for a, b in blocked:
+            p[a : b + 1] = 0.0
         j = int(np.argmax(p))
         if j <= 0 or j >= p.size - 1:
             break
         f = float(freq[j])
+        if any(abs(f - g) < SIDEBAND_CYCLES / (n * dt) for g in out_f):
+            # a sideband of a line already found: its envelope (a ramp, a decay), not a tone
+            lo_j, hi_j = np.searchsorted(freq, [f - 0.5 / (n * dt), f + 0.5 / (n * dt)])
+            blocked.append((lo_j, hi_j))
+            if len(blocked) > 4 * n_max:
+                break
+            continue
         cols = np.stack([np.cos(2 * np.pi * f * t), np.sin(2 * np.pi * f * t), np.ones(n)], axis=1)
         beta = np.linalg.lstsq(cols, r, rcond=None)[0]
         r1 = r - cols @ beta
@@ -224,21 +241,22 @@ def recognise(series: list[tuple[np.ndarray, np.ndarray]], dt: float) -> RecordK
             "located, nothing defined against a loading harmonic is named"
         )
         return rk
+    env = _envelope(g, dt, lines[0]) if lines else np.ones(2)
+    rk.decay_ratio = float(env[0] / max(env[-1], 1e-300))
+    first = int(np.argmax(env))
+    falls = np.all(np.diff(env[first:]) < 0.25 * env[first:-1] + 0.02 * env[first])
+    if lines and rk.decay_ratio >= DECAY_RATIO and first <= 1 and falls:
+        rk.kind = "free_decay"
+        rk.statement = (
+            f"a free decay: the {lines[0]:.4g}-Hz motion falls {rk.decay_ratio:.3g}-fold over the "
+            "record from its start (an impact or a release); the nominal model is damped modes"
+        )
+        return rk
     if not lines or sum(shares) < LINES_SHARE_MIN:
         rk.kind = "broadband"
         rk.statement = (
             f"a broadband record: its {len(lines)} strongest lines hold {sum(shares):.0%} of the "
             "variance (random excitation, no loading harmonic); nothing defined against one is named"
-        )
-        return rk
-    env = _envelope(g, dt, lines[0])
-    rk.decay_ratio = float(env[0] / max(env[-1], 1e-300))
-    first = int(np.argmax(env))
-    if rk.decay_ratio >= DECAY_RATIO and first <= 1 and np.all(np.diff(env[first:]) < 0.25 * env[first:-1]):
-        rk.kind = "free_decay"
-        rk.statement = (
-            f"a free decay: the {lines[0]:.4g}-Hz motion falls {rk.decay_ratio:.3g}-fold over the "
-            "record from its start (an impact or a release); the nominal model is damped modes"
         )
         return rk
     tol = 2.0 / duration
@@ -319,14 +337,27 @@ def kind_nominal(ctx: Context, states: list[State], rk: RecordKind) -> tuple[lis
     if rk.kind == "multi_tone":
         freqs = _refined_lines(ctx, states, rk)
         rk.lines_hz = freqs
-        for i, s in enumerate(ctx.series):
-            fitted, _ = _fit_lines(s.t, s.y, freqs)
-            new[i] = states[i].with_(mean=fitted, n_params=1 + 2 * len(freqs) + len(freqs))
         rk.forcing_change = forcing_change(ctx, freqs)
+        # a located change of the lines' amplitudes is the forcing's (or the response's): the
+        # nominal model holds the lines' amplitudes before and after it, so that no named effect
+        # takes the change for a crack, a jump or a modulation
+        tc = None if rk.forcing_change is None else rk.forcing_change["t_s"] - ctx.t0
+        k = 1 + 3 * len(freqs)
+        for i, s in enumerate(ctx.series):
+            if tc is None:
+                fitted, _ = _fit_lines(s.t, s.y, freqs)
+            else:
+                a = s.t < tc
+                fitted = np.empty(s.n)
+                fitted[a] = _fit_lines(s.t[a], s.y[a], freqs)[0]
+                fitted[~a] = _fit_lines(s.t[~a], s.y[~a], freqs)[0]
+                k = 3 + 5 * len(freqs)
+            new[i] = states[i].with_(mean=fitted, n_params=k)
         notes.append(
             "nominal model: the forcing lines at "
             + ", ".join(f"{f:.5g}" for f in freqs)
             + " Hz (jaxdefl fit --lines), amplitudes per series"
+            + ("" if tc is None else f", before and after the change at t = {rk.forcing_change['t_s']:.4g} s")
         )
         return new, notes
     if rk.kind == "free_decay":
@@ -414,8 +445,12 @@ def located_steps(ctx: Context, max_steps: int = 40) -> list[dict]:
     while j < d.size and len(out) < max_steps:
         if abs(d[j]) > 0:
             k = j
-            while k + 1 < d.size and np.sign(d[k + 1]) == np.sign(d[j]):
-                k += 1
+            # one movement: same-sign changes with pauses of at most two samples between them
+            while True:
+                nxt = [m for m in range(k + 1, min(k + 4, d.size)) if np.sign(d[m]) == np.sign(d[j])]
+                if not nxt or any(np.sign(d[m]) == -np.sign(d[j]) for m in range(k + 1, nxt[0])):
+                    break
+                k = nxt[0]
             size = float(lp[k + 1] - lp[j])
             if abs(size) > 5 * sig:
                 out.append({"t_start": float(ctx.t0 + s.t[j]), "t_end": float(ctx.t0 + s.t[k + 1]), "size": size})

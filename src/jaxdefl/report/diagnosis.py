@@ -117,11 +117,19 @@ def diagnosis_markdown(d: dict, figures: list[str]) -> str:
         f"| final | {fin['rms_mm']:.4f} | {fin['bic']:.1f} | {fin['whiteness_p']:.3g} |",
         "",
     ]
+    rec = d.get("record") or {}
+    if rec.get("statement"):
+        lines += [f"**Record kind: {d['record_kind'].replace('_', ' ')}** — {rec['statement']}.", ""]
+        fc = rec.get("forcing_change") or {}
+        if fc.get("verdict"):
+            lines += [f"A change at t = {fc['t_s']:.3f} s: {fc['verdict']}.", ""]
     if not d["effects"] and d["unexplained"]:
         lines += ["**No effect located**, but the residuals are not white: see *Unexplained structure*.", ""]
     elif not d["effects"]:
         lines += ["**No effect located**: the residuals are consistent with the nominal model.", ""]
     for k, e in enumerate(d["effects"]):
+        if (e.get("relevance") or {}).get("minor"):
+            continue
         lines += [
             f"## {k + 1}. `{e['id']}`",
             "",
@@ -136,6 +144,20 @@ def diagnosis_markdown(d: dict, figures: list[str]) -> str:
         ]
         if k < len(figures):
             lines += ["", f"![{e['id']}]({figures[k]})"]
+        lines.append("")
+    minor = [e for e in d["effects"] if (e.get("relevance") or {}).get("minor")]
+    if minor:
+        lines += ["## Minor findings", ""]
+        for e in minor:
+            r = e["relevance"]
+            lines.append(
+                f"- `{e['id']}`: {r['residual_share']:.1%} of the residual on its series, "
+                f"{r['size_vs_motion']:.2%} of the motion"
+            )
+        lines.append("")
+    if d.get("dropped"):
+        lines += ["## Dropped by the backward step", ""]
+        lines += [f"- `{x['id']}`: {x['reason']}" for x in d["dropped"]]
         lines.append("")
     if d.get("unnamed"):
         lines += ["## Structure outside the vocabulary (unnamed, modelled)", ""]

@@ -60,6 +60,7 @@ import math
 import numpy as np
 
 from ..._lattice import dithered_round, dithered_round_var
+from ..record_kind import value_lattice
 from ..._lattice import smoothed_staircase as staircase  # the mean reading (dither 0: hard steps)
 from .._base import Context, Effect, Proposal, State, keep_series, lstsq
 from .screening import P_SCREEN, bonferroni, chi2_sf, gain, param, residual, touched, updated, weights
@@ -369,6 +370,19 @@ class Quantization(Effect):
         need = (1 + len(idx)) * math.log(max(n_tot, 2)) + 10.0
         q_min = max(Q_MIN_MM, sigma * math.sqrt(12.0 * need / max(n_tot, 1)))
         q_max = min(Q_MAX_MM, max(spans.values()))
+        # The lattice read from the values themselves: when every series sits on one (an ADC's
+        # step, a disparity camera's undithered depth), the staircase's step is that lattice and
+        # nothing else, and a lattice below the noise is the record's resolution, not missing
+        # physics (a logger's 0.0015-mm step is not an 8.5-mm quantisation). A table's written
+        # decimals (a power of ten) say nothing of the sensor: the staircase is searched as
+        # before (a centroid of many rounded pixels sits on no lattice of its own).
+        lattice = [value_lattice(ctx.series[i].y) for i in idx]
+        if all(q is not None for q in lattice):
+            q_v = float(np.median(lattice))
+            if abs(math.log10(q_v) - round(math.log10(q_v))) >= 0.005:
+                if q_v < sigma:
+                    return []
+                q_min, q_max = max(q_min, 0.9 * q_v), min(q_max, 1.1 * q_v)
         if q_max <= q_min:
             return []
         width = q_min / BINS_PER_STEP
