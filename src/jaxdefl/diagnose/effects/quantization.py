@@ -339,6 +339,9 @@ def _joint(ctx: Context, states: list[State], use: list[int], h: dict, q: float,
     return q, sig_q, dither, sig_d, {i: (data[i][3], h[i], fit[i][0], fit[i][1]) for i in use}
 
 
+MIN_STEPS_ONE_SERIES = 6.0  # steps a single series' motion must span for its lattice to be told
+
+
 class Quantization(Effect):
     id = "quantization"
     meaning = "depth measured in steps (structured-light disparity quantisation)"
@@ -376,6 +379,11 @@ class Quantization(Effect):
         # physics (a logger's 0.0015-mm step is not an 8.5-mm quantisation). A table's written
         # decimals (a power of ten) say nothing of the sensor: the staircase is searched as
         # before (a centroid of many rounded pixels sits on no lattice of its own).
+        if len(idx) == 1:
+            # one series: a staircase over a few steps is any smooth memoryless nonlinearity of
+            # the reading (a shaker's, an amplifier's); a lattice shows as one over many steps
+            # (several plates sharing one lattice are the other evidence)
+            q_max = min(q_max, spans[idx[0]] / MIN_STEPS_ONE_SERIES)
         lattice = [value_lattice(ctx.series[i].y) for i in idx]
         if all(q is not None for q in lattice):
             q_v = float(np.median(lattice))
