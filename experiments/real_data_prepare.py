@@ -84,7 +84,8 @@ DS4_HEADER = (
     "# Steel cantilever, electromagnetic shaker, multi-tone forcing 100/120/150 Hz (ARTS-Lab);\n"
     "# PujaChowdhury/Dataset-4-Univariate-signal-with-non-stationarity @ "
     "06a0d36fb448ca58ed0ce365d2464b442fa3638e,\n"
-    "# data/data_I/test_{test}/{path}; t {t0:g}-{t1:g} s of the authors' 400-Hz series, time shifted to start at 0.\n"
+    "# data/data_I/test_{test}/{path}; t {t0:g}-{t1:g} s of the authors' 400-Hz series, "
+    "time shifted to start at 0.\n"
     "# Licence CC BY-SA 4.0 (this adaptation too): Chowdhury, Downey, Bakos, Conrad (2021).\n"
     "# z_mm holds the tip acceleration in g (accel_g), not mm; see tests/data/{name}.md\n"
 )
@@ -92,11 +93,15 @@ DROPBEAR_HEADER = (
     "# DROPBEAR beam with a movable roller support, slow positional displacement, 10 steps (ARTS-Lab);\n"
     "# High-Rate-SHM-Working-Group/Dataset-8-DROPBEAR-Acceleration-vs-Roller-Displacement @ "
     "28955a71b7b00cbca47dec9f0ff8fd9adc591cf3,\n"
-    "# data/Slow Postional Displacement/trial data/10steps/{path}; channel {channel}, t {t0:g}-{t1:g} s, every {every}th sample of 5 kHz, time shifted to 0.\n"
+    "# data/Slow Postional Displacement/trial data/10steps/{path}; channel {channel}, "
+    "t {t0:g}-{t1:g} s, every {every}th sample of 5 kHz, time shifted to 0.\n"
     "# Licence CC BY-SA 4.0 (this adaptation too): Vereen, Downey, Dodson, Moura (2023).\n"
     "# z_mm holds the {what} in volts ({col}), not mm; see tests/data/{name}.md\n"
 )
-DROPBEAR_CHANNELS = {"lowg": (0, "low-g accelerometer output", "lowg_v"), "pinloc": (2, "roller position sensor output", "pinloc_v")}
+DROPBEAR_CHANNELS = {
+    "lowg": (0, "low-g accelerometer output", "lowg_v"),
+    "pinloc": (2, "roller position sensor output", "pinloc_v"),
+}
 
 
 def read_ds4(path: Path) -> tuple[np.ndarray, np.ndarray]:
@@ -142,7 +147,14 @@ def main(argv: list[str] | None = None) -> None:
             t, v = read_dropbear(args.source, args.channel)
         keep = (t >= args.t0 - 1e-9) & (t < args.t1 - 1e-9)
         t, v = t[keep][:: args.every], v[keep][:: args.every]
-        fmt = dict(path=args.source.name, test=args.source.name[9:10], t0=t[0], t1=t[-1], name=args.out.stem, every=args.every)
+        fmt = dict(
+            path=args.source.name,
+            test=args.source.name[9:10],
+            t0=t[0],
+            t1=t[-1],
+            name=args.out.stem,
+            every=args.every,
+        )
         if args.kind == "ds4":
             write_generic(t - t[0], v, "accel_g", DS4_HEADER.format(**fmt), args.out)
         else:

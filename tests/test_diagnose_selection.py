@@ -135,7 +135,9 @@ def test_a_smooth_misfit_is_not_called_level_jumps():
         states = new
     assert acc, "the envelope misfit must pass a jump's own test (the failure being guarded)"
     dropped = []
-    _, kept, terms = _flexible_alternative(ctx, states, acc, dropped, [], calib, corr, n_total, load_effects(), {})
+    _, kept, terms = _flexible_alternative(
+        ctx, states, acc, dropped, [], calib, corr, n_total, load_effects(), {}
+    )
     assert kept == []
     assert {d.effect for d in dropped} == {"level_jump"}
     assert all("unnamed" in d.reason for d in dropped)
@@ -198,7 +200,11 @@ def test_multi_tone_forcing_step_is_located_not_named():
     fs = 400.0
     t = np.arange(int(4 * fs)) / fs
     gain = np.where(t < 2.1, 1.0, 1.5)
-    y = gain * (0.05 * np.cos(2 * np.pi * 100 * t) + 0.04 * np.cos(2 * np.pi * 120 * t + 1) + 0.06 * np.sin(2 * np.pi * 150 * t))
+    y = gain * (
+        0.05 * np.cos(2 * np.pi * 100 * t)
+        + 0.04 * np.cos(2 * np.pi * 120 * t + 1)
+        + 0.06 * np.sin(2 * np.pi * 150 * t)
+    )
     y = y + 0.004 * rng.standard_normal(t.size)
     d = diagnose(table(t, [y]))
     assert d["record_kind"] == "multi_tone"
@@ -232,7 +238,11 @@ def test_a_lattice_below_the_noise_is_resolution_not_quantization():
     rng = np.random.default_rng(10)
     fs = 128.0
     t = np.arange(int(30 * fs)) / fs
-    z = 12.7 * np.cos(2 * np.pi * 2.0 * t) + 0.2 * np.cos(2 * np.pi * 4.0 * t) + 0.05 * rng.standard_normal(t.size)
+    z = (
+        12.7 * np.cos(2 * np.pi * 2.0 * t)
+        + 0.2 * np.cos(2 * np.pi * 4.0 * t)
+        + 0.05 * rng.standard_normal(t.size)
+    )
     z = 0.0015 * np.round(z / 0.0015)
     d = diagnose(table(t, [z]))
     assert "quantization" not in [e["id"] for e in d["effects"]]

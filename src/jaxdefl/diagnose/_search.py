@@ -31,6 +31,7 @@ import pandas as pd
 from scipy import stats
 from threadpoolctl import threadpool_limits
 
+from .._errors import InputError
 from .._signals import check_interrupt
 from ..settings import DiagnoseSettings
 from ._base import Context, Proposal, State, loglik, rms_equivalent
@@ -38,7 +39,6 @@ from ._context import build_context
 from ._correlation import FrameCorrelation, frame_correlation, gls_gain
 from ._whiteness import combined_p, residual_tests
 from .effects import load_effects
-from .._errors import InputError
 from .record_kind import SEARCHED, RecordKind, kind_nominal, recognise, value_lattice
 from .unnamed import MAX_TERMS, UnnamedTerm, apply_term, best_term, colored_gain, search_unnamed
 
@@ -125,11 +125,7 @@ class Calibration:
     def passes(self, p: Proposal, lr: float, rms0: float, rms1: float) -> bool:
         """The statistic beyond its critical value, the signature's p-value at the same level
         and the RMS of the touched series down."""
-        return (
-            lr > self.critical(p)
-            and rms1 < rms0
-            and p.p_value * max(self.n_tests, 1) < self.alpha
-        )
+        return lr > self.critical(p) and rms1 < rms0 and p.p_value * max(self.n_tests, 1) < self.alpha
 
 
 @dataclass
@@ -456,7 +452,9 @@ def _resolution(ctx: Context, nominal: list[State]) -> dict | None:
     if not steps or any(q is None for q in steps):
         return None
     q = float(np.median(steps))
-    noise = float(np.median([np.sqrt(np.mean((s.y - st.mean) ** 2)) for s, st in zip(ctx.series, nominal, strict=True)]))
+    noise = float(
+        np.median([np.sqrt(np.mean((s.y - st.mean) ** 2)) for s, st in zip(ctx.series, nominal, strict=True)])
+    )
     decimal = abs(math.log10(q) - round(math.log10(q))) < 0.005
     return {"step": q, "noise": noise, "below_noise": bool(q < noise), "written_decimals": bool(decimal)}
 
@@ -479,7 +477,9 @@ def _without(states: list[State], a: Accepted) -> list[State]:
         if q.scale is not b.scale and st.scale is q.scale:
             kw["scale"] = b.scale
         if q.inlier is not b.inlier and st.inlier is q.inlier:
-            kw.update(inlier=b.inlier, outlier_fraction=b.outlier_fraction, outlier_scale_mm=b.outlier_scale_mm)
+            kw.update(
+                inlier=b.inlier, outlier_fraction=b.outlier_fraction, outlier_scale_mm=b.outlier_scale_mm
+            )
         out[i] = st.with_(**kw)
     return out
 
@@ -625,7 +625,9 @@ def run_diagnosis(
     library = load_effects()
     if settings.effects is not None:
         library = {k: v for k, v in library.items() if k in settings.effects}
-    ctx, nominal, notes = build_context(traj, reference, settings, source, reference_source, allow_no_motion=True)
+    ctx, nominal, notes = build_context(
+        traj, reference, settings, source, reference_source, allow_no_motion=True
+    )
     # what kind of record this is, before anything is named (`record_kind`)
     record = recognise([(s.t, s.y) for s in ctx.series], ctx.dt_s)
     no_motion = "no plate and axis shows a significant periodic motion"
@@ -639,7 +641,8 @@ def run_diagnosis(
     if record.resolution is not None and record.resolution["below_noise"]:
         notes.append(
             f"the values sit on a lattice of {record.resolution['step']:.4g} (read from their spacing), "
-            f"below the noise ({record.resolution['noise']:.3g}): the record's resolution, not missing physics"
+            f"below the noise ({record.resolution['noise']:.3g}): the record's resolution, "
+            "not missing physics"
         )
     searched = SEARCHED[record.kind]
     cannot_tell = []
@@ -753,7 +756,9 @@ def run_diagnosis(
                         d2, q0, q1, lr2 = _score(ctx, states, q, n_total, corr)
                         if calib.passes(q, lr2, q0, q1):
                             d, r0, r1, lr, p = d2, q0, q1, lr2, q
-                finalists.append(Accepted(p, d, r0, r1, {i: states[i] for i in p.series}, lr, calib.critical(p)))
+                finalists.append(
+                    Accepted(p, d, r0, r1, {i: states[i] for i in p.series}, lr, calib.critical(p))
+                )
                 break
             # BIC chooses among the FINALISTS refined, not their screening proposals: a line's
             # coarse proposal near f0 scores far below its refined fit, and a neighbour's

@@ -455,7 +455,9 @@ def located_steps(ctx: Context, max_steps: int = 40) -> list[dict]:
                 k = nxt[0]
             size = float(lp[k + 1] - lp[j])
             if abs(size) > 5 * sig:
-                out.append({"t_start": float(ctx.t0 + s.t[j]), "t_end": float(ctx.t0 + s.t[k + 1]), "size": size})
+                out.append(
+                    {"t_start": float(ctx.t0 + s.t[j]), "t_end": float(ctx.t0 + s.t[k + 1]), "size": size}
+                )
             j = k + 1
         else:
             j += 1

@@ -60,9 +60,9 @@ import math
 import numpy as np
 
 from ..._lattice import dithered_round, dithered_round_var
-from ..record_kind import value_lattice
 from ..._lattice import smoothed_staircase as staircase  # the mean reading (dither 0: hard steps)
 from .._base import Context, Effect, Proposal, State, keep_series, lstsq
+from ..record_kind import value_lattice
 from .screening import P_SCREEN, bonferroni, chi2_sf, gain, param, residual, touched, updated, weights
 
 __all__ = ["Quantization", "EFFECT"]
