@@ -185,8 +185,17 @@ def test_record_kinds_of_simulated_records():
     rk = _kind(t, decay)
     assert rk.kind == "free_decay" and rk.decay_ratio > 10
     # band-limited random excitation
-    x = np.convolve(rng.standard_normal(t.size), np.ones(3) / 3, mode="same")
-    assert _kind(t, x).kind == "broadband"
+    from scipy.signal import lfilter
+
+    w0, zeta = 2 * np.pi * 9.0 / fs, 0.05  # a randomly excited 9-Hz resonance
+    x = lfilter(
+        [1.0],
+        [1.0, -2 * math.exp(-zeta * w0) * math.cos(w0), math.exp(-2 * zeta * w0)],
+        rng.standard_normal(t.size),
+    )
+    assert _kind(t, x + noise).kind == "broadband"
+    # white noise beside a weak line is measurement noise, not a broadband motion
+    assert _kind(t, 0.7 * np.cos(2 * np.pi * 5.3 * t) + rng.standard_normal(t.size)).kind == "forced_harmonic"
     # a slow ramp and hold (a load path)
     ramp = np.clip(t / 3.0, 0, 1) * 4.0 + noise
     assert _kind(t, ramp).kind == "quasi_static"

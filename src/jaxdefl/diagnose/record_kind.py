@@ -75,11 +75,17 @@ SEARCHED = {
     "quasi_static": ("quantization",),
 }
 LINE_SHARE = 0.03  # a line carries at least this share of the record's variance
+# multi-tone: a second line, not a harmonic of the strongest, carries this share (an extra
+# vibration or a second mode under the noise is an effect's business, not the forcing's)
+TONE_SHARE = 0.15
 LINES_MAX = 6
 SIDEBAND_CYCLES = 3.0  # a peak this close (in 1/T) to a line is that line's envelope
 SLOW_CYCLES = 2.5  # below this many cycles over the record, motion is the load path
 SLOW_SHARE = 0.6  # quasi-static: the slow part holds this share of the variance
 LINES_SHARE_MIN = 0.5  # broadband: the strongest lines hold less than this share
+# ... and the rest is not white measurement noise: the top tenth of its smoothed spectrum holds
+# this share of its power (white noise: ~0.15; a randomly excited resonance: most of it)
+COLOURED_SHARE = 0.4
 DECAY_RATIO = 2.5  # free decay: the strongest line's amplitude falls this much over the record
 ONSET_RATIO = 1.2  # and its envelope's largest value is in the first fifth of the record
 
@@ -225,6 +231,25 @@ def _slow_share(g: np.ndarray, dt: float) -> float:
     return min(1.0, low / var)
 
 
+def _coloured(g: np.ndarray, lines: list[float], dt: float, block: int = 16) -> float:
+    """Share of the power of what the lines leave in the top tenth of its spectrum smoothed over
+    ``block`` bins: ~0.1-0.15 for white noise, near 1 for a randomly excited resonance."""
+    n = g.size
+    t = np.arange(n) * dt
+    r = g - g.mean()
+    if lines:
+        cols = [np.ones(n)] + [f(2 * np.pi * fr * t) for fr in lines for f in (np.cos, np.sin)]
+        a = np.stack(cols, axis=1)
+        r = r - a @ np.linalg.lstsq(a, r, rcond=None)[0]
+    p = np.abs(np.fft.rfft(r))[1:] ** 2
+    m = p.size // block
+    if m < 10:
+        return 0.0
+    b = p[: m * block].reshape(m, block).mean(axis=1)
+    top = np.sort(b)[::-1][: max(1, m // 10)]
+    return float(top.sum() / max(b.sum(), 1e-300))
+
+
 def recognise(series: list[tuple[np.ndarray, np.ndarray]], dt: float) -> RecordKind:
     """The record's kind from its series ((t, y) pairs; t in s), judged on the series with the
     largest variance (the plate that moves most carries the record's kind)."""
@@ -254,7 +279,7 @@ def recognise(series: list[tuple[np.ndarray, np.ndarray]], dt: float) -> RecordK
             "record from its start (an impact or a release); the nominal model is damped modes"
         )
         return rk
-    if not lines or sum(shares) < LINES_SHARE_MIN:
+    if (not lines or sum(shares) < LINES_SHARE_MIN) and _coloured(g, lines, dt) >= COLOURED_SHARE:
         rk.kind = "broadband"
         rk.statement = (
             f"a broadband record: its {len(lines)} strongest lines hold {sum(shares):.0%} of the "
@@ -262,13 +287,17 @@ def recognise(series: list[tuple[np.ndarray, np.ndarray]], dt: float) -> RecordK
         )
         return rk
     tol = 2.0 / duration
-    forcing = [lines[0]] + [f for f in lines[1:] if not _harmonic_of(f, lines[0], fs, tol)]
-    if len(forcing) >= 2:
+    forcing = [
+        f
+        for f, sh in zip(lines[1:], shares[1:], strict=True)
+        if not _harmonic_of(f, lines[0], fs, tol) and sh >= TONE_SHARE
+    ]
+    if forcing:
         rk.kind = "multi_tone"
         rk.statement = (
             f"multi-tone forcing: {len(lines)} lines at {', '.join(f'{f:.4g}' for f in lines)} Hz "
-            f"carry {sum(shares):.0%} of the variance ({len(forcing)} not harmonics of the "
-            "strongest); the nominal model holds them all"
+            f"carry {sum(shares):.0%} of the variance ({len(forcing) + 1} of them strong and not "
+            "harmonics of the strongest); the nominal model holds them all"
         )
         return rk
     rk.statement = (
