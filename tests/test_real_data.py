@@ -226,7 +226,7 @@ def test_real_records_are_the_documented_files(name):
     note = (DATA / f"{name}.md").read_text()
     digest = re.search(rf"SHA-256 of `{name}.csv`: `([0-9a-f]{{64}})`", note).group(1)
     assert hashlib.sha256((DATA / f"{name}.csv").read_bytes()).hexdigest() == digest
-    assert "CC BY-SA 4.0" in note and "commit `" in note
+    assert "CC BY-SA 4.0" in note and re.search(r"commit\s+`[0-9a-f]{40}`", note)
     rec = pd.read_csv(DATA / f"{name}.csv", comment="#")
     assert list(rec.columns[:3]) == ["t", "plate", "z_mm"]
     assert np.array_equal(rec["z_mm"].to_numpy(), rec[rec.columns[3]].to_numpy())  # unconverted

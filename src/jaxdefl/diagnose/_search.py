@@ -563,6 +563,26 @@ def _backward(ctx, states, accepted, dropped, calib, corr, n_total, usable):
             return states, accepted
 
 
+def _passes_afresh(ctx, states, effect, calib, corr, n_total) -> tuple[bool, float]:
+    """Does the effect, proposed afresh on ``states`` (refined where its screening is coarse),
+    pass its test? (passes, the best statistic seen)."""
+    best = 0.0
+    for p in effect.propose(ctx, states):
+        if not p.series:
+            continue
+        _, r0, r1, lr = _score(ctx, states, p, n_total, corr)
+        ok = calib.passes(p, lr, r0, r1)
+        if not ok and p.refine is not None:
+            q = p.refine()
+            if q is not None:
+                _, r0, r1, lr2 = _score(ctx, states, q, n_total, corr)
+                ok, lr = calib.passes(q, lr2, r0, r1), max(lr, lr2)
+        best = max(best, lr)
+        if ok:
+            return True, lr
+    return False, best
+
+
 def _flexible_alternative(ctx, states, accepted, dropped, terms, calib, corr, n_total, library, bases):
     """A named mean effect must beat its flexible unnamed alternative on the same residual: the
     best generic term (a line, an envelope, a smooth trend, a decay) is fitted on the residual
@@ -577,14 +597,17 @@ def _flexible_alternative(ctx, states, accepted, dropped, terms, calib, corr, n_
         if generic is None or not generic[0] < DELTA_BIC_MAX:
             continue
         term, alt = apply_term(ctx, base, generic, corr)
-        ok, lr, crit, _ = _retest(ctx, states, a, alt, calib, corr, n_total)
-        if ok:
+        # the effect proposed afresh on the residual the generic term leaves (its own increment
+        # would count twice what the generic term took of it)
+        crit = calib.critical(a.proposal)
+        kept, lr = _passes_afresh(ctx, alt, library[a.proposal.effect], calib, corr, n_total)
+        if kept:
             continue
         dropped.append(
             Dropped(
                 a.proposal.effect,
-                f"an unnamed {term.kind} explains the same residual: given it, the effect's statistic is "
-                f"{lr:.1f}, below the critical {crit:.1f}",
+                f"an unnamed {term.kind} explains the same residual: given it, the effect's best statistic "
+                f"is {lr:.1f}, below the critical {crit:.1f}",
                 lr,
                 crit,
                 f"unnamed {term.kind}",
@@ -842,6 +865,10 @@ def run_diagnosis(
             accepted = [x for x in accepted if x is not a]
             open_states = base
             states = _without(states, a)
+    if any(a.proposal.effect == "quantization" for a in accepted) and record.resolution is not None:
+        # the fine lattice is the staircase's own (a centroid of rounded pixels): not a resolution
+        record.resolution["below_noise"] = False
+        notes[:] = [n for n in notes if "the record's resolution" not in n]
     if noise_free:  # whiteness of rounding errors says nothing of the physics
         tests_nominal = tests_final = []
     else:
