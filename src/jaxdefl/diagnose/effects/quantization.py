@@ -352,7 +352,7 @@ def _on_lattices(q: float, lattice: dict[int, float]) -> bool:
     return True
 
 
-MIN_STEPS_ONE_SERIES = 6.0  # steps a single series' motion must span for its lattice to be told
+MIN_STEPS_ONE_SERIES = 10.0  # steps a single series' motion must span for its lattice to be told
 
 
 class Quantization(Effect):
