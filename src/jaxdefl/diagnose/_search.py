@@ -596,6 +596,13 @@ def _flexible_alternative(ctx, states, accepted, dropped, terms, calib, corr, n_
         generic = best_term(ctx, base, corr, bases)
         if generic is None or not generic[0] < DELTA_BIC_MAX:
             continue
+        # parsimony: a named shape that explains as much as the flexible term (within
+        # GENERIC_FIRST_RATIO, as in the forward competition) stays (a warm-up's exponential
+        # against a spline); one that explains only part of it (jumps on a smooth wander) must
+        # still pass given it
+        d_named = _score(ctx, base, _rebase(a.proposal, a.before, base), n_total, corr)[0]
+        if not generic[0] < GENERIC_FIRST_RATIO * d_named:
+            continue
         term, alt = apply_term(ctx, base, generic, corr)
         # the effect proposed afresh on the residual the generic term leaves (its own increment
         # would count twice what the generic term took of it)

@@ -427,7 +427,8 @@ class Quantization(Effect):
             cand = self._refine(ctx, states, idx, bins, spans, float(1.0 / nus[g]), d_nu)
             if cand is not None and (best is None or cand["score"] > best["score"]):
                 best = cand
-        if best is None or not _on_lattices(best["q"], lattice):
+        # the refit may walk the step off the grid: it stays within the bounds set above
+        if best is None or best["q"] > 1.25 * q_max or not _on_lattices(best["q"], lattice):
             return []
         return [self._proposal(ctx, best, p_value, float(nus.size))]  # the step's grid
 
