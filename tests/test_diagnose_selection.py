@@ -115,12 +115,12 @@ def _ramp_hold_ramp(t):
 
 
 def test_a_smooth_misfit_is_not_called_level_jumps():
-    """Level jumps accepted on a smooth misfit (a slow wander of the camera's range, alike on
-    the plates) are dropped when the flexible alternative (an unnamed smooth trend) is fitted on
+    """Level jumps accepted on a smooth misfit (a slow hump of the camera's range, alike on the
+    plates: the jumps each take a part of it) are dropped when the flexible alternative (an unnamed smooth trend) is fitted on
     the same residual: given it, they no longer pass."""
     traj = harmonic_record(seconds=120.0, sigma=0.3, seed=5)
     t = traj["t"].to_numpy()
-    traj["z"] = traj["z"] + 0.5 * np.sin(2 * np.pi * t / 100.0)
+    traj["z"] = traj["z"] + 0.6 * np.exp(-(((t - 60.0) / 25.0) ** 2))  # a smooth hump, no step
     ctx, states, corr, n_total, lib, calib = _search_parts(traj)
     acc = []
     for _ in range(2):

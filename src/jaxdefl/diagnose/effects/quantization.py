@@ -386,6 +386,11 @@ class Quantization(Effect):
         need = (1 + len(idx)) * math.log(max(n_tot, 2)) + 10.0
         q_min = max(Q_MIN_MM, sigma * math.sqrt(12.0 * need / max(n_tot, 1)))
         q_max = min(Q_MAX_MM, max(spans.values()))
+        if len(idx) == 1:
+            # one series: a staircase over a few steps is any smooth memoryless nonlinearity of
+            # the reading (a shaker's, an amplifier's); a lattice shows as one over many steps
+            # (several plates sharing one lattice are the other evidence)
+            q_max = min(q_max, spans[idx[0]] / MIN_STEPS_ONE_SERIES)
         # The lattice read from the values themselves (`record_kind.value_lattice`): a series
         # whose values sit on a lattice q_i (an ADC's step, a disparity camera's depth, or q/P
         # for a centroid of P rounded pixels) can only carry a staircase whose step is a whole
