@@ -584,43 +584,54 @@ def _passes_afresh(ctx, states, effect, calib, corr, n_total) -> tuple[bool, flo
 
 
 def _flexible_alternative(ctx, states, accepted, dropped, terms, calib, corr, n_total, library, bases):
-    """A named mean effect must beat its flexible unnamed alternative on the same residual: the
-    best generic term (a line, an envelope, a smooth trend, a decay) is fitted on the residual
-    without the effect, and the effect is kept only when it still passes its test given that
-    term. Otherwise the generic term takes its place (several small level jumps are not an
-    envelope misfit). Returns (states, accepted, terms)."""
-    for a in list(accepted):
-        if library[a.proposal.effect].noise_structure or len(terms) >= MAX_TERMS:
+    """A named mean effect must beat its flexible unnamed alternative on the same residual: all
+    the accepted instances of an effect (several level jumps) are taken out together, the best
+    generic term (a line, an envelope, a smooth trend, a decay) is fitted on what they leave,
+    and they stay when they explain as much as that term (within GENERIC_FIRST_RATIO, as in the
+    forward competition: a warm-up's exponential against a spline) or when the effect, proposed
+    afresh given the term, still passes its test. Otherwise the generic term takes their place.
+    Returns (states, accepted, terms)."""
+    for eid in list(dict.fromkeys(a.proposal.effect for a in accepted)):
+        group = [a for a in accepted if a.proposal.effect == eid]
+        if not group or library[eid].noise_structure or len(terms) >= MAX_TERMS:
             continue
-        base = _without(states, a)
+        base = states
+        for a in group:
+            base = _without(base, a)
         generic = best_term(ctx, base, corr, bases)
         if generic is None or not generic[0] < DELTA_BIC_MAX:
             continue
-        # parsimony: a named shape that explains as much as the flexible term (within
-        # GENERIC_FIRST_RATIO, as in the forward competition) stays (a warm-up's exponential
-        # against a spline); one that explains only part of it (jumps on a smooth wander) must
-        # still pass given it
-        d_named = _score(ctx, base, _rebase(a.proposal, a.before, base), n_total, corr)[0]
+        named = base
+        for a in group:
+            named = [*named]
+            for i, st in _rebase(a.proposal, a.before, named).states.items():
+                named[i] = st
+        series = sorted({i for a in group for i in a.proposal.series})
+        both = dataclasses.replace(
+            group[0].proposal,
+            series=series,
+            states={i: named[i] for i in series},
+            n_params=sum(a.proposal.n_params for a in group),
+        )
+        d_named = _score(ctx, base, both, n_total, corr)[0]
         if not generic[0] < GENERIC_FIRST_RATIO * d_named:
             continue
         term, alt = apply_term(ctx, base, generic, corr)
-        # the effect proposed afresh on the residual the generic term leaves (its own increment
-        # would count twice what the generic term took of it)
-        crit = calib.critical(a.proposal)
-        kept, lr = _passes_afresh(ctx, alt, library[a.proposal.effect], calib, corr, n_total)
+        kept, lr = _passes_afresh(ctx, alt, library[eid], calib, corr, n_total)
         if kept:
             continue
-        dropped.append(
-            Dropped(
-                a.proposal.effect,
-                f"an unnamed {term.kind} explains the same residual: given it, the effect's best statistic "
-                f"is {lr:.1f}, below the critical {crit:.1f}",
-                lr,
-                crit,
-                f"unnamed {term.kind}",
+        for a in group:
+            dropped.append(
+                Dropped(
+                    eid,
+                    f"an unnamed {term.kind} explains the same residual: given it, the effect's best "
+                    f"statistic is {lr:.1f}, below the critical {a.lr_critical:.1f}",
+                    lr,
+                    a.lr_critical,
+                    f"unnamed {term.kind}",
+                )
             )
-        )
-        accepted = [x for x in accepted if x is not a]
+        accepted = [x for x in accepted if x.proposal.effect != eid]
         terms = [*terms, term]
         states = alt
     return states, accepted, terms
