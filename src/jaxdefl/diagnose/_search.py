@@ -593,7 +593,9 @@ def _flexible_alternative(ctx, states, accepted, dropped, terms, calib, corr, n_
     Returns (states, accepted, terms)."""
     for eid in list(dict.fromkeys(a.proposal.effect for a in accepted)):
         group = [a for a in accepted if a.proposal.effect == eid]
-        if not group or library[eid].noise_structure or len(terms) >= MAX_TERMS:
+        # one instance met the best generic term when it was chosen (the forward competition,
+        # GENERIC_FIRST_RATIO); several (jumps) never met one generic term together
+        if len(group) < 2 or library[eid].noise_structure or len(terms) >= MAX_TERMS:
             continue
         base = states
         for a in group:
