@@ -78,6 +78,7 @@ def build_context(
     settings: DiagnoseSettings | None = None,
     source: str = "<table>",
     reference_source: str = "--reference",
+    allow_no_motion: bool = False,
 ) -> tuple[Context, list[State], list[str]]:
     """Validate the tables, fit the nominal model and return (context, nominal states, notes).
 
@@ -152,8 +153,11 @@ def build_context(
                 f"plate {key[0]} {key[1]}: the harmonic fit did not converge (a decaying motion?); "
                 f"harmonic at its periodogram peak {peaks.freq_hz[row]:.6g} Hz"
             )
-    if not free:
+    if not free and not allow_no_motion:
         raise InputError(f"{source}: no plate and axis shows a significant periodic motion to diagnose")
+    if not free:  # a load path, not a vibration (`record_kind`): one cycle over the record
+        notes.append("no plate and axis shows a significant periodic motion")
+        free = {(-1, ""): Harmonic(2 * math.pi / max(duration, 1e-9), 0.0, 0.0, 0.0, 0.5 * duration)}
     f0 = float(
         np.median([h.f0_hz for (p, a), h in free.items() if a == "z"] or [h.f0_hz for h in free.values()])
     )

@@ -31,6 +31,7 @@ import pandas as pd
 from scipy import stats
 from threadpoolctl import threadpool_limits
 
+from .._errors import InputError
 from .._signals import check_interrupt
 from ..settings import DiagnoseSettings
 from ._base import Context, Proposal, State, loglik, rms_equivalent
@@ -38,6 +39,7 @@ from ._context import build_context
 from ._correlation import FrameCorrelation, frame_correlation, gls_gain
 from ._whiteness import combined_p, residual_tests
 from .effects import load_effects
+from .record_kind import SEARCHED, RecordKind, kind_nominal, recognise, value_lattice
 from .unnamed import MAX_TERMS, UnnamedTerm, apply_term, best_term, colored_gain, search_unnamed
 
 # see the open world's competition in `run_diagnosis`: 2 let a level jump claim an exponential
@@ -63,6 +65,10 @@ FINALISTS = 2  # effects refined before BIC chooses one in a round
 # Residual RMS below which a table is taken for noise-free (0.1 µm: far below any range camera's
 # or laser sensor's noise; a simulation's truth written with 6 decimals sits near 3e-7 mm).
 NOISE_FLOOR_MM = 1e-4
+# Relevance: an effect that explains less than this share of the residual on its series, or whose
+# term is smaller than this share of the motion, is a minor finding (listed apart, never first).
+MINOR_RESIDUAL_SHARE = 0.02
+MINOR_MOTION_SHARE = 0.002
 
 
 @dataclass
@@ -74,6 +80,17 @@ class Accepted:
     before: dict[int, State]
     lr: float = math.nan
     lr_critical: float = math.nan
+
+
+@dataclass
+class Dropped:
+    """A named effect the backward step took out again, and why."""
+
+    effect: str
+    reason: str
+    lr: float
+    lr_critical: float
+    replaced_by: str | None = None
 
 
 @dataclass
@@ -108,11 +125,7 @@ class Calibration:
     def passes(self, p: Proposal, lr: float, rms0: float, rms1: float) -> bool:
         """The statistic beyond its critical value, the signature's p-value at the same level
         and the RMS of the touched series down."""
-        return (
-            lr > self.critical(p)
-            and rms1 < rms0
-            and p.p_value * max(self.n_tests, 1) < self.alpha
-        )
+        return lr > self.critical(p) and rms1 < rms0 and p.p_value * max(self.n_tests, 1) < self.alpha
 
 
 @dataclass
@@ -134,6 +147,9 @@ class Diagnosis:
     # with them (the full model; ``final`` holds the named effects alone)
     unnamed: list[UnnamedTerm] = field(default_factory=list)
     open_final: list[State] | None = None
+    # what kind of record this is (`record_kind`) and the effects the backward step took out
+    record: RecordKind | None = None
+    dropped: list[Dropped] = field(default_factory=list)
 
     # --- summaries --------------------------------------------------------------------------
     def _summary(self, states: list[State], tests: list[dict]) -> dict:
@@ -200,12 +216,38 @@ class Diagnosis:
             )
         return sorted(out, key=lambda u: u["p_value"])
 
+    def relevance(self, a: Accepted) -> dict:
+        """An effect's share of the nominal residual it explains on its series and its size
+        against the motion there; ``minor`` when either is negligible (`MINOR_RESIDUAL_SHARE`,
+        `MINOR_MOTION_SHARE`)."""
+        ctx, p = self.ctx, a.proposal
+        resid0 = motion = size = 0.0
+        for i in p.series:
+            y = ctx.series[i].y
+            nom = self.nominal[i].mean
+            resid0 += float(np.mean((y - nom) ** 2))
+            motion += float(np.var(nom))
+            size += float(np.mean((p.states[i].mean - a.before[i].mean) ** 2))
+        m = max(len(p.series), 1)
+        resid0, motion, size = resid0 / m, motion / m, size / m
+        explained = max(a.rms_before**2 - a.rms_after**2, 0.0)
+        if size == 0.0:  # a noise model: its size is the variance it accounts for
+            size = explained
+        share = explained / resid0 if resid0 > 0 else 0.0
+        vs_motion = math.sqrt(size / motion) if motion > 0 else math.inf
+        return {
+            "residual_share": share,
+            "size_vs_motion": vs_motion,
+            "minor": bool(share < MINOR_RESIDUAL_SHARE or vs_motion < MINOR_MOTION_SHARE),
+        }
+
     def to_json(self) -> dict:
         """The DIAG.json contract of DESIGN.md (plus inputs, notes and what cannot be told)."""
         ctx = self.ctx
         effects = []
         for a in self.accepted:
             p = a.proposal
+            rel = self.relevance(a)
             effects.append(
                 {
                     "id": p.effect,
@@ -222,6 +264,7 @@ class Diagnosis:
                     "p_value": p.p_value,
                     "explanation": p.explanation,
                     "detail": _jsonable(p.detail),
+                    "relevance": rel,
                 }
             )
         # A later effect may refit an earlier one's parameters at no cost (a clock offset and a
@@ -265,8 +308,21 @@ class Diagnosis:
                     "modulation_mhz": ctx.modulation_mhz,
                     "reference_plates": sorted(ctx.reference_harmonic),
                 },
+                "record_kind": self.record.kind if self.record is not None else "forced_harmonic",
+                "record": self.record.to_json() if self.record is not None else None,
                 "nominal": nominal,
                 "effects": effects,
+                "minor": [e["id"] for e in effects if e["relevance"]["minor"]],
+                "dropped": [
+                    {
+                        "id": d.effect,
+                        "reason": d.reason,
+                        "lr": d.lr,
+                        "lr_critical": d.lr_critical,
+                        "replaced_by": d.replaced_by,
+                    }
+                    for d in self.dropped
+                ],
                 "unnamed": [_unnamed_json_of(ctx, u) for u in self.unnamed],
                 "unexplained": self.unexplained(),
                 "final": self._summary(
@@ -387,6 +443,202 @@ def _rebase(p: Proposal, base: list[State], states: list[State]) -> Proposal:
     return dataclasses.replace(p, states=new)
 
 
+def _resolution(ctx: Context, nominal: list[State]) -> dict | None:
+    """The lattice the values sit on, read from their spacing (`record_kind.value_lattice`),
+    against the noise: a lattice below the residual noise is the record's resolution (an ADC's
+    step, a table's written decimals), not missing physics. None when the values are on no
+    common lattice (a centroid averaged over many pixels)."""
+    steps = [value_lattice(s.y) for s in ctx.series]
+    if not steps or any(q is None for q in steps):
+        return None
+    q = float(np.median(steps))
+    noise = float(
+        np.median([np.sqrt(np.mean((s.y - st.mean) ** 2)) for s, st in zip(ctx.series, nominal, strict=True)])
+    )
+    decimal = abs(math.log10(q) - round(math.log10(q))) < 0.005
+    return {"step": q, "noise": noise, "below_noise": bool(q < noise), "written_decimals": bool(decimal)}
+
+
+def _without(states: list[State], a: Accepted) -> list[State]:
+    """``states`` with an accepted effect's change taken out: its mean increment and its
+    parameters, and its noise model where no later effect replaced it."""
+    out = list(states)
+    eid = a.proposal.effect
+    for i in a.proposal.series:
+        st, q, b = states[i], a.proposal.states[i], a.before[i]
+        effects = list(st.effects)
+        if eid in effects:
+            effects.remove(eid)
+        kw = {
+            "mean": st.mean - (q.mean - b.mean),
+            "n_params": st.n_params - (q.n_params - b.n_params),
+            "effects": tuple(effects),
+        }
+        if q.scale is not b.scale and st.scale is q.scale:
+            kw["scale"] = b.scale
+        if q.inlier is not b.inlier and st.inlier is q.inlier:
+            kw.update(
+                inlier=b.inlier, outlier_fraction=b.outlier_fraction, outlier_scale_mm=b.outlier_scale_mm
+            )
+        out[i] = st.with_(**kw)
+    return out
+
+
+def _retest(ctx, states, a: Accepted, base: list[State], calib, corr, n_total):
+    """The accepted effect's test given ``base`` (the model without it): (passes, LR, critical)."""
+    q = _rebase(a.proposal, a.before, base)
+    _, r0, r1, lr = _score(ctx, base, q, n_total, corr)
+    return calib.passes(q, lr, r0, r1), lr, calib.critical(q), q
+
+
+def _backward(ctx, states, accepted, dropped, calib, corr, n_total, usable):
+    """Backward elimination after an addition (issue 23, Build item 2): every earlier effect is
+    tested again given all the others, (a) as it stands and (b) with the newest effect refitted
+    in its absence (a term fitted on what the earlier one left may explain it all once refitted:
+    a quantisation staircase after the lines its harmonics made); the first that no longer passes
+    is dropped, and the pass repeats. Returns (states, accepted)."""
+    newest = accepted[-1]
+    while True:
+        for a in accepted[:-1]:
+            base = _without(states, a)
+            ok, lr, crit, _ = _retest(ctx, states, a, base, calib, corr, n_total)
+            if not ok:
+                dropped.append(
+                    Dropped(
+                        a.proposal.effect,
+                        f"no longer needed once {newest.proposal.effect} is in the model: given all the "
+                        f"other terms its statistic is {lr:.1f}, below the critical {crit:.1f}",
+                        lr,
+                        crit,
+                        newest.proposal.effect,
+                    )
+                )
+                accepted = [x for x in accepted if x is not a]
+                states = base
+                break
+            if a.proposal.effect == newest.proposal.effect or newest.proposal.effect not in usable:
+                continue
+            # (b) the newest refitted without a: does a still pay for itself?
+            both = _without(_without(states, newest), a)
+            best = None
+            for p in usable[newest.proposal.effect].propose(ctx, both):
+                if not p.series:
+                    continue
+                d, r0, r1, lr_n = _score(ctx, both, p, n_total, corr)
+                if not calib.passes(p, lr_n, r0, r1):
+                    continue
+                if p.refine is not None:
+                    q = p.refine()
+                    if q is not None:
+                        d2, q0, q1, lr2 = _score(ctx, both, q, n_total, corr)
+                        if calib.passes(q, lr2, q0, q1) and d2 < d:
+                            d, r0, r1, lr_n, p = d2, q0, q1, lr2, q
+                if best is None or d < best[0]:
+                    best = (d, r0, r1, lr_n, p)
+            if best is None:
+                continue
+            d, r0, r1, lr_n, p = best
+            alt = list(both)
+            for i in p.series:
+                alt[i] = p.states[i]
+            ok, lr, crit, _ = _retest(ctx, alt, a, alt, calib, corr, n_total)
+            if ok:
+                continue
+            renewed = Accepted(p, d, r0, r1, {i: both[i] for i in p.series}, lr_n, calib.critical(p))
+            dropped.append(
+                Dropped(
+                    a.proposal.effect,
+                    f"no longer needed once {newest.proposal.effect} is refitted without it: given all "
+                    f"the other terms its statistic is {lr:.1f}, below the critical {crit:.1f}",
+                    lr,
+                    crit,
+                    newest.proposal.effect,
+                )
+            )
+            accepted = [renewed if x is newest else x for x in accepted if x is not a]
+            newest = renewed
+            states = alt
+            break
+        else:
+            return states, accepted
+
+
+def _passes_afresh(ctx, states, effect, calib, corr, n_total) -> tuple[bool, float]:
+    """Does the effect, proposed afresh on ``states`` (refined where its screening is coarse),
+    pass its test? (passes, the best statistic seen)."""
+    best = 0.0
+    for p in effect.propose(ctx, states):
+        if not p.series:
+            continue
+        _, r0, r1, lr = _score(ctx, states, p, n_total, corr)
+        ok = calib.passes(p, lr, r0, r1)
+        if not ok and p.refine is not None:
+            q = p.refine()
+            if q is not None:
+                _, r0, r1, lr2 = _score(ctx, states, q, n_total, corr)
+                ok, lr = calib.passes(q, lr2, r0, r1), max(lr, lr2)
+        best = max(best, lr)
+        if ok:
+            return True, lr
+    return False, best
+
+
+def _flexible_alternative(ctx, states, accepted, dropped, terms, calib, corr, n_total, library, bases):
+    """A named mean effect must beat its flexible unnamed alternative on the same residual: all
+    the accepted instances of an effect (several level jumps) are taken out together, the best
+    generic term (a line, an envelope, a smooth trend, a decay) is fitted on what they leave,
+    and they stay when they explain as much as that term (within GENERIC_FIRST_RATIO, as in the
+    forward competition: a warm-up's exponential against a spline) or when the effect, proposed
+    afresh given the term, still passes its test. Otherwise the generic term takes their place.
+    Returns (states, accepted, terms)."""
+    for eid in list(dict.fromkeys(a.proposal.effect for a in accepted)):
+        group = [a for a in accepted if a.proposal.effect == eid]
+        # one instance met the best generic term when it was chosen (the forward competition,
+        # GENERIC_FIRST_RATIO); several (jumps) never met one generic term together
+        if len(group) < 2 or library[eid].noise_structure or len(terms) >= MAX_TERMS:
+            continue
+        base = states
+        for a in group:
+            base = _without(base, a)
+        generic = best_term(ctx, base, corr, bases)
+        if generic is None or not generic[0] < DELTA_BIC_MAX:
+            continue
+        named = base
+        for a in group:
+            named = [*named]
+            for i, st in _rebase(a.proposal, a.before, named).states.items():
+                named[i] = st
+        series = sorted({i for a in group for i in a.proposal.series})
+        both = dataclasses.replace(
+            group[0].proposal,
+            series=series,
+            states={i: named[i] for i in series},
+            n_params=sum(a.proposal.n_params for a in group),
+        )
+        d_named = _score(ctx, base, both, n_total, corr)[0]
+        if not generic[0] < GENERIC_FIRST_RATIO * d_named:
+            continue
+        term, alt = apply_term(ctx, base, generic, corr)
+        kept, lr = _passes_afresh(ctx, alt, library[eid], calib, corr, n_total)
+        if kept:
+            continue
+        for a in group:
+            dropped.append(
+                Dropped(
+                    eid,
+                    f"an unnamed {term.kind} explains the same residual: given it, the effect's best "
+                    f"statistic is {lr:.1f}, below the critical {a.lr_critical:.1f}",
+                    lr,
+                    a.lr_critical,
+                    f"unnamed {term.kind}",
+                )
+            )
+        accepted = [x for x in accepted if x.proposal.effect != eid]
+        terms = [*terms, term]
+        states = alt
+    return states, accepted, terms
+
+
 # One BLAS thread: the diagnosis' products are many small GEMMs and dots over one series, where
 # OpenBLAS's threads cost more to wake than they save and, on cores shared with other jobs, spin
 # against them (measured: the whole search twice as slow, drift's screening five times). JAX's
@@ -416,7 +668,26 @@ def run_diagnosis(
     library = load_effects()
     if settings.effects is not None:
         library = {k: v for k, v in library.items() if k in settings.effects}
-    ctx, nominal, notes = build_context(traj, reference, settings, source, reference_source)
+    ctx, nominal, notes = build_context(
+        traj, reference, settings, source, reference_source, allow_no_motion=True
+    )
+    # what kind of record this is, before anything is named (`record_kind`)
+    record = recognise([(s.t, s.y) for s in ctx.series], ctx.dt_s)
+    no_motion = "no plate and axis shows a significant periodic motion"
+    if no_motion in notes:
+        if record.kind not in ("quasi_static", "broadband"):
+            raise InputError(f"{source}: {no_motion} to diagnose")
+        notes.remove(no_motion)
+    nominal, kind_notes = kind_nominal(ctx, nominal, record)
+    notes[:0] = [f"record kind: {record.statement}", *kind_notes]
+    record.resolution = _resolution(ctx, nominal)
+    if record.resolution is not None and record.resolution["below_noise"]:
+        notes.append(
+            f"the values sit on a lattice of {record.resolution['step']:.4g} (read from their spacing), "
+            f"below the noise ({record.resolution['noise']:.3g}): the record's resolution, "
+            "not missing physics"
+        )
+    searched = SEARCHED[record.kind]
     cannot_tell = []
     usable = {}
     rms = [float(np.sqrt(np.mean((s.y - st.mean) ** 2))) for s, st in zip(ctx.series, nominal, strict=True)]
@@ -428,7 +699,13 @@ def run_diagnosis(
         )
     corr = frame_correlation(ctx, nominal)
     for eid, eff in library.items():
-        why = eff.cannot_tell(ctx, corr)
+        why = None
+        if searched is not None and eid not in searched:
+            why = (
+                f"the record is a {record.kind.replace('_', ' ')} record: {eid} is defined against one "
+                "steady loading harmonic, which this record does not have"
+            )
+        why = why or eff.cannot_tell(ctx, corr)
         if why is None and noise_free:
             why = (
                 f"the table carries no measurement noise (residual RMS below {NOISE_FLOOR_MM:g} mm): "
@@ -467,6 +744,7 @@ def run_diagnosis(
     bases: dict = {}  # the open world's spline bases, for this search
     rounds: list[list[dict]] = []
     calib = Calibration(max(len(usable), 1))
+    dropped: list[Dropped] = []
     # Proposals of every effect, with the states they were made on. After an effect is accepted
     # the others are re-scored on the new states by re-applying their change (`_rebase`), and
     # only the best one is proposed afresh: a round costs one effect's screening, not eleven.
@@ -521,7 +799,9 @@ def run_diagnosis(
                         d2, q0, q1, lr2 = _score(ctx, states, q, n_total, corr)
                         if calib.passes(q, lr2, q0, q1):
                             d, r0, r1, lr, p = d2, q0, q1, lr2, q
-                finalists.append(Accepted(p, d, r0, r1, {i: states[i] for i in p.series}, lr, calib.critical(p)))
+                finalists.append(
+                    Accepted(p, d, r0, r1, {i: states[i] for i in p.series}, lr, calib.critical(p))
+                )
                 break
             # BIC chooses among the FINALISTS refined, not their screening proposals: a line's
             # coarse proposal near f0 scores far below its refined fit, and a neighbour's
@@ -566,6 +846,8 @@ def run_diagnosis(
         states = list(states)
         for i in chosen.proposal.series:
             states[i] = chosen.proposal.states[i]
+        if len(accepted) > 1:
+            states, accepted = _backward(ctx, states, accepted, dropped, calib, corr, n_total, usable)
         cache.pop(chosen.proposal.effect, None)
         screen(chosen.proposal.effect)  # the same effect may be there twice (a second line, jump)
         # An effect that proposed nothing has no cached change to re-score: it looks again at
@@ -576,9 +858,37 @@ def run_diagnosis(
                 screen(eid)
         fresh_round = False
 
+    if open_world and accepted:
+        states, accepted, terms = _flexible_alternative(
+            ctx, states, accepted, dropped, terms, calib, corr, n_total, library, bases
+        )
     open_states = states
     if open_world and not noise_free:
         terms, open_states = search_unnamed(ctx, states, corr, MAX_TERMS, check_interrupt, bases, prior=terms)
+        # the named terms tested once more with the flexible discrepancy in place: an effect
+        # that only absorbed part of a structure the generic terms now model goes
+        for a in list(accepted):
+            base = _without(open_states, a)
+            ok, lr, crit, _ = _retest(ctx, open_states, a, base, calib, corr, n_total)
+            if ok:
+                continue
+            dropped.append(
+                Dropped(
+                    a.proposal.effect,
+                    "no longer needed with the unnamed terms in place: given them and the other effects "
+                    f"its statistic is {lr:.1f}, below the critical {crit:.1f}",
+                    lr,
+                    crit,
+                    "unnamed",
+                )
+            )
+            accepted = [x for x in accepted if x is not a]
+            open_states = base
+            states = _without(states, a)
+    if any(a.proposal.effect == "quantization" for a in accepted) and record.resolution is not None:
+        # the fine lattice is the staircase's own (a centroid of rounded pixels): not a resolution
+        record.resolution["below_noise"] = False
+        notes[:] = [n for n in notes if "the record's resolution" not in n]
     if noise_free:  # whiteness of rounding errors says nothing of the physics
         tests_nominal = tests_final = []
     else:
@@ -602,6 +912,8 @@ def run_diagnosis(
         corr=corr,
         unnamed=terms,
         open_final=open_states,
+        record=record,
+        dropped=dropped,
     )
 
 

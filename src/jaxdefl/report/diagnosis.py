@@ -105,7 +105,8 @@ class Findings:
     """What a diagnosis found, as its report shows it: the summary sentence, the advice and the
     tables are all written from this one structure, so they cannot disagree.
 
-    named: DIAG.json's ``effects``; unnamed: its generic terms; unexplained: the residual tests
+    named: DIAG.json's ``effects`` but the minor ones; minor: those its relevance marks minor
+    (reported apart, never in the summary's lead); unnamed: its generic terms; unexplained: the residual tests
     that still fail; nominal_p, final_p: the whiteness p-values of the table; trajectory,
     reference, config: what the next commands are run on.
     """
@@ -118,12 +119,18 @@ class Findings:
     trajectory: str = "TRAJ.csv"
     reference: str | None = None
     config: str | None = None
+    minor: tuple[dict, ...] = ()
 
     @classmethod
     def of(cls, d: dict) -> Findings:
         s = d.get("settings") or {}
+
+        def is_minor(e: dict) -> bool:
+            return bool((e.get("relevance") or {}).get("minor"))
+
         return cls(
-            named=tuple(d["effects"]),
+            named=tuple(e for e in d["effects"] if not is_minor(e)),
+            minor=tuple(e for e in d["effects"] if is_minor(e)),
             unnamed=tuple(d.get("unnamed") or ()),
             unexplained=tuple(d["unexplained"]),
             nominal_p=float(d["nominal"]["whiteness_p"]),
@@ -136,7 +143,7 @@ class Findings:
     @property
     def nothing(self) -> bool:
         """No term of any kind and no residual test failing: the nominal model suffices."""
-        return not (self.named or self.unnamed or self.unexplained) and self.nominal_p >= ALPHA
+        return not (self.named or self.minor or self.unnamed or self.unexplained) and self.nominal_p >= ALPHA
 
     def summary(self) -> str:
         """The report's one-sentence verdict."""
@@ -169,6 +176,8 @@ class Findings:
                 if self.nominal_p < ALPHA
                 else "but residual tests fail"
             )
+        if self.minor:
+            parts.append(f"{len(self.minor)} minor finding{'s' if len(self.minor) > 1 else ''} apart")
         lead = ", ".join(parts)
         if self.unexplained:
             tail = (
@@ -289,6 +298,13 @@ def diagnosis_markdown(d: dict, figures: list[str]) -> str:
         f"| final | {fin['rms_mm']:.4f} | {fin['bic']:.1f} | {found.final_p:.3g} |",
         "",
     ]
+    rec = d.get("record") or {}
+    if rec.get("statement"):
+        lines += [f"**Record kind: {d['record_kind'].replace('_', ' ')}** — {rec['statement']}.", ""]
+        fc = rec.get("forcing_change") or {}
+        if fc.get("verdict"):
+            lines += [f"A change at t = {fc['t_s']:.3f} s: {fc['verdict']}.", ""]
+    shown: set[str] = set()
     for k, e in enumerate(found.named):
         test = (
             f"2 Δlog L {e['lr']:.1f} against {e['lr_critical']:.1f} (χ² with {e.get('lr_dof', '?')} dof, "
@@ -308,8 +324,26 @@ def diagnosis_markdown(d: dict, figures: list[str]) -> str:
             f"{e['rms_before_mm']:.4f} → {e['rms_after_mm']:.4f} mm",
             "- parameters: " + "; ".join(f"{name} = {_fmt_param(v)}" for name, v in e["parameters"].items()),
         ]
-        if k < len(figures):
-            lines += ["", f"![{e['id']}]({figures[k]})"]
+        if fig := next((f for f in figures if f.endswith(f"_{e['id']}.png") and f not in shown), None):
+            shown.add(fig)  # figures follow the search's acceptances: matched by the effect's id
+            lines += ["", f"![{e['id']}]({fig})"]
+        lines.append("")
+    if found.minor:
+        lines += ["## Minor findings", ""]
+        for e in found.minor:
+            r = e["relevance"]
+            lines.append(
+                f"- `{e['id']}`: {r['residual_share']:.1%} of the residual on its series, "
+                f"{r['size_vs_motion']:.2%} of the motion"
+            )
+        lines.append("")
+    if d.get("nominal_physics"):
+        lines += ["## The sensor's own physics (not missing)", ""]
+        lines += [f"- `{x['id']}` on {_where(x)}: {x['reason']}" for x in d["nominal_physics"]]
+        lines.append("")
+    if d.get("dropped"):
+        lines += ["## Dropped by the backward step", ""]
+        lines += [f"- `{x['id']}`: {x['reason']}" for x in d["dropped"]]
         lines.append("")
     if found.unnamed:
         lines += ["## Structure outside the vocabulary (unnamed, modelled)", ""]

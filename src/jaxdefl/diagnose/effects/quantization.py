@@ -62,6 +62,7 @@ import numpy as np
 from ..._lattice import dithered_round, dithered_round_var
 from ..._lattice import smoothed_staircase as staircase  # the mean reading (dither 0: hard steps)
 from .._base import Context, Effect, Proposal, State, keep_series, lstsq
+from ..record_kind import value_lattice
 from .screening import P_SCREEN, bonferroni, chi2_sf, gain, param, residual, touched, updated, weights
 
 __all__ = ["Quantization", "EFFECT"]
@@ -338,6 +339,22 @@ def _joint(ctx: Context, states: list[State], use: list[int], h: dict, q: float,
     return q, sig_q, dither, sig_d, {i: (data[i][3], h[i], fit[i][0], fit[i][1]) for i in use}
 
 
+MAX_PIXELS = 500  # the most readings a centroid averages whose lattice q/P is still told apart
+
+
+def _on_lattices(q: float, lattice: dict[int, float]) -> bool:
+    """The step is a whole multiple of every series' own lattice (checked where the multiple is
+    small enough, ≤ 20, for the step's precision to tell it)."""
+    for q_i in lattice.values():
+        m = q / q_i
+        if round(m) < 1 or (m <= 20.5 and abs(m - round(m)) > 0.1):
+            return False
+    return True
+
+
+MIN_STEPS_ONE_SERIES = 10.0  # steps a single series' motion must span for its lattice to be told
+
+
 class Quantization(Effect):
     id = "quantization"
     meaning = "depth measured in steps (structured-light disparity quantisation, a logger's ADC)"
@@ -377,6 +394,24 @@ class Quantization(Effect):
         need = (1 + len(idx)) * math.log(max(n_tot, 2)) + 10.0
         q_min = max(Q_MIN_MM, sigma * math.sqrt(12.0 * need / max(n_tot, 1)))
         q_max = min(Q_MAX_MM, max(spans.values()))
+        if len(idx) == 1:
+            # one series: a staircase over a few steps is any smooth memoryless nonlinearity of
+            # the reading (a shaker's, an amplifier's); a lattice shows as one over many steps
+            # (several plates sharing one lattice are the other evidence)
+            q_max = min(q_max, spans[idx[0]] / MIN_STEPS_ONE_SERIES)
+        # The lattice read from the values themselves (`record_kind.value_lattice`): a series
+        # whose values sit on a lattice q_i (an ADC's step, a disparity camera's depth, or q/P
+        # for a centroid of P rounded pixels) can only carry a staircase whose step is a whole
+        # multiple of it, of at most MAX_PIXELS: a logger's 0.0015-mm ADC step under 3 mm of
+        # residual is the record's resolution, not an 8.5-mm quantisation. A table's written
+        # decimals (a power of ten) say nothing of the sensor.
+        lattice = {}
+        for i in idx:
+            q_i = value_lattice(ctx.series[i].y)
+            if q_i is not None and abs(math.log10(q_i) - round(math.log10(q_i))) >= 0.005:
+                lattice[i] = q_i
+        if lattice:
+            q_max = min(q_max, MAX_PIXELS * min(lattice.values()))
         if q_max <= q_min:
             return []
         width = q_min / BINS_PER_STEP
@@ -405,7 +440,8 @@ class Quantization(Effect):
             cand = self._refine(ctx, states, idx, bins, spans, float(1.0 / nus[g]), d_nu)
             if cand is not None and (best is None or cand["score"] > best["score"]):
                 best = cand
-        if best is None:
+        # the refit may walk the step off the grid: it stays within the bounds set above
+        if best is None or best["q"] > 1.25 * q_max or not _on_lattices(best["q"], lattice):
             return []
         return [self._proposal(ctx, best, p_value, float(nus.size))]  # the step's grid
 
