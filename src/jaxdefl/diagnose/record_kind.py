@@ -286,6 +286,9 @@ def recognise(series: list[tuple[np.ndarray, np.ndarray]], dt: float) -> RecordK
             "variance (random excitation, no loading harmonic); nothing defined against one is named"
         )
         return rk
+    if not lines:  # no line stands out and what is left is white: no motion the kinds describe
+        rk.statement = "no spectral line stands out of the noise"
+        return rk
     tol = 2.0 / duration
     forcing = [
         f
