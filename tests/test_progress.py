@@ -151,6 +151,6 @@ def test_on_a_terminal_progress_is_a_live_rich_bar(monkeypatch):
 
     monkeypatch.setattr(progress, "interactive", lambda: True)
     assert isinstance(progress.progress_bar(), Progress)
-    assert isinstance(progress.progress_bar(enabled=False), progress._NoProgress)
+    assert isinstance(progress.progress_bar(enabled=False), progress.NoProgress)
     monkeypatch.setattr(progress, "interactive", lambda: False)
     assert isinstance(progress.progress_bar(), progress.PlainProgress)

@@ -24,7 +24,7 @@ from rich.progress import (
     TimeRemainingColumn,
 )
 
-__all__ = ["PLAIN_EVERY_S", "console", "interactive", "progress_bar", "status", "wrote"]
+__all__ = ["PLAIN_EVERY_S", "NoProgress", "console", "interactive", "progress_bar", "status", "wrote"]
 
 # soft_wrap: a long line is never broken at 80 columns in a log (a terminal wraps it itself)
 console = Console(stderr=True, soft_wrap=True)
@@ -110,7 +110,9 @@ class PlainProgress:
                 _say(line)
 
 
-class _NoProgress:
+class NoProgress:
+    """A progress bar that shows nothing (progress disabled)."""
+
     def __enter__(self):
         return self
 
@@ -132,7 +134,7 @@ def progress_bar(enabled: bool = True):
     rich bar (description, done/total, time elapsed and left) on a terminal, `PlainProgress`
     lines off it, nothing when not ``enabled``."""
     if not enabled:
-        return _NoProgress()
+        return NoProgress()
     if not interactive():
         return PlainProgress()
     return Progress(

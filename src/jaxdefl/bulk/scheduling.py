@@ -8,6 +8,7 @@ import gc
 import re
 
 from .._errors import ConfigError, ParameterError
+from ..progress import NoProgress as NoBar
 from ..progress import progress_bar
 
 __all__ = ["NoBar", "check_scheduler", "connect", "progress_bar", "release_memory"]
@@ -63,19 +64,3 @@ def connect(scheduler: str):
         return Client(scheduler, timeout="10s"), None
     except (OSError, TimeoutError) as err:
         raise ConfigError(f"--scheduler: cannot reach a dask scheduler at {scheduler!r} ({err})") from None
-
-
-class NoBar:
-    """A progress bar that shows nothing (progress=False)."""
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        return False
-
-    def add_task(self, *a, **k):
-        return 0
-
-    def advance(self, *a, **k):
-        pass
