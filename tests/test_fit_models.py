@@ -501,7 +501,8 @@ def _campaign(tmp_path, processing):
     write_trajectory(df, tmp_path / "traj.csv")
     cfg = tmp_path / "c.toml"
     cfg.write_text(
-        f'[campaign]\nname = "m"\n[processing]\naxes = ["z"]\nwindow_s = 30.0\nreference_plate = 2\n{processing}\n'
+        f'[campaign]\nname = "m"\n[processing]\naxes = ["z"]\nwindow_s = 30.0\n'
+        f"reference_plate = 2\n{processing}\n"
         '[[recording]]\nday = 1\ncamera = "cam2"\ntrajectories = "traj.csv"\n'
     )
     return cfg
