@@ -368,3 +368,22 @@ def test_fit_of_a_shuffled_table_with_reclock_equals_the_ordered_fit(recording, 
     assert main(["fit", str(recording / "traj.csv"), "--out", str(recording / "b.csv"), *args]) == 0
     a, b = pd.read_csv(recording / "a.csv"), pd.read_csv(recording / "b.csv")
     pd.testing.assert_frame_equal(a, b)
+
+
+def test_every_help_text_is_shown_whole(capsys, monkeypatch):
+    """Rich markup would swallow a bracketed word ("[default: ...]", "[[session]]"): every
+    option's help, as written, appears in its command's --help."""
+    import typer.main
+
+    from jaxdefl.cli import app
+
+    monkeypatch.setenv("COLUMNS", "400")
+    group = typer.main.get_command(app)
+    for name, command in group.commands.items():
+        assert main([name, "--help"]) == 0
+        shown = " ".join(capsys.readouterr().out.split())
+        for param in command.params:
+            help_text = getattr(param, "help", None)
+            if help_text and "[" in help_text:
+                words = " ".join(help_text.replace("\\[", "[").split())
+                assert words in shown, (name, param.name, words)

@@ -104,7 +104,7 @@ def simulate(
     seed: Annotated[int | None, typer.Option(help="Random seed (default: from the config).")] = None,
     session: Annotated[
         str | None,
-        typer.Option(help="A [[session]] of the config (default: every session, each in DIR/<session>/)."),
+        typer.Option(help="A \\[\\[session]] of the config (default: every session, each in DIR/<session>/)."),
     ] = None,
     live: Annotated[
         bool,
@@ -141,7 +141,7 @@ def extract(
     chunk_frames: Annotated[int, typer.Option(help="Frames per batch (bounds memory).")] = 256,
     device: Annotated[
         str | None,
-        typer.Option(help="Torch device of the per-frame stages: cpu, cuda, cuda:N [default: cuda if any]."),
+        typer.Option(help="Torch device of the per-frame stages: cpu, cuda, cuda:N (default: cuda if any)."),
     ] = None,
     timestamps: Annotated[
         str,
@@ -250,7 +250,7 @@ def reconcile(
     config: Annotated[Path, typer.Option("--config", help="Simulation config of the experiment (TOML).")],
     out: Annotated[Path, typer.Option("--out", help="Output directory.")],
     reference: Annotated[Path | None, typer.Option(help="Reference (LDS) table t, plate, z.")] = None,
-    session: Annotated[str | None, typer.Option(help="Session of the config ([[session]] name).")] = None,
+    session: Annotated[str | None, typer.Option(help="Session of the config (\\[\\[session]] name).")] = None,
     segment: Annotated[
         str | None, typer.Option(help="Segment of the recording (default: the first).")
     ] = None,

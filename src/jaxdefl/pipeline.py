@@ -318,10 +318,12 @@ def extract_file(recording: Path, out: Path, settings: ExtractSettings) -> None:
     """`jaxdefl extract`: the plates of every frame of ``recording`` to the table ``out``
     (`jaxdefl.frames.extract_to_table`), with a closing line."""
     from .frames import extract_to_table
+    from .io.camera import camera_sidecar
 
     t0 = time.perf_counter()
     extract_to_table(recording, out, settings)
-    wrote("extract", out, detail=f"{time.perf_counter() - t0:.1f} s")
+    side = camera_sidecar(out)
+    wrote("extract", out, *([side] if side.is_file() else []), detail=f"{time.perf_counter() - t0:.1f} s")
 
 
 def run_file(config: Path, out: Path, settings: RunSettings) -> pd.DataFrame:
@@ -485,6 +487,31 @@ def _camera_facts(config: Path | None) -> dict:
     return facts
 
 
+def _with_sensor_facts(settings: DiagnoseSettings, config: Path | None, traj: Path):
+    """``settings`` with what the flags do not say of the camera: from the ``config``, then from
+    the facts `jaxdefl extract` wrote beside ``traj`` (``TRAJ.camera.json``), and a note saying
+    where the sensor kind came from (None when no source names it)."""
+    from .io.camera import camera_sidecar, read_camera_sidecar
+
+    given = settings.sensor
+    from_config = _camera_facts(config)
+    recorded = read_camera_sidecar(traj)
+    settings = settings.with_camera(from_config).with_camera(recorded)
+    if settings.sensor is None:
+        return settings, None
+    if given is not None:
+        source = "--sensor"
+    elif from_config:
+        source = f"the config {config}"
+    else:
+        source = f"the recording's attributes ({camera_sidecar(traj).name})"
+    note = f"sensor: {settings.sensor}, from {source}"
+    if recorded.get("sensor") not in (None, settings.sensor):
+        note += f"; the recording's attributes say {recorded['sensor']}"
+        console.print(f"  [yellow]{note}[/]", highlight=False, soft_wrap=True)
+    return settings, note
+
+
 # Memory a diagnosis adds per row of the table to what the process holds once the table is read
 # (measured peak RSS, 10 plates, one axis: 1.95 GB for 0.97 M rows, 6.1 GB for 4.85 M rows, from
 # ~0.6 GB at the start; the search holds several residual and weight vectors per series at once).
@@ -550,7 +577,7 @@ def diagnose_file(
     outs = Outputs(inputs=[traj, reference, config])
     outs.reserve(out, "--out", suffixes=(".json",))
     outs.reserve(out.with_suffix(".md"), "the diagnosis report")
-    settings = settings.with_camera(_camera_facts(config))
+    settings, sensor_note = _with_sensor_facts(settings, config, traj)
     # the tables as read: `run_diagnosis` validates them (once; validation sorts every row)
     with status(f"jaxdefl diagnose: reading {traj}"):
         df = load_table(traj)
@@ -564,6 +591,8 @@ def diagnose_file(
         diag = run_diagnosis(
             df, ref, settings, source=str(traj), reference_source=str(reference), on_round=on_round
         )
+    if sensor_note:
+        diag.notes.insert(0, sensor_note)
     for note in diag.notes:
         if "timestamps reclocked" in note or "timestamps merged" in note:
             console.print(f"  {note}", highlight=False, soft_wrap=True)

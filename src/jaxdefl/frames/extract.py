@@ -256,6 +256,7 @@ def extract_to_table(
         ConfigError: ``out`` clashing with the input.
         InputError: a missing, corrupt, truncated or inconsistent recording, or no plates found.
     """
+    from ..io.camera import camera_facts, camera_sidecar
     from ..io.output import TABLE_SUFFIXES, Outputs
     from ..io.recording import open_recording
     from ..io.trajectory import timestamp_note, write_trajectory
@@ -272,3 +273,5 @@ def extract_to_table(
     df = extract_recording(rec, realtime=s.realtime, chunk_frames=s.chunk_frames, device=s.device)
     with outs:
         write_trajectory(df, out, outs)
+        # always written, so that no earlier extraction's facts stay beside a new table
+        outs.json(camera_sidecar(out), {"recording": str(recording), **camera_facts(rec.attrs)})
