@@ -186,3 +186,33 @@ def test_other_settings_are_frozen_and_normalised():
 def test_library_errors_name_the_parameter(make, message):
     with pytest.raises(ParameterError, match=message):
         make()
+
+
+SETTINGS_OF = {
+    "fit": (FitSettings, FIT_FLAGS),
+    "diagnose": (DiagnoseSettings, DIAGNOSE_FLAGS),
+    "reconcile": (ReconcileSettings, RECONCILE_FLAGS),
+    "extract": (ExtractSettings, EXTRACT_FLAGS),
+    "simulate": (SimulateSettings, SIMULATE_FLAGS),
+    "run": (RunSettings, RUN_FLAGS),
+    "monitor": (MonitorSettings, MONITOR_FLAGS),
+}
+
+
+@pytest.mark.parametrize("command", list(SETTINGS_OF))
+def test_each_flag_is_one_field_with_one_default(command):
+    """Every flag of a command's settings map is an option of the command, named as the map
+    says, and its default is the settings field's default: a library call and the command line
+    with no flags do the same thing."""
+    import typer.main
+
+    from jaxdefl.cli import app
+
+    cls, flags = SETTINGS_OF[command]
+    options = {opt: p for p in typer.main.get_command(app).commands[command].params for opt in p.opts}
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    for param, flag in flags.items():
+        assert flag in options, (command, flag)
+        assert param in fields, (command, param)
+        assert options[flag].default == fields[param].default, (command, flag)
+    assert len(set(flags.values())) == len(flags)

@@ -11,6 +11,7 @@ from typing import Annotated
 
 import typer
 
+from . import settings as _settings  # the defaults of every flag (one source)
 from ._errors import Interrupted, JaxdeflError, ParameterError, one_line
 from ._signals import check_interrupt, committed_under_signal, handle_signals
 
@@ -63,24 +64,32 @@ def fit(
     fmax: Annotated[
         float | None, typer.Option(help="Highest frequency searched, Hz (default: Nyquist).")
     ] = None,
-    oversampling: Annotated[float, typer.Option(help="Periodogram oversampling factor.")] = 5.0,
+    oversampling: Annotated[
+        float, typer.Option(help="Periodogram oversampling factor.")
+    ] = _settings.FitSettings.oversampling,
     fap_max: Annotated[
         float, typer.Option(help="Largest peak false-alarm probability that is fitted.")
-    ] = 0.01,
+    ] = _settings.FitSettings.fap_max,
     reference: Annotated[Path | None, typer.Option(help="Reference (LDS) table t, plate, z.")] = None,
     posterior: Annotated[
         int | None,
         typer.Option(help="Check N windows' σ's against emcee posteriors (0: honesty flags only)."),
     ] = None,
-    timestamps: Annotated[str, typer.Option("--timestamps", help=_TIMESTAMPS_HELP)] = "strict",
+    timestamps: Annotated[
+        str, typer.Option("--timestamps", help=_TIMESTAMPS_HELP)
+    ] = _settings.FitSettings.timestamps,
     posterior_noise: Annotated[
         str, typer.Option(help="Noise likelihood of the posteriors: ar1 (coloured, default) or white.")
-    ] = "ar1",
+    ] = _settings.FitSettings.posterior_noise,
     model: Annotated[
         str, typer.Option(help="Signal model: harmonic (thesis) or damped (free vibration).")
-    ] = "harmonic",
-    harmonics: Annotated[int, typer.Option(help="Fit f0 and its harmonics 2 f0 .. K f0.")] = 1,
-    lines: Annotated[int, typer.Option(help="Fit N independent spectral lines (modes).")] = 1,
+    ] = _settings.FitSettings.model,
+    harmonics: Annotated[
+        int, typer.Option(help="Fit f0 and its harmonics 2 f0 .. K f0.")
+    ] = _settings.FitSettings.harmonics,
+    lines: Annotated[
+        int, typer.Option(help="Fit N independent spectral lines (modes).")
+    ] = _settings.FitSettings.lines,
     wait: Annotated[bool, typer.Option("--wait", help=_WAIT_HELP)] = False,
 ) -> None:
     """Estimate loading frequency and deflection amplitude per segment, window, plate and axis."""
@@ -104,7 +113,7 @@ def simulate(
     seed: Annotated[int | None, typer.Option(help="Random seed (default: from the config).")] = None,
     session: Annotated[
         str | None,
-        typer.Option(help="A \\[\\[session]] of the config (default: every session, each in DIR/<session>/)."),
+        typer.Option(help="A \\[\\[session]] of the config (default: each session in DIR/<session>/)."),
     ] = None,
     live: Annotated[
         bool,
@@ -112,8 +121,10 @@ def simulate(
             "--live",
             help="A live camera: append measured plate centroids to DIR/trajectory.csv as they come.",
         ),
-    ] = False,
-    speed: Annotated[float, typer.Option(help="With --live: times real time.")] = 1.0,
+    ] = _settings.SimulateSettings.live,
+    speed: Annotated[
+        float, typer.Option(help="With --live: times real time.")
+    ] = _settings.SimulateSettings.speed,
     wait: Annotated[bool, typer.Option("--wait", help=_WAIT_HELP)] = False,
 ) -> None:
     """Simulate a recording: DIR/recording.zarr, DIR/truth.csv, DIR/lds.csv (or --live)."""
@@ -137,8 +148,10 @@ def extract(
     realtime: Annotated[
         bool,
         typer.Option("--realtime/--full", help="Track plates detected once (fast) or detect in every frame."),
-    ] = False,
-    chunk_frames: Annotated[int, typer.Option(help="Frames per batch (bounds memory).")] = 256,
+    ] = _settings.ExtractSettings.realtime,
+    chunk_frames: Annotated[
+        int, typer.Option(help="Frames per batch (bounds memory).")
+    ] = _settings.ExtractSettings.chunk_frames,
     device: Annotated[
         str | None,
         typer.Option(help="Torch device of the per-frame stages: cpu, cuda, cuda:N (default: cuda if any)."),
@@ -150,7 +163,7 @@ def extract(
             help="strict (frame times must increase) or reclock (recover the frame clock of rounded "
             "or jittered frame times).",
         ),
-    ] = "strict",
+    ] = _settings.ExtractSettings.timestamps,
     wait: Annotated[bool, typer.Option("--wait", help=_WAIT_HELP)] = False,
 ) -> None:
     """Extract the plates from every frame: 3D centroid trajectories (t, plate, x, y, z)."""
@@ -173,7 +186,7 @@ def run(
     scheduler: Annotated[
         str,
         typer.Option(help="none (in-process), local (a dask LocalCluster) or a scheduler address."),
-    ] = "none",
+    ] = _settings.RunSettings.scheduler,
     timestamps: Annotated[
         str | None,
         typer.Option("--timestamps", help="Override processing.timestamps: " + _TIMESTAMPS_HELP),
@@ -218,7 +231,9 @@ def diagnose(
     figures: Annotated[
         bool, typer.Option("--figures/--no-figures", help="Write a figure per effect.")
     ] = True,
-    timestamps: Annotated[str, typer.Option("--timestamps", help=_TIMESTAMPS_HELP)] = "strict",
+    timestamps: Annotated[
+        str, typer.Option("--timestamps", help=_TIMESTAMPS_HELP)
+    ] = _settings.DiagnoseSettings.timestamps,
     wait: Annotated[bool, typer.Option("--wait", help=_WAIT_HELP)] = False,
     twins: Annotated[int, typer.Option("--twins", help=_TWINS_HELP)] = 4,
 ) -> None:
@@ -254,9 +269,15 @@ def reconcile(
     segment: Annotated[
         str | None, typer.Option(help="Segment of the recording (default: the first).")
     ] = None,
-    null_sims: Annotated[int, typer.Option(help="Simulations for the null band.")] = 20,
-    seed: Annotated[int, typer.Option(help="Random seed of the simulations.")] = 0,
-    timestamps: Annotated[str, typer.Option("--timestamps", help=_TIMESTAMPS_HELP)] = "strict",
+    null_sims: Annotated[
+        int, typer.Option(help="Simulations for the null band.")
+    ] = _settings.ReconcileSettings.n_null,
+    seed: Annotated[
+        int, typer.Option(help="Random seed of the simulations.")
+    ] = _settings.ReconcileSettings.seed,
+    timestamps: Annotated[
+        str, typer.Option("--timestamps", help=_TIMESTAMPS_HELP)
+    ] = _settings.ReconcileSettings.timestamps,
     wait: Annotated[bool, typer.Option("--wait", help=_WAIT_HELP)] = False,
     twins: Annotated[int, typer.Option("--twins", help=_TWINS_HELP)] = 4,
 ) -> None:
@@ -281,31 +302,37 @@ def monitor(
     out: Annotated[Path, typer.Option("--out", help="Output directory.")] = Path("monitor_out"),
     replay: Annotated[
         bool, typer.Option("--replay", help="Replay SOURCE (a table or any recording) as if live.")
-    ] = False,
+    ] = _settings.MonitorSettings.replay,
     config: Annotated[
         Path | None, typer.Option(help="A simulation config: monitor its live simulated camera.")
     ] = None,
     speed: Annotated[
         float, typer.Option(help="Replay or simulation speed, times real time (0: as fast as possible).")
-    ] = 1.0,
+    ] = _settings.MonitorSettings.speed,
     until: Annotated[float | None, typer.Option(help="Stop after this many s of data.")] = None,
     duration: Annotated[float | None, typer.Option(help="Stop after this many s of wall-clock time.")] = None,
-    method: Annotated[str, typer.Option(help="Recursive estimator: ekf or rls.")] = "ekf",
+    method: Annotated[
+        str, typer.Option(help="Recursive estimator: ekf or rls.")
+    ] = _settings.MonitorSettings.method,
     alarms_per_day: Annotated[
         float, typer.Option("--alarms-per-day", help="False alarms allowed per day of data.")
-    ] = 1.0,
-    block: Annotated[float, typer.Option(help="Change-detection block length, s.")] = 5.0,
-    snapshot: Annotated[float, typer.Option(help="Seconds of data between estimate snapshots.")] = 10.0,
+    ] = _settings.MonitorSettings.alarms_per_day,
+    block: Annotated[
+        float, typer.Option(help="Change-detection block length, s.")
+    ] = _settings.MonitorSettings.block_s,
+    snapshot: Annotated[
+        float, typer.Option(help="Seconds of data between estimate snapshots.")
+    ] = _settings.MonitorSettings.snapshot_s,
     idle: Annotated[
         float, typer.Option(help="A followed source ends after this many s without data.")
-    ] = 10.0,
+    ] = _settings.MonitorSettings.idle_s,
     seed: Annotated[int | None, typer.Option(help="With --config: the simulation seed.")] = None,
     reference: Annotated[
         Path | None, typer.Option(help="Reference (LDS) table t, plate, z, monitored alongside.")
     ] = None,
     timestamps: Annotated[
         str, typer.Option("--timestamps", help=_TIMESTAMPS_HELP + " (a replayed table only)")
-    ] = "strict",
+    ] = _settings.MonitorSettings.timestamps,
     wait: Annotated[bool, typer.Option("--wait", help=_WAIT_HELP)] = False,
 ) -> None:
     """Follow a live camera: f0 and A per plate with σ's, alarms when the structure or a sensor changes."""
