@@ -29,6 +29,7 @@ __all__ = [
     "SENSORS",
     "SIMULATE_FLAGS",
     "SimulateSettings",
+    "resolve_device",
 ]
 
 # parameter -> flag of `jaxdefl fit`
@@ -303,6 +304,33 @@ def _check_seed(settings) -> None:
         raise ParameterError("seed", f"expected a seed >= 0, got {settings.seed}")
 
 
+def resolve_device(device: str | None) -> str:
+    """The torch device of the extraction: ``cpu``, ``cuda`` or ``cuda:N``; None: CUDA if available.
+
+    Raises:
+        ParameterError: an unknown device, or CUDA asked for where there is none.
+    """
+    import torch  # only for a device: the settings module stays light
+
+    if device is None or device == "auto":
+        return "cuda" if torch.cuda.is_available() else "cpu"
+    name = str(device).strip().lower()
+    if name == "cpu":
+        return name
+    if name == "cuda" or (name.startswith("cuda:") and name[5:].isdigit()):
+        if not torch.cuda.is_available():
+            raise ParameterError(
+                "device", f"{device}: CUDA is not available (torch {torch.__version__}); use cpu"
+            )
+        index = int(name[5:]) if ":" in name else 0
+        if index >= torch.cuda.device_count():
+            raise ParameterError(
+                "device", f"{device}: this machine has {torch.cuda.device_count()} CUDA device(s)"
+            )
+        return name
+    raise ParameterError("device", f"expected cpu, cuda or cuda:N, got {device!r}")
+
+
 @dataclass(frozen=True)
 class ExtractSettings:
     """Everything `jaxdefl extract` (`jaxdefl.frames.extract_to_table`) does besides its paths.
@@ -325,8 +353,6 @@ class ExtractSettings:
             raise ParameterError(
                 "timestamps", f"expected strict or reclock for frames, got {_got(self.timestamps)}"
             )
-        from .frames import resolve_device
-
         object.__setattr__(self, "device", resolve_device(self.device))
 
 

@@ -15,7 +15,7 @@ import torch
 
 from .._errors import ConfigError, InputError, ParameterError
 from .._signals import check_interrupt
-from ..settings import ExtractSettings
+from ..settings import ExtractSettings, resolve_device
 from .pipeline import PlateGeometry, Scene, SceneError, calibrate_scene, detect_chunk
 from .track import Tracker
 
@@ -29,31 +29,6 @@ __all__ = [
 ]
 
 CPU_THREADS = 1  # torch intra-op threads per extracting process (see `Extractor`)
-
-
-def resolve_device(device: str | None) -> str:
-    """The torch device of the extraction: ``cpu``, ``cuda`` or ``cuda:N``; None: CUDA if available.
-
-    Raises:
-        ParameterError: an unknown device, or CUDA asked for where there is none.
-    """
-    if device is None or device == "auto":
-        return "cuda" if torch.cuda.is_available() else "cpu"
-    name = str(device).strip().lower()
-    if name == "cpu":
-        return name
-    if name == "cuda" or (name.startswith("cuda:") and name[5:].isdigit()):
-        if not torch.cuda.is_available():
-            raise ParameterError(
-                "device", f"{device}: CUDA is not available (torch {torch.__version__}); use cpu"
-            )
-        index = int(name[5:]) if ":" in name else 0
-        if index >= torch.cuda.device_count():
-            raise ParameterError(
-                "device", f"{device}: this machine has {torch.cuda.device_count()} CUDA device(s)"
-            )
-        return name
-    raise ParameterError("device", f"expected cpu, cuda or cuda:N, got {device!r}")
 
 
 class Extractor:
@@ -224,7 +199,6 @@ _BYTES_PER_PIXEL = 24
 
 def _check_chunk_memory(rec, chunk_frames: int) -> None:
     """Refuse a --chunk-frames whose batch of frames would not fit in the memory budget."""
-    from .._errors import ParameterError
     from .._resources import MEMORY_BUDGET_BYTES, size_text
 
     frames = min(chunk_frames, max(rec.n_frames, 1))
