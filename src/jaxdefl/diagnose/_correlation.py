@@ -25,13 +25,14 @@ the plates would otherwise lend to ρ.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from ._base import Context, State
 
-__all__ = ["D_MIN", "FrameCorrelation", "floored_inverse", "frame_correlation", "gls_gain"]
+__all__ = ["D_MIN", "FrameCorrelation", "ar1_rho", "floored_inverse", "frame_correlation", "gls_gain"]
 
 # Pairs with fewer common differences than this get no correlation (ρ = 0).
 _MIN_PAIRS = 50
@@ -93,6 +94,44 @@ class FrameCorrelation:
         return float(sum(dll.values())) / self.design_effect(list(dll), shape)
 
 
+def ar1_rho(r: np.ndarray, k: np.ndarray, block: int = 10) -> float:
+    """ρ of the AR(1) noise model, the larger of two estimates that slow structure hardly moves:
+
+    - from the lag-1 autocorrelation c of first differences on consecutive frames (AR(1):
+      c = −(1 − ρ)/2, so ρ = 1 + 2c);
+    - from the noise power at low against high frequencies: q = B var(Δm_B) / var(d), m_B the
+      means of blocks of B frames, Δm their differences and d the first differences (AR(1):
+      q = (1 + ρ)/(1 − ρ)²), which also gives coloured noise that is not AR(1) (white plus
+      AR(1)) its low-frequency power.
+
+    Each is 0 unless 3 standard errors above white noise; clipped to 0.95."""
+    cons = np.diff(k) == 1
+    d = np.diff(r)
+    both = cons[1:] & cons[:-1]
+    if both.sum() < 16:
+        return 0.0
+    a, b = d[1:][both], d[:-1][both]
+    c = float(np.sum(a * b) / max(math.sqrt(float(np.sum(a * a) * np.sum(b * b))), 1e-300))
+    rho = 1.0 + 2.0 * c
+    # under white noise c ≈ −1/2 with σ_c ≈ √(1/(2m)) (difference lags overlap): 3 σ in ρ
+    if rho < 3.0 * 2.0 * math.sqrt(0.5 / both.sum()):
+        rho = 0.0
+    # block means on the frame clock (a block with a gap is left out)
+    n_b = int(k[-1] // block) if k.size else 0
+    if n_b >= 16:
+        j = k // block
+        cnt = np.bincount(j, minlength=n_b + 1)[:n_b]
+        m = np.bincount(j, r, minlength=n_b + 1)[:n_b] / np.maximum(cnt, 1)
+        full = cnt == block
+        dm = np.diff(m)[full[1:] & full[:-1]]
+        var_d = float(np.mean(d[cons] ** 2)) if cons.any() else 0.0
+        if dm.size >= 16 and var_d > 0:
+            q = block * float(np.mean(dm * dm)) / var_d
+            if q > 1.0 + 3.0 * math.sqrt(2.0 / dm.size):
+                rho = max(rho, ((2 * q + 1) - math.sqrt(8 * q + 1)) / (2 * q))
+    return float(min(max(rho, 0.0), 0.95))
+
+
 def floored_inverse(cov: np.ndarray) -> np.ndarray:
     """The inverse of a covariance across series with its correlation's eigenvalues floored at
     `D_MIN` (an estimated correlation that calls a pattern nearly noise-free is not trusted beyond
@@ -110,7 +149,7 @@ def gls_gain(ctx: Context, states: list[State], new: dict[int, State]) -> float 
 
     δ_t and r_t the change and the residual of the term's series in frame t over their noise
     scales, on the frames they all have, each series' AR(1) colour filtered out first (its ρ from
-    its residual, `unnamed.ar1_rho`), and Σ the covariance of those filtered residuals across the
+    its residual, `ar1_rho`), and Σ the covariance of those filtered residuals across the
     series (estimated on them, so that the filter and the covariance agree; inverted by
     `floored_inverse`). For a fixed
     direction it is χ²₁ under the null; a direction fitted by the effect (a mode's phase at a
@@ -119,8 +158,6 @@ def gls_gain(ctx: Context, states: list[State], new: dict[int, State]) -> float 
     part of the pattern that noise shared by the frame does not mimic at its full precision: a
     mode with a component alike on every plate is told by its other part. None when it cannot be
     formed (fewer than two series or 20 shared frames)."""
-    from .unnamed import ar1_rho
-
     c = sorted(new)
     if len(c) < 2:
         return None

@@ -42,7 +42,7 @@ from scipy.interpolate import BSpline
 from scipy.ndimage import median_filter
 
 from ._base import LOG_2PI, Context, State, masked_periodogram, peak_offset
-from ._correlation import FrameCorrelation
+from ._correlation import FrameCorrelation, ar1_rho
 from ._varpro import fit_shared
 
 __all__ = [
@@ -112,44 +112,6 @@ class UnnamedTerm:
 
 # ---------------------------------------------------------------------------------------------
 # AR(1) noise
-
-
-def ar1_rho(r: np.ndarray, k: np.ndarray, block: int = 10) -> float:
-    """ρ of the AR(1) noise model, the larger of two estimates that slow structure hardly moves:
-
-    - from the lag-1 autocorrelation c of first differences on consecutive frames (AR(1):
-      c = −(1 − ρ)/2, so ρ = 1 + 2c);
-    - from the noise power at low against high frequencies: q = B var(Δm_B) / var(d), m_B the
-      means of blocks of B frames, Δm their differences and d the first differences (AR(1):
-      q = (1 + ρ)/(1 − ρ)²), which also gives coloured noise that is not AR(1) (white plus
-      AR(1)) its low-frequency power.
-
-    Each is 0 unless 3 standard errors above white noise; clipped to 0.95."""
-    cons = np.diff(k) == 1
-    d = np.diff(r)
-    both = cons[1:] & cons[:-1]
-    if both.sum() < 16:
-        return 0.0
-    a, b = d[1:][both], d[:-1][both]
-    c = float(np.sum(a * b) / max(math.sqrt(float(np.sum(a * a) * np.sum(b * b))), 1e-300))
-    rho = 1.0 + 2.0 * c
-    # under white noise c ≈ −1/2 with σ_c ≈ √(1/(2m)) (difference lags overlap): 3 σ in ρ
-    if rho < 3.0 * 2.0 * math.sqrt(0.5 / both.sum()):
-        rho = 0.0
-    # block means on the frame clock (a block with a gap is left out)
-    n_b = int(k[-1] // block) if k.size else 0
-    if n_b >= 16:
-        j = k // block
-        cnt = np.bincount(j, minlength=n_b + 1)[:n_b]
-        m = np.bincount(j, r, minlength=n_b + 1)[:n_b] / np.maximum(cnt, 1)
-        full = cnt == block
-        dm = np.diff(m)[full[1:] & full[:-1]]
-        var_d = float(np.mean(d[cons] ** 2)) if cons.any() else 0.0
-        if dm.size >= 16 and var_d > 0:
-            q = block * float(np.mean(dm * dm)) / var_d
-            if q > 1.0 + 3.0 * math.sqrt(2.0 / dm.size):
-                rho = max(rho, ((2 * q + 1) - math.sqrt(8 * q + 1)) / (2 * q))
-    return float(min(max(rho, 0.0), 0.95))
 
 
 def ar1_loglik(r: np.ndarray, k: np.ndarray, rho: float) -> float:
