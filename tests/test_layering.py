@@ -131,3 +131,67 @@ def test_statuses_are_named_not_spelled(path):
         if isinstance(n, ast.Constant) and n.value in STATUSES and id(n) not in docstrings
     ]
     assert not spelled, spelled
+
+
+def _runtime_edges() -> dict[str, set[str]]:
+    """Module -> the jaxdefl modules it imports when run: every import, at the top or inside a
+    function, except those under ``if TYPE_CHECKING:`` (types only, never executed)."""
+    edges: dict[str, set[str]] = {}
+    for path in FILES:
+        tree = ast.parse(path.read_text())
+        typing_only = {
+            id(n)
+            for node in ast.walk(tree)
+            if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test)
+            for stmt in node.body
+            for n in ast.walk(stmt)
+        }
+        here = _module(path)
+        out = edges.setdefault(here, set())
+        for node in ast.walk(tree):
+            if id(node) in typing_only or not isinstance(node, (ast.Import, ast.ImportFrom)):
+                continue
+            package = here if path.name == "__init__.py" else here.rpartition(".")[0]
+            if isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            elif node.level:
+                base = package.split(".")
+                base = base[: len(base) - (node.level - 1)]
+                stem = ".".join(base + ([node.module] if node.module else []))
+                targets = [stem] + [f"{stem}.{a.name}" for a in node.names]
+            else:
+                targets = [node.module or ""] + [f"{node.module}.{a.name}" for a in node.names]
+            out.update(t for t in targets if t.startswith("jaxdefl") and t != here and _is_module(t))
+    return edges
+
+
+def test_no_import_cycles():
+    """No module imports itself back through others, not even through an import inside a
+    function (which only hides the cycle): the strongly connected components of the import
+    graph are single modules (a package's ``__init__`` counts as its own module)."""
+    edges = _runtime_edges()
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    cycles = []
+
+    def visit(v: str) -> None:  # Tarjan's algorithm
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        for w in edges.get(v, ()):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            comp = []
+            while (w := stack.pop()) != v:
+                comp.append(w)
+            if comp:
+                cycles.append(sorted([v, *comp]))
+
+    for v in sorted(edges):
+        if v not in index:
+            visit(v)
+    assert cycles == []

@@ -252,12 +252,76 @@ def load_campaign(path: Path | str) -> Campaign:
     _check_reference_plate(path, proc, len(proc.plate_x_mm))
     if sim is not None:
         from ..simulate import load_config
-        from .simulated import simulated_recordings
 
-        recs = simulated_recordings(sim, path)
+        recs = _simulated_recordings(sim, path)
         cfg = recs[0].simulate
         check_plates(path, proc, range(1, len(load_config(cfg["config"], cfg["session"]).plate_x_mm()) + 1))
     return Campaign(name=name, path=path, processing=proc, recordings=tuple(recs), simulate=sim)
+
+
+_SIM_KEYS = {
+    "config": str,
+    "sessions": list,
+    "duration_s": (int, float),
+    "seed": int,
+    "realtime": bool,
+    "unit_frames": int,
+}
+
+
+def _simulated_recordings(sim: dict, path: Path) -> list[Recording]:
+    """One `Recording` per session of the ``[simulate]`` table (files are made by the run)."""
+    import tomllib
+
+    from ..simulate import load_config
+    from ..simulate.config import list_sessions
+
+    for key, val in sim.items():
+        if key not in _SIM_KEYS:
+            raise ConfigError(
+                f"{path}: key 'simulate.{key}': unknown key; expected one of {', '.join(_SIM_KEYS)}"
+            )
+        if not isinstance(val, _SIM_KEYS[key]) or (isinstance(val, bool) and _SIM_KEYS[key] is not bool):
+            raise ConfigError(f"{path}: key 'simulate.{key}': expected {_SIM_KEYS[key]!s}, got {val!r}")
+    if "config" not in sim:
+        raise ConfigError(f"{path}: key 'simulate.config': missing (the simulation config to record)")
+    # a path relative to the campaign file wins; else the name of a shipped config
+    cfg_path = resolve_config(sim["config"], relative_to=path.parent).resolve()
+    if not cfg_path.is_file():
+        raise ConfigError(f"{path}: key 'simulate.config': file not found: {cfg_path}{not_found_hint()}")
+    if sim.get("duration_s", 600.0) <= 0:
+        raise ConfigError(
+            f"{path}: key 'simulate.duration_s': expected a positive duration, got {sim['duration_s']}"
+        )
+    if sim.get("unit_frames", 2000) < 1:
+        raise ConfigError(f"{path}: key 'simulate.unit_frames': expected >= 1, got {sim['unit_frames']}")
+    known = list_sessions(tomllib.loads(cfg_path.read_text())) or [None]
+    sessions = sim.get("sessions", known)
+    recs = []
+    for name in sessions:
+        if name not in known:
+            raise ConfigError(
+                f"{path}: key 'simulate.sessions': {name!r} is not a session of {cfg_path.name} "
+                f"({', '.join(map(str, known))})"
+            )
+        scfg = load_config(cfg_path, name)
+        spec = dict(
+            config=str(cfg_path),
+            session=name,
+            duration_s=float(sim.get("duration_s", 600.0)),
+            seed=sim.get("seed"),
+            realtime=bool(sim.get("realtime", False)),
+            unit_frames=int(sim.get("unit_frames", 2000)),
+        )
+        recs.append(
+            Recording(
+                day=scfg.recording.day,
+                camera=scfg.camera.name,
+                cycles=int(scfg.recording.cycles_at_start),
+                simulate=spec,
+            )
+        )
+    return recs
 
 
 def _check_reference_plate(path: Path, proc: Processing, n_plates: int) -> None:

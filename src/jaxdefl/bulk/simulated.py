@@ -23,77 +23,11 @@ from pathlib import Path
 
 import pandas as pd
 
-from .._configs import not_found_hint, resolve_config
-from .._errors import ConfigError
 from ..status import UnitStatus
 from .campaign import Recording
 from .store import atomic_write_text, digest_path, digest_text, run_unit
 
-__all__ = ["ensure_simulated", "extract_unit", "simulate_unit", "simulated_recordings"]
-
-_KEYS = {
-    "config": str,
-    "sessions": list,
-    "duration_s": (int, float),
-    "seed": int,
-    "realtime": bool,
-    "unit_frames": int,
-}
-
-
-def simulated_recordings(sim: dict, path: Path) -> list[Recording]:
-    """One `Recording` per session of the ``[simulate]`` table (files are made by the run)."""
-    import tomllib
-
-    from ..simulate import load_config
-    from ..simulate.config import list_sessions
-
-    for key, val in sim.items():
-        if key not in _KEYS:
-            raise ConfigError(
-                f"{path}: key 'simulate.{key}': unknown key; expected one of {', '.join(_KEYS)}"
-            )
-        if not isinstance(val, _KEYS[key]) or (isinstance(val, bool) and _KEYS[key] is not bool):
-            raise ConfigError(f"{path}: key 'simulate.{key}': expected {_KEYS[key]!s}, got {val!r}")
-    if "config" not in sim:
-        raise ConfigError(f"{path}: key 'simulate.config': missing (the simulation config to record)")
-    # a path relative to the campaign file wins; else the name of a shipped config
-    cfg_path = resolve_config(sim["config"], relative_to=path.parent).resolve()
-    if not cfg_path.is_file():
-        raise ConfigError(f"{path}: key 'simulate.config': file not found: {cfg_path}{not_found_hint()}")
-    if sim.get("duration_s", 600.0) <= 0:
-        raise ConfigError(
-            f"{path}: key 'simulate.duration_s': expected a positive duration, got {sim['duration_s']}"
-        )
-    if sim.get("unit_frames", 2000) < 1:
-        raise ConfigError(f"{path}: key 'simulate.unit_frames': expected >= 1, got {sim['unit_frames']}")
-    known = list_sessions(tomllib.loads(cfg_path.read_text())) or [None]
-    sessions = sim.get("sessions", known)
-    recs = []
-    for name in sessions:
-        if name not in known:
-            raise ConfigError(
-                f"{path}: key 'simulate.sessions': {name!r} is not a session of {cfg_path.name} "
-                f"({', '.join(map(str, known))})"
-            )
-        scfg = load_config(cfg_path, name)
-        spec = dict(
-            config=str(cfg_path),
-            session=name,
-            duration_s=float(sim.get("duration_s", 600.0)),
-            seed=sim.get("seed"),
-            realtime=bool(sim.get("realtime", False)),
-            unit_frames=int(sim.get("unit_frames", 2000)),
-        )
-        recs.append(
-            Recording(
-                day=scfg.recording.day,
-                camera=scfg.camera.name,
-                cycles=int(scfg.recording.cycles_at_start),
-                simulate=spec,
-            )
-        )
-    return recs
+__all__ = ["ensure_simulated", "extract_unit", "simulate_unit"]
 
 
 def simulate_unit(rec: Recording, out_dir: Path) -> dict:
