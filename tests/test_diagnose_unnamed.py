@@ -309,3 +309,56 @@ def test_a_held_out_camera_shake_is_one_common_trend_at_fine_knots_not_named_lin
     assert term["plates"] == [1, 2, 3, 4, 5, 6] and term["delta_bic"] < -10
     swing = par["swing_mm"]
     assert 0 < swing["sigma"] < 0.1 and swing["value"] == pytest.approx(np.ptp(u), rel=0.15)
+
+
+@pytest.mark.parametrize("sparse", [False, True])
+def test_shared_fit_equals_one_joint_weighted_least_squares(sparse):
+    """`unnamed._shared_fit` (shared columns with each series' nuisance profiled out) gives the
+    coefficients and means of one weighted least squares over all series at once, with the
+    shared columns and a block of nuisance columns per series (a slow dense reference); dense
+    and sparse (B-spline) columns alike."""
+    from types import SimpleNamespace
+
+    from scipy import sparse as sps
+
+    from jaxdefl.diagnose.unnamed import _bspline, _shared_fit
+
+    rng = np.random.default_rng(4)
+    series, states, nus = [], [], []
+    for n in (400, 530, 470):
+        t = np.sort(rng.uniform(0, 60, n))
+        nu = np.stack([np.ones(n), np.cos(2 * np.pi * t), np.sin(2 * np.pi * t)], axis=1)
+        y = rng.normal(size=n) + 0.3 * np.sin(t / 9)
+        scale = rng.uniform(0.5, 2.0, n)
+        inlier = rng.uniform(size=n) > 0.05
+        series.append(SimpleNamespace(t=t, y=y))
+        states.append(SimpleNamespace(mean=0.1 * nu[:, 1], scale=scale, inlier=inlier))
+        nus.append(nu)
+    sigma = [1.3, 0.7, 1.1]
+    ctx = SimpleNamespace(series=series, nuisance=lambda i: nus[i], noise_sigma=lambda i: sigma[i])
+
+    def cols_of(i):
+        return _bspline(series[i].t, 0.0, 60.0, 6, sparse=sparse)[:, 1:]
+
+    beta, means, gammas = _shared_fit(ctx, states, [0, 1, 2], cols_of)
+
+    # the reference: one stacked design, shared columns then each series' own nuisance block
+    k, p = cols_of(0).shape[1], 3
+    rows, rhs, wts = [], [], []
+    for i in range(3):
+        x = cols_of(i)
+        x = x.toarray() if sps.issparse(x) else x
+        own = np.zeros((x.shape[0], 3 * p))
+        own[:, i * p : (i + 1) * p] = nus[i]
+        rows.append(np.concatenate([x, own], axis=1))
+        rhs.append(series[i].y - states[i].mean)
+        wts.append(np.where(states[i].inlier, 1.0 / states[i].scale**2, 0.0) / sigma[i] ** 2)
+    a, r, w = np.concatenate(rows), np.concatenate(rhs), np.concatenate(wts)
+    sw = np.sqrt(w)
+    ref = np.linalg.lstsq(a * sw[:, None], r * sw, rcond=None)[0]
+    np.testing.assert_allclose(beta, ref[:k], rtol=1e-8, atol=1e-10)
+    for i in range(3):
+        np.testing.assert_allclose(gammas[i], ref[k + i * p : k + (i + 1) * p], rtol=1e-8, atol=1e-10)
+        x = cols_of(i)
+        fitted = np.asarray(x @ ref[:k]).ravel() + nus[i] @ ref[k + i * p : k + (i + 1) * p]
+        np.testing.assert_allclose(means[i], states[i].mean + fitted, rtol=1e-8, atol=1e-10)

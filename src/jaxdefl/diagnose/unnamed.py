@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 
 import jax.numpy as jnp
 import numpy as np
+import scipy.sparse as sp
 from scipy import stats
 from scipy.interpolate import BSpline
 from scipy.ndimage import median_filter
@@ -209,12 +210,14 @@ def _nuisance(ctx: Context, i: int, offset_only: bool = False) -> np.ndarray:
     return nu[:, :1] if offset_only else nu
 
 
-def _bspline(t: np.ndarray, t_lo: float, t_hi: float, knots: int) -> np.ndarray:
-    """(sample, knots + 4) cubic B-spline basis on [t_lo, t_hi] with ``knots`` interior knots."""
+def _bspline(t: np.ndarray, t_lo: float, t_hi: float, knots: int, sparse: bool = False):
+    """(sample, knots + 4) cubic B-spline basis on [t_lo, t_hi] with ``knots`` interior knots
+    (a CSR matrix with ``sparse``: 4 non-zeros a row)."""
     inner = np.linspace(t_lo, t_hi, knots + 2)
     kv = np.concatenate([[t_lo] * 3, inner, [t_hi] * 3])
     x = np.clip(t, t_lo, t_hi - 1e-12 * max(1.0, abs(t_hi)))
-    return BSpline.design_matrix(x, kv, 3).toarray()
+    b = BSpline.design_matrix(x, kv, 3)
+    return b.tocsr() if sparse else b.toarray()
 
 
 def _line_columns(theta, t, aux):
@@ -405,22 +408,39 @@ def _projections(ctx, states, idx) -> dict:
 
 def _shared_fit(ctx, states, idx, cols_of, projections=None):
     """Coefficients shared by the series ``idx`` (each with its free nuisance profiled out, FWL),
-    returning (coefficients, {i: new mean}, {i: nuisance coefficients})."""
+    returning (coefficients, {i: new mean}, {i: nuisance coefficients}).
+
+    ``cols_of(i)`` may be dense or a scipy sparse matrix (a B-spline basis: 4 non-zeros a row).
+    With c = νᵀWx and P = (νᵀWν)⁺, the columns less their nuisance part, x̃ = x − νPc, give
+    x̃ᵀWx̃ = xᵀWx − cᵀPc and x̃ᵀWr̃ = xᵀWr̃ − cᵀP(νᵀWr̃): no (sample × column) product is formed
+    but xᵀWx itself, which a sparse basis makes O(sample)."""
     projections = _projections(ctx, states, idx) if projections is None else projections
     lhs = rhs = None
     per = {}
     for i in idx:
         w, nu, proj, r, rt = projections[i]
         x = cols_of(i)
-        xt = x - nu @ (proj @ x)
-        a, b = (xt * w[:, None]).T @ xt, (xt * w[:, None]).T @ rt
+        nw = nu * w[:, None]
+        if sp.issparse(x):
+            xw = x.multiply(w[:, None]).tocsc()
+            xwx = (x.T @ xw).toarray()
+            c = np.asarray((xw.T @ nu).T)
+            xwr = np.asarray(xw.T @ rt).ravel()
+        else:
+            xw = x * w[:, None]
+            xwx = xw.T @ x
+            c = nw.T @ x
+            xwr = xw.T @ rt
+        pc = np.linalg.pinv(nw.T @ nu) @ c
+        a = xwx - c.T @ pc
+        b = xwr - pc.T @ (nw.T @ rt)
         lhs = a if lhs is None else lhs + a
         rhs = b if rhs is None else rhs + b
         per[i] = (x, nu, proj, r)
     beta = np.linalg.lstsq(lhs, rhs, rcond=None)[0]
     means, gammas = {}, {}
     for i, (x, nu, proj, r) in per.items():
-        fx = x @ beta
+        fx = np.asarray(x @ beta).ravel()
         gammas[i] = proj @ (r - fx)
         means[i] = states[i].mean + fx + nu @ gammas[i]
     return beta, means, gammas
@@ -645,7 +665,7 @@ def _trend(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> li
     for knots in (k for k in COMMON_KNOTS if k <= k_fine):
 
         def fine(i, knots=knots):
-            return _bspline(ctx.series[i].t, 0.0, ctx.duration_s, knots)[:, 1:]
+            return _bspline(ctx.series[i].t, 0.0, ctx.duration_s, knots, sparse=True)[:, 1:]
 
         dbic = common(fine, knots + 3, 0, {"knots": knots, "step_s": None})
         worse = worse + 1 if dbic >= prev else 0
