@@ -274,7 +274,22 @@ def simulate_file(config: Path, out: Path, settings: SimulateSettings) -> list[P
     from .simulate.config import list_sessions
 
     s, out, t0 = settings, Path(out), time.perf_counter()
-    load_config(config, s.session)  # every error before anything is written
+    cfg = load_config(config, s.session)  # every error before anything is written
+    if cfg.cameras and s.live:
+        raise ConfigError(
+            f"{config}: --live simulates one camera; got {len(cfg.cameras)} [[camera]] tables "
+            "(drop --live, or keep one [camera] table)"
+        )
+    if cfg.cameras:  # [[camera]] tables: a recording per camera
+        from .simulate.multicam import multicam_outputs
+
+        simulate_to_dir(config, out, duration_s=s.duration_s, seed=s.seed)
+        wrote(
+            "simulate",
+            *(out / n for n in multicam_outputs(cfg)),
+            detail=f"{len(cfg.cameras)} cameras; {time.perf_counter() - t0:.1f} s",
+        )
+        return [out]
     if s.live:
         write_live(config, out, duration_s=s.duration_s, seed=s.seed, speed=s.speed, session=s.session)
         wrote("simulate", out / "trajectory.csv", detail=f"live, {time.perf_counter() - t0:.1f} s")
