@@ -24,6 +24,7 @@ from ..io.output import Outputs
 from .config import SimConfig, load_config
 from .injection import FRAME_LEVELS, mode_displacement, range_offset, stamp_times
 from .lds import LDS_BLOCK_S, frame_clock, lds_block, truth_table
+from .multicam import camera_clock, camera_poses, camera_seed, label_origin_x, multicam_outputs
 from .scene import kinematics, pixel_model
 
 __all__ = ["simulate_to_dir", "simulate_trajectories", "tap_times", "render_frames"]
@@ -278,9 +279,7 @@ def simulate_to_dir(
     seed = cfg.recording.seed if seed is None else int(seed)
     out = Path(out_dir)
     if cfg.cameras:  # [[camera]] tables: a recording per camera (`jaxdefl.simulate.multicam`)
-        from .multicam import simulate_cameras_to_dir
-
-        return simulate_cameras_to_dir(cfg, out, duration, seed, progress)
+        return _write_cameras(cfg, out, duration, seed, progress)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out}: is a file; expected a directory")
     where = "recording.duration_s" if duration_s is None else "--duration"
@@ -338,3 +337,72 @@ def _write_recording(cfg: SimConfig, outs: Outputs, out: Path, duration: float, 
         append_csv(lds_block(cfg, seed, lds_done, duration), lds_path, False)
         lds_done += 1
     root.attrs["n_frames"] = int(len(idx))
+
+
+def _write_cameras(cfg: SimConfig, out: Path, duration: float, seed: int, progress: bool) -> Path:
+    """Write every camera's recording and the shared truth into ``out`` (`jaxdefl.simulate.multicam`)."""
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out}: is a file; expected a directory")
+    for name in cfg.camera_names:
+        check_size(cfg.for_camera(name), duration, out, "--duration", cfg.source)
+    outs = Outputs(inputs=[cfg.source] if Path(cfg.source).exists() else [])
+    for name in multicam_outputs(cfg):
+        outs.reserve(out / name, f"--out {out}: {name}")
+    with outs:
+        effective = cfg.to_dict()
+        effective["recording"]["duration_s"] = duration
+        effective["recording"]["seed"] = seed
+        outs.text(out / "config.json", json.dumps(effective, indent=2))
+        outs.text(out / "cameras.json", json.dumps(camera_poses(cfg), indent=2))
+        beam_rows = []
+        for i, name in enumerate(cfg.camera_names):
+            cfg_i = cfg.for_camera(name)
+            beam_rows.append(_write_camera(cfg_i, outs, out, name, duration, camera_seed(seed, i), progress))
+        pd.concat(beam_rows, ignore_index=True).to_csv(
+            outs.path(out / "truth.csv"), index=False, float_format="%.6f"
+        )
+        nblocks = int(np.ceil(duration / LDS_BLOCK_S))
+        structure = cfg.for_camera(cfg.camera_names[0])
+        lds = [lds_block(structure, seed, b, duration) for b in range(nblocks)] or [
+            lds_block(structure, seed, 0, 0)
+        ]
+        pd.concat(lds, ignore_index=True).to_csv(outs.path(out / "lds.csv"), index=False, float_format="%.6f")
+    return out
+
+
+def _write_camera(
+    cfg: SimConfig, outs: Outputs, out: Path, name: str, duration: float, seed: int, progress: bool
+) -> pd.DataFrame:
+    """One camera's recording and camera-frame truth; returns its beam-frame truth."""
+    import zarr
+
+    from ..progress import progress_bar
+
+    idx, stamp, t_true = camera_clock(cfg, duration, seed)
+    rend = Renderer(cfg, seed, duration)
+    h, w = rend.intr.height, rend.intr.width
+    chunk = cfg.recording.chunk_frames
+    root = zarr.open_group(str(outs.path(out / f"{name}.zarr")), mode="w")
+    facts = rend.facts()
+    facts.update(camera_x_mm=label_origin_x(cfg), seed=seed)
+    root.attrs.update(facts)
+    frames, amp, stamps = create_frame_arrays(root, rend.kind, h, w, chunk)
+    truth_path = outs.path(out / f"{name}_truth.csv")
+    append_csv(truth_table(cfg, t_true[:0]), truth_path, True)
+    with progress_bar(progress) as bar:
+        task = bar.add_task(f"simulate {name} {cfg.recording.segment} (frames)", total=len(idx))
+        for s in range(0, len(idx), chunk):
+            check_interrupt()
+            fi, ti, si = idx[s : s + chunk], t_true[s : s + chunk], stamp[s : s + chunk]
+            r, a = rend.render(fi, ti)
+            frames.append(r, axis=0)
+            amp.append(a, axis=0)
+            stamps.append(stamp_times(cfg.effects, si, cfg.t0_s), axis=0)
+            cam_truth = truth_table(cfg, ti)
+            cam_truth["t"] = np.repeat(si, cfg.plates.count)
+            append_csv(cam_truth, truth_path, False)
+            bar.advance(task, len(fi))
+    root.attrs["n_frames"] = int(len(idx))
+    beam = truth_table(cfg, t_true, frame="beam")
+    beam.insert(1, "camera", name)
+    return beam
