@@ -89,7 +89,7 @@ def _kernel(name: str):
 
     def solve(p0, *args):
         sol = optx.least_squares(
-            resid, optx.LevenbergMarquardt(rtol=1e-12, atol=1e-12), p0, args=args, max_steps=400, throw=False
+            resid, optx.LevenbergMarquardt(rtol=1e-8, atol=1e-8), p0, args=args, max_steps=400, throw=False
         )
         r = resid(sol.value, args)
         jac = jax.jacfwd(resid)(sol.value, args)
