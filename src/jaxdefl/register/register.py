@@ -65,7 +65,7 @@ class Registration:
     poses: pd.DataFrame  # camera, param, value, sigma
     clocks: pd.DataFrame  # camera, reference, offset_ms, sigma_offset_ms, rate_ppm, ...
     landmarks: pd.DataFrame  # camera, group, n, sigma_mm
-    trajectory: pd.DataFrame  # camera, t (reference clock), plate, x, y, z (beam frame)
+    trajectory: pd.DataFrame  # segment (= camera), camera, t (reference clock), plate, x, y, z (beam frame)
     profile: pd.DataFrame  # source, plate, x_mm, amplitude_mm, sigma..., phase_rad, sigma...
     common: pd.DataFrame  # plate, cameras, amplitude_mm, sigma, chi2, p_value, consistent
     reference: dict
@@ -240,7 +240,9 @@ def register_cameras(
         stamp = b["t"].to_numpy() + cam.delays_s(b["plate"].to_numpy())
         tau = t0 + (stamp - t0 - clk["offset_ms"] * 1e-3) / (1 + clk["rate_ppm"] * 1e-6)
         traj_rows.append(b.assign(t=tau).assign(camera=cam.name))
+    # each camera a segment of its own: `jaxdefl fit` reads the table as it is
     traj = pd.concat(traj_rows, ignore_index=True)[["camera", "t", "plate", "x", "y", "z"]]
+    traj.insert(0, "segment", traj["camera"])
 
     prof = []
     f = ref["f_hz"]
