@@ -139,6 +139,40 @@ def simulate(
 
 
 @app.command()
+def register(
+    recordings: Annotated[
+        list[Path], typer.Argument(help="One recording (.zarr) per camera, e.g. OUT/cam3.zarr OUT/cam4.zarr.")
+    ],
+    trajectory: Annotated[
+        list[Path],
+        typer.Option(
+            "--trajectory",
+            help="The camera-frame trajectory `extract` made of each recording, in the same order.",
+        ),
+    ],
+    config: Annotated[
+        Path,
+        typer.Option("--config", help="Config whose [beam], [plates], [scene] give the beam's geometry."),
+    ],
+    out: Annotated[Path, typer.Option("--out", help="Output directory.")],
+    lds: Annotated[
+        Path | None,
+        typer.Option(help="Reference table (t, plate, z) on the true clock: absolute clock offsets."),
+    ] = None,
+    sample_frames: Annotated[
+        int, typer.Option(help="Frames per recording whose median gives the floor, beam top and targets.")
+    ] = 100,
+    wait: Annotated[bool, typer.Option("--wait", help=_WAIT_HELP)] = False,
+) -> None:
+    """Register several cameras into the beam's frame and onto one clock; fuse the shared plates."""
+    _jax_setup()
+    from . import pipeline
+
+    with _locked(out, "register", wait):
+        pipeline.register_files(recordings, trajectory, config, out, lds=lds, sample_frames=sample_frames)
+
+
+@app.command()
 def extract(
     recording: Annotated[
         Path,

@@ -274,7 +274,22 @@ def simulate_file(config: Path, out: Path, settings: SimulateSettings) -> list[P
     from .simulate.config import list_sessions
 
     s, out, t0 = settings, Path(out), time.perf_counter()
-    load_config(config, s.session)  # every error before anything is written
+    cfg = load_config(config, s.session)  # every error before anything is written
+    if cfg.cameras and s.live:
+        raise ConfigError(
+            f"{config}: --live simulates one camera; got {len(cfg.cameras)} [[camera]] tables "
+            "(drop --live, or keep one [camera] table)"
+        )
+    if cfg.cameras:  # [[camera]] tables: a recording per camera
+        from .simulate.multicam import multicam_outputs
+
+        simulate_to_dir(config, out, duration_s=s.duration_s, seed=s.seed)
+        wrote(
+            "simulate",
+            *(out / n for n in multicam_outputs(cfg)),
+            detail=f"{len(cfg.cameras)} cameras; {time.perf_counter() - t0:.1f} s",
+        )
+        return [out]
     if s.live:
         write_live(config, out, duration_s=s.duration_s, seed=s.seed, speed=s.speed, session=s.session)
         wrote("simulate", out / "trajectory.csv", detail=f"live, {time.perf_counter() - t0:.1f} s")
@@ -788,3 +803,97 @@ def reconcile_file(
         detail=f"effects: {names}; {verdicts}",
     )
     return d
+
+
+REGISTER_OUTPUTS = (
+    "poses.csv",
+    "clocks.csv",
+    "landmarks.csv",
+    "trajectory.csv",
+    "profile.csv",
+    "common.csv",
+    "registration.json",
+    "profile.png",
+)
+
+
+def register_files(
+    recordings: list[Path],
+    trajectories: list[Path],
+    config: Path,
+    out: Path,
+    lds: Path | None = None,
+    sample_frames: int = 100,
+) -> Path:
+    """`jaxdefl register`: every camera's pose and clock, its plates in the beam frame, the
+    profile along the beam and the shared plates fused (`jaxdefl.register`), in ``out``.
+
+    Each camera is a recording (its median frame and amplitude: floor, beam top, floor targets)
+    and the trajectory `extract` made of it (camera frame); ``config`` gives the beam's geometry.
+    """
+    import json
+
+    from .io.recording import open_recording
+    from .register import BeamGeometry, CameraInput, register_cameras, scene_points
+    from .report.multicam import plot_beam_profile
+    from .simulate import load_config
+
+    out = Path(out)
+    if len(recordings) != len(trajectories):
+        raise ParameterError(
+            "trajectory",
+            f"expected one --trajectory per recording, in the same order; got {len(recordings)} "
+            f"recordings and {len(trajectories)} trajectories",
+        )
+    if len(recordings) < 1:
+        raise ParameterError("recordings", "expected at least one recording")
+    if sample_frames < 1:
+        raise ParameterError("sample_frames", f"expected a number of frames >= 1, got {sample_frames}")
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out}: is a file; expected a directory")
+    geo = BeamGeometry.from_config(load_config(config))
+    ref = read_reference(lds) if lds is not None else None
+    cams, names = [], []
+    for rec_path, traj_path in zip(recordings, trajectories, strict=True):
+        rec = open_recording(rec_path)
+        name = str(rec.attrs.get("camera") or Path(rec_path).stem)
+        if name in names:
+            name = f"{name}_{len(names) + 1}"
+        names.append(name)
+        step = max(1, rec.n_frames // sample_frames)
+        frames, amps = [], []
+        for chunk in rec.chunks(256):
+            keep = (np.arange(chunk.start, chunk.start + len(chunk.t)) % step) == 0
+            frames.append(chunk.frames[keep])
+            if chunk.amplitude is not None:
+                amps.append(chunk.amplitude[keep])
+        frames = np.concatenate(frames)
+        amp = np.nanmedian(np.concatenate(amps), axis=0) if amps else None
+        a = rec.attrs
+        taps = None
+        if rec.kind == "range" and "tap_offsets" in a and "nar_mm" in a and "frame_rate_hz" in a:
+            taps = (tuple(a["tap_offsets"]), float(a["frame_rate_hz"]), float(a["nar_mm"]))
+        traj = read_trajectory(traj_path)
+        cams.append(
+            CameraInput(name, traj, scene_points(frames, rec.intrinsics, rec.kind), amplitude=amp, taps=taps)
+        )
+    reg = register_cameras(cams, geo, ref)
+    outs = Outputs(inputs=[*recordings, *trajectories, config] + ([lds] if lds is not None else []))
+    for name in REGISTER_OUTPUTS:
+        outs.reserve(out / name, f"--out {out}: {name}")
+    with outs:
+        for name, df in (
+            ("poses.csv", reg.poses),
+            ("clocks.csv", reg.clocks),
+            ("landmarks.csv", reg.landmarks),
+            ("trajectory.csv", reg.trajectory),
+            ("profile.csv", reg.profile),
+            ("common.csv", reg.common),
+        ):
+            df.to_csv(outs.path(out / name), index=False, float_format="%.6f")
+        outs.text(
+            out / "registration.json", json.dumps({"reference": reg.reference, "cameras": names}, indent=2)
+        )
+        plot_beam_profile(reg.profile, geo.span_mm, geo.load_a_mm, outs.path(out / "profile.png"))
+    wrote("register", *(out / n for n in REGISTER_OUTPUTS), detail=f"{len(cams)} cameras")
+    return out

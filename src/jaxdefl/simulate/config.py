@@ -129,6 +129,15 @@ class CameraConfig:
     x_mm: float = 1700.0
     y_mm: float = 400.0
     standoff_mm: float = 1900.0  # camera to beam top surface
+    # orientation: the camera frame is the world frame turned by R = Rz(yaw) Ry(pitch) Rx(roll)
+    # (`jaxdefl.simulate.scene.camera_rotation`); all zero: looking straight down
+    roll_deg: float = 0.0
+    pitch_deg: float = 0.0
+    yaw_deg: float = 0.0
+    # the camera's own clock: it stamps a frame taken at true time t with
+    # t0 + clock_offset_ms / 1000 + (1 + clock_drift_ppm 1e-6) (t - t0)
+    clock_offset_ms: float = 0.0
+    clock_drift_ppm: float = 0.0
     plates: tuple[int, ...] = ()  # plates that must be in view (validated)
     tap_offsets: tuple[float, float, float, float] = (0.0, 0.25, 0.5, 0.75)  # x frame period
     integration_time_ms: float = 0.0  # 0: from the frame rate (Section 4.3.2)
@@ -178,6 +187,11 @@ class SimConfig:
     # `jaxdefl.simulate.injection`
     effects: tuple[EffectSpec, ...] = ()
     source: str = "<config>"
+    # several cameras at once ([[camera]] tables): `camera` is the first; `for_camera` gives the
+    # config of one of them. Empty for a single [camera] table.
+    cameras: tuple[CameraConfig, ...] = ()
+    # per effect: the name of the one camera it is scoped to (key ``camera`` of its table), or ""
+    effect_cameras: tuple[str, ...] = ()
 
     def to_dict(self) -> dict:
         """The effective config as TOML-shaped tables: `config_from_dict` reads it back (every
@@ -185,11 +199,33 @@ class SimConfig:
         d = dataclasses.asdict(
             self, dict_factory=lambda kv: {k: list(v) if isinstance(v, tuple) else v for k, v in kv}
         )
-        for key in ("source", "effects"):
+        for key in ("source", "effects", "cameras", "effect_cameras"):
             d.pop(key)
+        if self.cameras:
+            d["camera"] = [d_cam for d_cam in (_as_table(c) for c in self.cameras)]
         if self.effects:
             d["effect"] = [e.to_dict() for e in self.effects]
+            for table, cam in zip(d["effect"], self._scopes(), strict=True):
+                if cam:
+                    table["camera"] = cam
         return d
+
+    def _scopes(self) -> tuple[str, ...]:
+        return self.effect_cameras or ("",) * len(self.effects)
+
+    @property
+    def camera_names(self) -> tuple[str, ...]:
+        """The names of the cameras, in config order (one for a single [camera] table)."""
+        return tuple(c.name for c in self.cameras) or (self.camera.name,)
+
+    def for_camera(self, name: str) -> SimConfig:
+        """The single-camera config of camera ``name``: its camera, the effects scoped to it and
+        the unscoped ones."""
+        if not self.cameras:
+            return self
+        cam = next(c for c in self.cameras if c.name == name)
+        effects = tuple(e for e, c in zip(self.effects, self._scopes(), strict=True) if c in ("", name))
+        return dataclasses.replace(self, camera=cam, cameras=(), effects=effects, effect_cameras=())
 
     @property
     def changes(self) -> tuple[EffectSpec, ...]:
@@ -205,7 +241,17 @@ class SimConfig:
         return [self.plates.x0_mm + i * self.plates.spacing_mm for i in range(self.plates.count)]
 
 
-_SECTIONS = {f.name: f.type for f in dataclasses.fields(SimConfig) if f.name not in ("source", "effects")}
+def _as_table(obj: Any) -> dict:
+    return dataclasses.asdict(
+        obj, dict_factory=lambda kv: {k: list(v) if isinstance(v, tuple) else v for k, v in kv}
+    )
+
+
+_SECTIONS = {
+    f.name: f.type
+    for f in dataclasses.fields(SimConfig)
+    if f.name not in ("source", "effects", "cameras", "effect_cameras")
+}
 _CLASSES = {
     "recording": RecordingConfig,
     "beam": BeamConfig,
@@ -258,20 +304,77 @@ def _coerce(src: str, key: str, default: Any, value: Any) -> Any:
     raise AssertionError(key)
 
 
-def _section(src: str, name: str, table: Any, prefix: str = "") -> Any:
+def _section(src: str, name: str, table: Any, prefix: str = "", label: str = "") -> Any:
     cls = _CLASSES[name]
+    label = label or prefix + name
     if not isinstance(table, dict):
-        raise _err(src, prefix + name, "a table", table)
+        raise _err(src, label, "a table", table)
     defaults = cls()
     names = [f.name for f in dataclasses.fields(cls)]
     kwargs = {}
     for key, value in table.items():
         if key not in names:
-            raise ConfigError(
-                f"{src}: unknown key {prefix + name + '.' + key!r}; expected one of {', '.join(names)}"
-            )
-        kwargs[key] = _coerce(src, prefix + name + "." + key, getattr(defaults, key), value)
+            raise ConfigError(f"{src}: unknown key {label + '.' + key!r}; expected one of {', '.join(names)}")
+        kwargs[key] = _coerce(src, label + "." + key, getattr(defaults, key), value)
     return cls(**kwargs)
+
+
+def _complete_camera(src: str, cam: CameraConfig, table: dict, label: str = "camera") -> CameraConfig:
+    """The sensor's defaults for what ``table`` leaves out (size, field of view, Kinect rate)."""
+    sensor = cam.sensor
+    if sensor not in _SENSOR_DEFAULTS:
+        raise _err(src, label + ".sensor", "one of " + ", ".join(_SENSOR_DEFAULTS), sensor)
+    d = _SENSOR_DEFAULTS[sensor]
+    cam = dataclasses.replace(
+        cam,
+        width=cam.width or d["width"],
+        height=cam.height or d["height"],
+        fov_deg=cam.fov_deg if cam.fov_deg[0] > 0 else d["fov_deg"],
+    )
+    if sensor == "kinect" and "frame_rate_hz" not in table:
+        cam = dataclasses.replace(cam, frame_rate_hz=30.0)
+    return cam
+
+
+def _camera_tables(src: str, tables: list) -> tuple[CameraConfig, ...]:
+    """``[[camera]]`` tables -> cameras with unique names."""
+    if not tables or not all(isinstance(t, dict) for t in tables):
+        raise _err(src, "camera", "a [camera] table or an array of tables [[camera]]", tables)
+    cams = []
+    for i, table in enumerate(tables):
+        label = f"camera[{i + 1}]"
+        if "name" not in table:
+            raise ConfigError(f"{src}: key {label + '.name'!r}: expected a camera name, got nothing")
+        cam = _section(src, "camera", table, label=label)
+        cams.append(_complete_camera(src, cam, table, label))
+    names = [c.name for c in cams]
+    for i, name in enumerate(names):
+        if not name or name in names[:i] or not name.replace("_", "").replace("-", "").isalnum():
+            raise _err(
+                src,
+                f"camera[{i + 1}].name",
+                "a unique name of letters, digits, - and _ (it names the camera's files)",
+                name,
+            )
+    return tuple(cams)
+
+
+def _effect_scopes(src: str, tables: Any, names: tuple[str, ...]) -> tuple[list, list[str]]:
+    """Strip each [[effect]] table's ``camera`` key: (tables without it, the camera or "")."""
+    if not isinstance(tables, list):
+        return tables, []
+    stripped, scopes = [], []
+    for i, t in enumerate(tables):
+        if isinstance(t, dict) and "camera" in t:
+            t = dict(t)
+            cam = t.pop("camera")
+            if cam not in names:
+                raise _err(src, f"effect[{i + 1}].camera", f"one of the cameras {', '.join(names)}", cam)
+            scopes.append(cam)
+        else:
+            scopes.append("")
+        stripped.append(t)
+    return stripped, scopes
 
 
 def _merge(base: dict, over: dict) -> dict:
@@ -332,25 +435,36 @@ def config_from_dict(raw: dict, source: str = "<config>", session: str | None = 
         raw["recording"].setdefault("segment", name)
     elif wanted:
         raise _err(source, "recording.session", "no session (the file has no [[session]] entries)", wanted)
+    camera_tables = raw.pop("camera") if isinstance(raw.get("camera"), list) else None
+    if camera_tables is not None and sessions:
+        raise ConfigError(
+            f"{source}: key 'camera': expected one [camera] table with [[session]] entries, got "
+            f"{len(camera_tables)} [[camera]] tables (several cameras record one session)"
+        )
     parts = {name: _section(source, name, raw.get(name, {})) for name in _SECTIONS}
-    cam = parts["camera"]
-    sensor = cam.sensor
-    if sensor not in _SENSOR_DEFAULTS:
-        raise _err(source, "camera.sensor", "one of " + ", ".join(_SENSOR_DEFAULTS), sensor)
-    d = _SENSOR_DEFAULTS[sensor]
-    cam = dataclasses.replace(
-        cam,
-        width=cam.width or d["width"],
-        height=cam.height or d["height"],
-        fov_deg=cam.fov_deg if cam.fov_deg[0] > 0 else d["fov_deg"],
-    )
-    if sensor == "kinect" and "camera" in raw and "frame_rate_hz" not in raw["camera"]:
-        cam = dataclasses.replace(cam, frame_rate_hz=30.0)
-    parts["camera"] = cam
+    cameras: tuple[CameraConfig, ...] = ()
+    if camera_tables is not None:
+        cameras = _camera_tables(source, camera_tables)
+        parts["camera"] = cameras[0]
+    else:
+        parts["camera"] = _complete_camera(source, parts["camera"], raw.get("camera", {}))
+    names = tuple(c.name for c in cameras)
+    effect_tables, scopes = _effect_scopes(source, effect_tables, names)
     effects = parse_effects(source, effect_tables, parts["plates"].count)
     effects += parse_changes(source, raw_changes, parts["plates"].count)
-    cfg = SimConfig(**parts, effects=effects, source=source)
-    validate(cfg)
+    scoped = tuple(scopes) + ("",) * (len(effects) - len(scopes)) if any(scopes) else ()
+    for i, (e, cam) in enumerate(zip(effects, scoped, strict=True)):
+        if cam and e.level not in ("range", "timestamps"):
+            raise _err(
+                source,
+                f"effect[{i + 1}].camera",
+                f"no camera for {e.id} (it moves the structure; only range and timestamps effects "
+                "are one camera's)",
+                cam,
+            )
+    cfg = SimConfig(**parts, effects=effects, source=source, cameras=cameras, effect_cameras=scoped)
+    for name in cfg.camera_names:
+        validate(cfg.for_camera(name), f"camera[{names.index(name) + 1}]" if cameras else "camera")
     return cfg
 
 
@@ -374,9 +488,16 @@ def load_config(path: Path | str, session: str | None = None) -> SimConfig:
     return config_from_dict(raw, str(path), session)
 
 
-def validate(cfg: SimConfig) -> None:
-    """Physical and geometric checks; one-line `ConfigError` naming file and key."""
+def validate(cfg: SimConfig, camera_key: str = "camera") -> None:
+    """Physical and geometric checks; one-line `ConfigError` naming file and key (the camera's
+    keys under ``camera_key``: ``camera`` or ``camera[2]``)."""
     src, cam = cfg.source, cfg.camera
+
+    def _err(src: str, key: str, expected: str, got: Any) -> ConfigError:
+        if key.startswith("camera."):
+            key = camera_key + key[len("camera") :]
+        return ConfigError(f"{src}: key {key!r}: expected {expected}, got {got!r}")
+
     rec = cfg.recording
     if not rec.duration_s > 0:
         raise _err(src, "recording.duration_s", "a duration > 0 s", rec.duration_s)
@@ -385,7 +506,7 @@ def validate(cfg: SimConfig) -> None:
     fmax = SENSOR_MAX_FRAME_RATE_HZ[cam.sensor]
     if not 0 < cam.frame_rate_hz <= fmax:
         raise ConfigError(
-            f"{src}: key 'camera.frame_rate_hz': expected <= {fmax:g} Hz for the "
+            f"{src}: key '{camera_key}.frame_rate_hz': expected <= {fmax:g} Hz for the "
             f"{'SR4000' if cam.sensor == 'sr4000' else 'Kinect'} (and > 0), got {cam.frame_rate_hz:g}"
         )
     if cam.sensor == "sr4000" and not 5.0 <= cam.modulation_mhz <= 60.0:
@@ -413,6 +534,14 @@ def validate(cfg: SimConfig) -> None:
         raise _err(src, "camera.noise_scale", "a value >= 0", cam.noise_scale)
     if cam.supersample < 1:
         raise _err(src, "camera.supersample", "an integer >= 1", cam.supersample)
+    for key in ("roll_deg", "pitch_deg", "yaw_deg"):
+        angle = getattr(cam, key)
+        if cam.sensor != "sr4000" and angle != 0.0:
+            raise _err(src, "camera." + key, "0 for a Kinect (only ToF cameras turn)", angle)
+        if not abs(angle) <= 20.0:
+            raise _err(src, "camera." + key, "an angle within +-20 deg of looking straight down", angle)
+    if not abs(cam.clock_drift_ppm) <= 1000.0:
+        raise _err(src, "camera.clock_drift_ppm", "a clock rate error within +-1000 ppm", cam.clock_drift_ppm)
     if cfg.loading.frequency_hz <= 0:
         raise _err(src, "loading.frequency_hz", "a frequency > 0 Hz", cfg.loading.frequency_hz)
     if cfg.fatigue.law not in ("log", "linear", "none"):
@@ -447,6 +576,6 @@ def validate(cfg: SimConfig) -> None:
         u0, u1, v0, v1 = plate_image_bounds(cfg, p)
         if u0 < 0 or v0 < 0 or u1 > cam.width or v1 > cam.height:
             raise ConfigError(
-                f"{src}: key 'camera.plates': expected plates inside the {cam.width}x{cam.height} "
+                f"{src}: key '{camera_key}.plates': expected plates inside the {cam.width}x{cam.height} "
                 f"field of view, got plate {p} at columns {u0:.0f}..{u1:.0f}, rows {v0:.0f}..{v1:.0f}"
             )

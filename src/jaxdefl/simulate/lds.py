@@ -14,7 +14,7 @@ import pandas as pd
 
 from .config import SimConfig
 from .injection import mode_displacement, plate_motion
-from .scene import beam_shape, kinematics, plate_centres_world
+from .scene import beam_shape, camera_origin, camera_rotation, kinematics, plate_centres_world
 
 __all__ = ["frame_clock", "truth_table", "lds_block", "LDS_BLOCK_S"]
 
@@ -37,8 +37,10 @@ def frame_clock(cfg: SimConfig, duration_s: float, seed: int) -> tuple[np.ndarra
     return idx, t[idx]
 
 
-def truth_table(cfg: SimConfig, t_s: np.ndarray) -> pd.DataFrame:
-    """True plate centroids (segment, t, plate, x, y, z) in the camera frame at times ``t_s``."""
+def truth_table(cfg: SimConfig, t_s: np.ndarray, frame: str = "camera") -> pd.DataFrame:
+    """True plate centroids (segment, t, plate, x, y, z) at times ``t_s``: in the camera frame,
+    or with ``frame="beam"`` in the world (beam) frame: x along the beam from the left support, y
+    lateral, z down from the beam top."""
     t_s = np.asarray(t_s, np.float64)
     defl, dx, dy = kinematics(cfg, t_s)
     c = plate_centres_world(cfg) - np.array([cfg.camera.x_mm, cfg.camera.y_mm, -cfg.camera.standoff_mm])
@@ -51,6 +53,13 @@ def truth_table(cfg: SimConfig, t_s: np.ndarray) -> pd.DataFrame:
     dxp, dyp = np.repeat(dx[:, None], m, axis=1), np.repeat(dy[:, None], m, axis=1)
     # a plate's own motion (a debonded plate follows the beam only partly)
     plate_motion(cfg.effects, t_s - cfg.t0_s, motion, dxp, dyp, cfg.loading.mean_mm * shape)
+    xyz = np.stack([c[:, 0][None, :] + dxp, c[:, 1][None, :] + dyp, c[:, 2][None, :] + motion], -1)
+    if frame == "camera":
+        rot = camera_rotation(cfg.camera)
+        if rot is not None:  # a turned camera: R^T (p - C)
+            xyz = xyz @ rot
+    else:
+        xyz = xyz + camera_origin(cfg.camera)
     # time-major rows (every plate at one instant, then the next), so that files written in
     # chunks of frames are identical whatever the chunk size
     return pd.DataFrame(
@@ -58,9 +67,9 @@ def truth_table(cfg: SimConfig, t_s: np.ndarray) -> pd.DataFrame:
             "segment": cfg.recording.segment,
             "t": np.repeat(t_s, m),
             "plate": np.tile(np.arange(1, m + 1), n),
-            "x": (c[:, 0][None, :] + dxp).ravel(),
-            "y": (c[:, 1][None, :] + dyp).ravel(),
-            "z": (c[:, 2][None, :] + motion).ravel(),
+            "x": xyz[..., 0].ravel(),
+            "y": xyz[..., 1].ravel(),
+            "z": xyz[..., 2].ravel(),
         }
     )
 

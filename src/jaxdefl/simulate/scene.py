@@ -35,6 +35,9 @@ __all__ = [
     "intrinsics",
     "plate_centres_world",
     "plate_image_bounds",
+    "camera_rotation",
+    "camera_origin",
+    "to_camera",
     "midspan_amplitude_mm",
     "kinematics",
     "PixelModel",
@@ -92,19 +95,44 @@ def plate_centres_world(cfg: SimConfig) -> np.ndarray:
     return np.stack([x, y, z], axis=1)
 
 
-def _to_camera(cfg: SimConfig, xyz_world: np.ndarray) -> np.ndarray:
-    cam = cfg.camera
-    return xyz_world - np.array([cam.x_mm, cam.y_mm, -cam.standoff_mm])
+def camera_rotation(cam) -> np.ndarray | None:
+    """(3, 3) rotation R taking camera-frame vectors to the world (beam) frame, or None for a
+    camera looking straight down with its columns along the beam (R = I).
+
+    R = Rz(yaw) Ry(pitch) Rx(roll), angles in degrees (``camera.roll_deg`` etc.): roll turns the
+    camera about the beam axis, pitch about the lateral axis, yaw about the vertical.
+    """
+    if cam.roll_deg == 0.0 and cam.pitch_deg == 0.0 and cam.yaw_deg == 0.0:
+        return None
+    a, b, c = (math.radians(v) for v in (cam.roll_deg, cam.pitch_deg, cam.yaw_deg))
+    rx = np.array([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]])
+    ry = np.array([[math.cos(b), 0, math.sin(b)], [0, 1, 0], [-math.sin(b), 0, math.cos(b)]])
+    rz = np.array([[math.cos(c), -math.sin(c), 0], [math.sin(c), math.cos(c), 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+def camera_origin(cam) -> np.ndarray:
+    """(3,) the camera's projection centre in world (beam-frame) coordinates, mm."""
+    return np.array([cam.x_mm, cam.y_mm, -cam.standoff_mm])
+
+
+def to_camera(cfg: SimConfig, xyz_world: np.ndarray) -> np.ndarray:
+    """(..., 3) world points -> the camera frame of ``cfg.camera``: R^T (p - C)."""
+    d = np.asarray(xyz_world, float) - camera_origin(cfg.camera)
+    rot = camera_rotation(cfg.camera)
+    return d if rot is None else d @ rot
 
 
 def plate_image_bounds(cfg: SimConfig, plate: int) -> tuple[float, float, float, float]:
     """Image extent (u0, u1, v0, v1) of a plate's top face, pixel edges (0..width)."""
     k = intrinsics(cfg)
-    c = _to_camera(cfg, plate_centres_world(cfg)[plate - 1])
     hl, hw = cfg.plates.length_mm / 2, cfg.plates.width_mm / 2
-    u = [k.fx * (c[0] + s * hl) / c[2] + k.cx + 0.5 for s in (-1, 1)]
-    v = [k.fy * (c[1] + s * hw) / c[2] + k.cy + 0.5 for s in (-1, 1)]
-    return min(u), max(u), min(v), max(v)
+    centre = plate_centres_world(cfg)[plate - 1]
+    corners = np.array([centre + [sx * hl, sy * hw, 0.0] for sx in (-1, 1) for sy in (-1, 1)])
+    c = to_camera(cfg, corners)
+    u = k.fx * c[:, 0] / c[:, 2] + k.cx + 0.5
+    v = k.fy * c[:, 1] / c[:, 2] + k.cy + 0.5
+    return float(u.min()), float(u.max()), float(v.min()), float(v.max())
 
 
 def _fatigue_factor(cfg: SimConfig, cycles):
@@ -164,6 +192,7 @@ class PixelModel:
     plate_occ: np.ndarray  # (p,) fraction of the footprint hidden by nearer objects
     plate_edges: np.ndarray  # (plate, 4) xa, xb, ya, yb (world mm) at rest
     plate_shape: np.ndarray  # (plate,) deflection / mid-span deflection
+    plate_drop_mm: float = 0.0  # vertical distance from the camera down to the plates' top faces
 
 
 def _boxes(cfg: SimConfig) -> list[tuple[np.ndarray, np.ndarray, float, str]]:
@@ -217,7 +246,8 @@ def pixel_model(cfg: SimConfig, supersample: int | None = None) -> PixelModel:
     intr = intrinsics(cfg)
     cam, b, sc, pl = cfg.camera, cfg.beam, cfg.scene, cfg.plates
     s = supersample or cam.supersample
-    origin = np.array([cam.x_mm, cam.y_mm, -cam.standoff_mm])
+    origin = camera_origin(cam)
+    rot = camera_rotation(cam)  # None: nadir, the rays' world directions are their camera ones
     boxes = _boxes(cfg)
     shape_spreader = float(beam_shape(b.load_a_mm, b.span_mm, b.load_a_mm))
     centres = plate_centres_world(cfg)
@@ -234,8 +264,9 @@ def pixel_model(cfg: SimConfig, supersample: int | None = None) -> PixelModel:
     outs = {k: [] for k in ("range", "depth", "kind", "gain", "gdepth", "bright", "occ")}
     rows_per = max(1, 2_000_000 // (intr.width * s * s * 8))
     for r0 in range(0, intr.height, rows_per):
-        d = _ray_grid(intr, s, slice(r0, r0 + rows_per))  # (p, s2, 3), z component 1
-        norm = np.linalg.norm(d, axis=-1)
+        dc = _ray_grid(intr, s, slice(r0, r0 + rows_per))  # (p, s2, 3), camera z component 1
+        norm = np.linalg.norm(dc, axis=-1)
+        d = dc if rot is None else dc @ rot.T  # world directions; the ray parameter is camera Z
         # floor plane
         t_best = (sc.floor_below_top_mm - origin[2]) / d[..., 2]
         hit = origin + t_best[..., None] * d
@@ -272,33 +303,47 @@ def pixel_model(cfg: SimConfig, supersample: int | None = None) -> PixelModel:
                 gain_z = np.where(ok, g_new, gain_z)
                 c_new = np.abs(np.take_along_axis(d, entry_axis[..., None], axis=-1)[..., 0]) / norm
                 cos_inc = np.where(ok, c_new, cos_inc)
-        depth = t_best * d[..., 2] + 0.0  # camera-frame Z (origin at the camera)
+        depth = t_best * dc[..., 2] + 0.0  # camera-frame Z (origin at the camera)
         rng = t_best * norm
-        cosz = d[..., 2] / norm
+        cosz = dc[..., 2] / norm  # off the optical axis
+        cosv = cosz if rot is None else d[..., 2] / norm  # off the vertical
         outs["range"].append(rng)
         outs["depth"].append(depth)
         outs["kind"].append(kind)
-        outs["gain"].append(gain_z / cosz)  # vertical move dz of a horizontal face: d range = dz/cos
-        outs["gdepth"].append(gain_z)
+        outs["gain"].append(gain_z / cosv)  # vertical move dz of a horizontal face: d range = dz/cos
+        outs["gdepth"].append(gain_z if rot is None else gain_z / d[..., 2])
         # Lambertian face (cos of incidence) seen through the optics (cos^2 off axis): the top
         # faces and the floor get cos^3, the vertical sides of the beam and spreader much less
         outs["bright"].append(refl * cos_inc * cosz**2 / (rng / 1000.0) ** 2)
         # sub-rays that would meet a plate (at rest) but hit something nearer first
-        hp = origin + depth_p * d  # the plates' plane (d has z = 1)
+        t_p = depth_p if rot is None else depth_p / d[..., 2]  # ray parameter at the plates' plane
+        hp = origin + (t_p * d if rot is None else t_p[..., None] * d)  # (d has z = 1 at nadir)
         on_plate = np.zeros(t_best.shape, bool)
         for xa, xb, ya, yb in edges:
             on_plate |= (hp[..., 0] >= xa) & (hp[..., 0] <= xb) & (hp[..., 1] >= ya) & (hp[..., 1] <= yb)
-        hidden = on_plate & (depth < depth_p - 1e-6)
+        hidden = on_plate & (t_best < t_p - 1e-6)
         outs["occ"].append(hidden.sum(axis=1) / np.maximum(on_plate.sum(axis=1), 1))
     cat = {k: np.concatenate(v, axis=0) for k, v in outs.items()}
 
     # plates, analytically
     v, u = np.meshgrid(np.arange(intr.height, dtype=float), np.arange(intr.width, dtype=float), indexing="ij")
     u, v = u.ravel(), v.ravel()
-    x0 = origin[0] + depth_p * (u - 0.5 - intr.cx) / intr.fx
-    x1 = origin[0] + depth_p * (u + 0.5 - intr.cx) / intr.fx
-    y0 = origin[1] + depth_p * (v - 0.5 - intr.cy) / intr.fy
-    y1 = origin[1] + depth_p * (v + 0.5 - intr.cy) / intr.fy
+    if rot is None:
+        x0 = origin[0] + depth_p * (u - 0.5 - intr.cx) / intr.fx
+        x1 = origin[0] + depth_p * (u + 0.5 - intr.cx) / intr.fx
+        y0 = origin[1] + depth_p * (v - 0.5 - intr.cy) / intr.fy
+        y1 = origin[1] + depth_p * (v + 0.5 - intr.cy) / intr.fy
+    else:
+        # a turned pixel's footprint on the plates' plane is a quadrilateral: its bounding
+        # rectangle stands for it (the coverage of a plate edge stays continuous in its motion)
+        hits = []
+        for du, dv in ((-0.5, -0.5), (0.5, -0.5), (-0.5, 0.5), (0.5, 0.5)):
+            w = np.stack([(u + du - intr.cx) / intr.fx, (v + dv - intr.cy) / intr.fy, np.ones_like(u)], -1)
+            w = w @ rot.T
+            hits.append(origin[:2] + (depth_p / w[:, 2])[:, None] * w[:, :2])
+        hits = np.stack(hits)  # (corner, p, 2)
+        x0, x1 = hits[..., 0].min(axis=0), hits[..., 0].max(axis=0)
+        y0, y1 = hits[..., 1].min(axis=0), hits[..., 1].max(axis=0)
     xc = (x0 + x1) / 2
     idx = np.argmin(np.abs(xc[:, None] - centres[None, :, 0]), axis=1)
     margin = 5.0  # mm: pixels farther than this from any plate never see one
@@ -313,7 +358,10 @@ def pixel_model(cfg: SimConfig, supersample: int | None = None) -> PixelModel:
     dy = (v - intr.cy) / intr.fy
     norm = np.sqrt(dx * dx + dy * dy + 1)
     cosz = 1 / norm
-    rng_p = depth_p * norm
+    # vertical component of the (camera z = 1) ray in the world: 1 at nadir
+    dz = 1.0 if rot is None else np.stack([dx, dy, np.ones_like(dx)], -1) @ rot[2]
+    t_plate = depth_p / dz  # camera Z of the plates' plane along each pixel's ray
+    rng_p = t_plate * norm
     occ = cat["occ"]
     shape_p = beam_shape(centres[:, 0], b.span_mm, b.load_a_mm)
     return PixelModel(
@@ -327,10 +375,13 @@ def pixel_model(cfg: SimConfig, supersample: int | None = None) -> PixelModel:
         plate_idx=idx.astype(np.int32),
         plate_foot=np.stack([x0, x1, y0, y1], axis=1),
         plate_range_mm=rng_p,
-        plate_depth_mm=np.full_like(rng_p, depth_p),
-        plate_gain=norm,
-        plate_bright=pl.reflectivity * cosz**3 / (rng_p / 1000.0) ** 2,
+        plate_depth_mm=np.full_like(rng_p, depth_p) if rot is None else t_plate,
+        plate_gain=norm / dz,
+        plate_bright=pl.reflectivity
+        * (cosz**3 if rot is None else dz / norm * cosz**2)
+        / (rng_p / 1000.0) ** 2,
         plate_occ=occ,
         plate_edges=edges,
         plate_shape=np.asarray(shape_p, float),
+        plate_drop_mm=depth_p,
     )

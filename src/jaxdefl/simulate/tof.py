@@ -196,7 +196,7 @@ class ToFModel:
     nar_mm: float
     integration_ms: float
     camera_xy_mm: np.ndarray  # (2,) camera X, Y (world mm)
-    plate_depth_mm: float  # camera Z of the plates' top faces at rest
+    plate_depth_mm: float  # vertical distance from the camera to the plates' top faces at rest
     plate_shape: np.ndarray  # (plate,) deflection / mid-span deflection
     sigma_corr_mm: float = 0.0  # per-frame correlated range error (sigma, mm)
     corr_spatial: float = 0.0  # share of its variance that varies across the image
@@ -263,7 +263,7 @@ def tof_model(cfg: SimConfig, pm: PixelModel) -> ToFModel:
         plate_occ=pm.plate_occ.astype(np.float32),
         plate_edges=pm.plate_edges,
         camera_xy_mm=np.array([cam.x_mm, cam.y_mm]),
-        plate_depth_mm=float(pm.plate_depth_mm[0]),
+        plate_depth_mm=float(pm.plate_drop_mm),
         plate_shape=np.asarray(pm.plate_shape, float),
         sigma_c=float(sigma_c),
         offset_b=(0.25 * amp + 200.0).astype(np.float32),

@@ -24,6 +24,7 @@ from ..io.output import Outputs
 from .config import SimConfig, load_config
 from .injection import FRAME_LEVELS, mode_displacement, range_offset, stamp_times
 from .lds import LDS_BLOCK_S, frame_clock, lds_block, truth_table
+from .multicam import camera_clock, camera_poses, camera_seed, label_origin_x, multicam_outputs
 from .scene import kinematics, pixel_model
 
 __all__ = ["simulate_to_dir", "simulate_trajectories", "tap_times", "render_frames"]
@@ -52,7 +53,7 @@ _RENDER_BYTES_PER_PIXEL = 24
 _STORED_BYTES_PER_PIXEL = 8  # range or depth, and amplitude: float32 each (before compression)
 
 
-def _check_size(cfg: SimConfig, duration: float, out: Path, duration_flag: str, source: str) -> None:
+def check_size(cfg: SimConfig, duration: float, out: Path, duration_flag: str, source: str) -> None:
     """Refuse a duration or chunk size whose memory or disk space is out of reach, before any
     file is made. ``duration_flag`` names where the duration came from, ``source`` the config."""
     cam, chunk = cfg.camera, cfg.recording.chunk_frames
@@ -108,7 +109,7 @@ def simulate_trajectories(
     return truth, lds
 
 
-class _Renderer:
+class Renderer:
     """Holds the static pixel model of one camera and renders chunks of frames."""
 
     def __init__(self, cfg: SimConfig, seed: int, duration_s: float):
@@ -215,12 +216,39 @@ def render_frames(config: SimConfig | str | Path, duration_s: float | None = Non
     duration = _check_duration(cfg, duration_s)
     seed = cfg.recording.seed if seed is None else int(seed)
     idx, t = frame_clock(cfg, duration, seed)
-    rend = _Renderer(cfg, seed, duration)
+    rend = Renderer(cfg, seed, duration)
     frames, amp = rend.render(idx, t)
     return stamp_times(cfg.effects, t, cfg.t0_s), frames, amp, rend.facts()
 
 
-def _append_csv(df: pd.DataFrame, path: Path, first: bool) -> None:
+def create_frame_arrays(root, kind: str, h: int, w: int, chunk: int):
+    """The empty ``kind`` (range or depth), ``amplitude`` and ``timestamps`` arrays of a recording."""
+    frames, amp = (
+        root.create_array(
+            name,
+            shape=(0, h, w),
+            chunks=(chunk, h, w),
+            dtype="float32",
+            dimension_names=("frame", "h", "w"),
+            fill_value=np.nan,
+            config=_EVERY_CHUNK,
+        )
+        for name in (kind, "amplitude")
+    )
+    stamps = root.create_array(
+        "timestamps",
+        shape=(0,),
+        chunks=(max(chunk, 4096),),
+        dtype="float64",
+        dimension_names=("frame",),
+        config=_EVERY_CHUNK,
+    )
+    frames.attrs.update(units="mm")
+    stamps.attrs.update(units="s since 1970-01-01 (UTC)")
+    return frames, amp, stamps
+
+
+def append_csv(df: pd.DataFrame, path: Path, first: bool) -> None:
     # the format of jaxdefl.io.write_trajectory, appended chunk by chunk to bound memory
     cols = [c for c in _COLUMNS if c in df.columns]
     df[cols].to_csv(path, mode="w" if first else "a", header=first, index=False, float_format="%.6f")
@@ -245,14 +273,17 @@ def simulate_to_dir(
         ConfigError: a bad config file or a negative duration.
     """
     cfg = load_config(config_path, session)
-    _frames_show(cfg)
+    for name in cfg.camera_names:
+        _frames_show(cfg.for_camera(name))
     duration = _check_duration(cfg, duration_s)
     seed = cfg.recording.seed if seed is None else int(seed)
     out = Path(out_dir)
+    if cfg.cameras:  # [[camera]] tables: a recording per camera (`jaxdefl.simulate.multicam`)
+        return _write_cameras(cfg, out, duration, seed, progress)
     if out.exists() and not out.is_dir():
         raise ConfigError(f"--out {out}: is a file; expected a directory")
     where = "recording.duration_s" if duration_s is None else "--duration"
-    _check_size(cfg, duration, out, where, str(config_path))
+    check_size(cfg, duration, out, where, str(config_path))
     outs = Outputs(inputs=[config_path])
     for name in ("config.json", "recording.zarr", "truth.csv", "lds.csv"):
         outs.reserve(out / name, f"--out {out}: {name}")
@@ -273,39 +304,18 @@ def _write_recording(cfg: SimConfig, outs: Outputs, out: Path, duration: float, 
     outs.text(out / "config.json", json.dumps(effective, indent=2))
 
     idx, t = frame_clock(cfg, duration, seed)
-    rend = _Renderer(cfg, seed, duration)
+    rend = Renderer(cfg, seed, duration)
     h, w = rend.intr.height, rend.intr.width
     chunk = cfg.recording.chunk_frames
     store = outs.path(out / "recording.zarr")
     root = zarr.open_group(str(store), mode="w")
     root.attrs.update(rend.facts())
-    frames, amp = (
-        root.create_array(
-            name,
-            shape=(0, h, w),
-            chunks=(chunk, h, w),
-            dtype="float32",
-            dimension_names=("frame", "h", "w"),
-            fill_value=np.nan,
-            config=_EVERY_CHUNK,
-        )
-        for name in (rend.kind, "amplitude")
-    )
-    stamps = root.create_array(
-        "timestamps",
-        shape=(0,),
-        chunks=(max(chunk, 4096),),
-        dtype="float64",
-        dimension_names=("frame",),
-        config=_EVERY_CHUNK,
-    )
-    frames.attrs.update(units="mm")
-    stamps.attrs.update(units="s since 1970-01-01 (UTC)")
+    frames, amp, stamps = create_frame_arrays(root, rend.kind, h, w, chunk)
 
     truth_path, lds_path = outs.path(out / "truth.csv"), outs.path(out / "lds.csv")
-    _append_csv(truth_table(cfg, t[:0]), truth_path, True)
+    append_csv(truth_table(cfg, t[:0]), truth_path, True)
     nblocks = int(np.ceil(duration / LDS_BLOCK_S))
-    _append_csv(lds_block(cfg, seed, 0, 0.0), lds_path, True)
+    append_csv(lds_block(cfg, seed, 0, 0.0), lds_path, True)
     lds_done = 0
     with progress_bar(progress) as bar:
         task = bar.add_task(f"simulate {cfg.camera.sensor} {cfg.recording.segment} (frames)", total=len(idx))
@@ -316,14 +326,83 @@ def _write_recording(cfg: SimConfig, outs: Outputs, out: Path, duration: float, 
             frames.append(r, axis=0)
             amp.append(a, axis=0)
             stamps.append(stamp_times(cfg.effects, ti, cfg.t0_s), axis=0)  # timing errors
-            _append_csv(truth_table(cfg, ti), truth_path, False)
+            append_csv(truth_table(cfg, ti), truth_path, False)
             # LDS blocks up to the time covered so far
             covered = (fi[-1] + 1) / cfg.camera.frame_rate_hz if s + chunk < len(idx) else duration
             while lds_done < nblocks and (lds_done + 1) * LDS_BLOCK_S <= covered + 1e-9:
-                _append_csv(lds_block(cfg, seed, lds_done, duration), lds_path, False)
+                append_csv(lds_block(cfg, seed, lds_done, duration), lds_path, False)
                 lds_done += 1
             bar.advance(task, len(fi))
     while lds_done < nblocks:
-        _append_csv(lds_block(cfg, seed, lds_done, duration), lds_path, False)
+        append_csv(lds_block(cfg, seed, lds_done, duration), lds_path, False)
         lds_done += 1
     root.attrs["n_frames"] = int(len(idx))
+
+
+def _write_cameras(cfg: SimConfig, out: Path, duration: float, seed: int, progress: bool) -> Path:
+    """Write every camera's recording and the shared truth into ``out`` (`jaxdefl.simulate.multicam`)."""
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"--out {out}: is a file; expected a directory")
+    for name in cfg.camera_names:
+        check_size(cfg.for_camera(name), duration, out, "--duration", cfg.source)
+    outs = Outputs(inputs=[cfg.source] if Path(cfg.source).exists() else [])
+    for name in multicam_outputs(cfg):
+        outs.reserve(out / name, f"--out {out}: {name}")
+    with outs:
+        effective = cfg.to_dict()
+        effective["recording"]["duration_s"] = duration
+        effective["recording"]["seed"] = seed
+        outs.text(out / "config.json", json.dumps(effective, indent=2))
+        outs.text(out / "cameras.json", json.dumps(camera_poses(cfg), indent=2))
+        beam_rows = []
+        for i, name in enumerate(cfg.camera_names):
+            cfg_i = cfg.for_camera(name)
+            beam_rows.append(_write_camera(cfg_i, outs, out, name, duration, camera_seed(seed, i), progress))
+        pd.concat(beam_rows, ignore_index=True).to_csv(
+            outs.path(out / "truth.csv"), index=False, float_format="%.6f"
+        )
+        nblocks = int(np.ceil(duration / LDS_BLOCK_S))
+        structure = cfg.for_camera(cfg.camera_names[0])
+        lds = [lds_block(structure, seed, b, duration) for b in range(nblocks)] or [
+            lds_block(structure, seed, 0, 0)
+        ]
+        pd.concat(lds, ignore_index=True).to_csv(outs.path(out / "lds.csv"), index=False, float_format="%.6f")
+    return out
+
+
+def _write_camera(
+    cfg: SimConfig, outs: Outputs, out: Path, name: str, duration: float, seed: int, progress: bool
+) -> pd.DataFrame:
+    """One camera's recording and camera-frame truth; returns its beam-frame truth."""
+    import zarr
+
+    from ..progress import progress_bar
+
+    idx, stamp, t_true = camera_clock(cfg, duration, seed)
+    rend = Renderer(cfg, seed, duration)
+    h, w = rend.intr.height, rend.intr.width
+    chunk = cfg.recording.chunk_frames
+    root = zarr.open_group(str(outs.path(out / f"{name}.zarr")), mode="w")
+    facts = rend.facts()
+    facts.update(camera_x_mm=label_origin_x(cfg), seed=seed)
+    root.attrs.update(facts)
+    frames, amp, stamps = create_frame_arrays(root, rend.kind, h, w, chunk)
+    truth_path = outs.path(out / f"{name}_truth.csv")
+    append_csv(truth_table(cfg, t_true[:0]), truth_path, True)
+    with progress_bar(progress) as bar:
+        task = bar.add_task(f"simulate {name} {cfg.recording.segment} (frames)", total=len(idx))
+        for s in range(0, len(idx), chunk):
+            check_interrupt()
+            fi, ti, si = idx[s : s + chunk], t_true[s : s + chunk], stamp[s : s + chunk]
+            r, a = rend.render(fi, ti)
+            frames.append(r, axis=0)
+            amp.append(a, axis=0)
+            stamps.append(stamp_times(cfg.effects, si, cfg.t0_s), axis=0)
+            cam_truth = truth_table(cfg, ti)
+            cam_truth["t"] = np.repeat(si, cfg.plates.count)
+            append_csv(cam_truth, truth_path, False)
+            bar.advance(task, len(fi))
+    root.attrs["n_frames"] = int(len(idx))
+    beam = truth_table(cfg, t_true, frame="beam")
+    beam.insert(1, "camera", name)
+    return beam
