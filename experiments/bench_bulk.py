@@ -16,7 +16,9 @@ In the same run:
   per whole record) astropy's LombScargle ('fast') for the start frequency and scipy's
   least_squares ('lm') on [C, D, E, ω], as in `bench_fit.py`. Reading is timed in full, the fits
   on ``--loop-sample`` windows and ``--loop-whole`` whole records per round, scaled to all.
-Rounds (``--rounds``) alternate jaxdefl and the loop; the speed-up printed is their median.
+Rounds (``--rounds``) alternate jaxdefl and the loop; the speed-up printed is their median. The
+CPU times (jaxdefl's process with all its threads; the loop's, scaled like its wall time) are
+printed beside: their ratio depends less on what else the machine runs.
 
 Usage: python experiments/bench_bulk.py [--days 11] [--minutes 30] [--window 60] [--rounds 3]
                                         [--schedulers none,local:2] [--lds]
@@ -27,6 +29,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import shutil
 import subprocess
 import sys
@@ -126,6 +129,7 @@ def run(cfg: Path, out: Path, scheduler: str, cache: str) -> dict:
     if out.exists():
         shutil.rmtree(out)
     env = {**os.environ, "JAXDEFL_CACHE_DIR": cache}
+    cpu0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     res = subprocess.run(
         [sys.executable, "-c", _CHILD, str(cfg), str(out), scheduler],
@@ -134,10 +138,12 @@ def run(cfg: Path, out: Path, scheduler: str, cache: str) -> dict:
         env=env,
     )
     wall = time.perf_counter() - t0
+    cpu1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     if res.returncode:
         raise SystemExit(f"jaxdefl run failed ({scheduler}):\n{res.stderr[-3000:]}")
     r = json.loads(res.stdout.strip().splitlines()[-1])
     r["wall_s"] = wall
+    r["cpu_s"] = (cpu1.ru_utime - cpu0.ru_utime) + (cpu1.ru_stime - cpu0.ru_stime)  # all threads
     stages: dict[str, float] = {}
     for man in sorted((out / "units").glob("*/manifest.json")):
         for k, v in json.loads(man.read_text()).get("stage_seconds", {}).items():
@@ -174,9 +180,9 @@ def run_loop(cfg_dir: Path, days: int, window_s: float, rng, n_windows: int, n_w
     record fits timed on random samples and scaled to the campaign."""
     import pandas as pd
 
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     tables = [pd.read_csv(cfg_dir / f"traj{d:02d}.csv") for d in range(1, days + 1)]
-    t_read = time.perf_counter() - t0
+    t_read, c_read = time.perf_counter() - t0, time.process_time() - c0
     series = []  # (t, y, window bounds) of every day, plate and axis
     for tab in tables:
         t_first = tab["t"].min()  # windows start together on every plate, as jaxdefl's do
@@ -187,19 +193,27 @@ def run_loop(cfg_dir: Path, days: int, window_s: float, rng, n_windows: int, n_w
                 series.append((t, g[axis].to_numpy(), t_first, n_win))
     all_windows = [(i, k) for i, s in enumerate(series) for k in range(s[3])]
     pick = rng.choice(len(all_windows), size=min(n_windows, len(all_windows)), replace=False)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     for j in pick:
         i, k = all_windows[j]
         t, y, t_first, _ = series[i]
         lo, hi = np.searchsorted(t, [t_first + k * window_s, t_first + (k + 1) * window_s])
         _loop_fit(t[lo:hi], y[lo:hi], 3000)
     t_win = (time.perf_counter() - t0) * len(all_windows) / pick.size
+    c_win = (time.process_time() - c0) * len(all_windows) / pick.size
     whole = rng.choice(len(series), size=min(n_whole, len(series)), replace=False)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     for i in whole:
         _loop_fit(series[i][0], series[i][1], None)
     t_whole = (time.perf_counter() - t0) * len(series) / whole.size
-    return {"read_s": t_read, "windows_s": t_win, "whole_s": t_whole, "n_windows": len(all_windows)}
+    c_whole = (time.process_time() - c0) * len(series) / whole.size
+    return {
+        "read_s": t_read,
+        "windows_s": t_win,
+        "whole_s": t_whole,
+        "n_windows": len(all_windows),
+        "cpu_s": c_read + c_win + c_whole,
+    }
 
 
 def main():
@@ -233,12 +247,13 @@ def main():
         )
         cache = "" if args.no_cache else str(tmp / "jit-cache")
         rng = np.random.default_rng(27)
-        ratios, runs = [], []
+        ratios, runs, cpu_ratios = [], [], []
         for k in range(args.rounds):
             r = run(cfg, tmp / "out-none", "none", cache)
             lp = run_loop(tmp / "full", args.days, args.window, rng, args.loop_sample, args.loop_whole)
             loop_s = lp["read_s"] + lp["windows_s"] + lp["whole_s"]
             ratios.append(loop_s / r["wall_s"])
+            cpu_ratios.append(lp["cpu_s"] / r["cpu_s"])
             runs.append(r)
             cold = " (cold JIT cache)" if k == 0 and cache else ""
             print(
@@ -246,11 +261,16 @@ def main():
                 f"{r['ok']}/{args.days} units "
                 f"ok, peak RSS {r['peak_rss_mb']:.0f} MB) | loop {loop_s:6.1f} s (read {lp['read_s']:.1f}, "
                 f"{lp['n_windows']} windows {lp['windows_s']:.1f}, whole records {lp['whole_s']:.1f}) | "
-                f"speed-up {loop_s / r['wall_s']:5.1f}x (windows alone {lp['windows_s'] / r['wall_s']:.1f}x)"
+                f"speed-up {loop_s / r['wall_s']:5.1f}x "
+                f"(windows alone {lp['windows_s'] / r['wall_s']:.1f}x) | "
+                f"CPU time jaxdefl {r['cpu_s']:.1f} s (all threads), loop {lp['cpu_s']:.1f} s: "
+                f"{cpu_ratios[-1]:.1f}x | load {os.getloadavg()[0]:.1f}"
             )
         print(
             f"speed-up of jaxdefl run over the loop: median {np.median(ratios):.1f}x "
-            f"(rounds: {', '.join(f'{x:.1f}' for x in ratios)})"
+            f"(rounds: {', '.join(f'{x:.1f}' for x in ratios)}); CPU-time ratio median "
+            f"{np.median(cpu_ratios):.1f}x (rounds: {', '.join(f'{x:.1f}' for x in cpu_ratios)}; less "
+            "sensitive to the machine's load: jaxdefl's CPU time counts all its threads)"
         )
         best = runs[int(np.argsort([r["wall_s"] for r in runs])[len(runs) // 2])]  # the median run
         print(

@@ -45,6 +45,7 @@ ESTIMATE_COLUMNS = [
 # A deflection beyond 1000 km is a logger's sentinel or a corrupt cell, not a measurement; its
 # square would overflow the sums of the fit. Such a window gets a status, its neighbours go on.
 MAX_ABS_VALUE_MM = 1e9
+_BLOCK_CELLS = 1 << 18
 
 
 @dataclass(frozen=True)
@@ -147,9 +148,12 @@ def estimate_windows(
         took = (t_fit - t_block, time.perf_counter() - t_fit)
         return rows, p, np.where(go & ~converged, Status.DID_NOT_CONVERGE, st), f, noise, took
 
-    # Blocks run on a thread per core: XLA and the FFTs release the GIL.
+    # Blocks run on a thread per core: XLA and the FFTs release the GIL. A block holds at least
+    # 256 windows, or fewer long ones (~2^18 samples: the 39 whole records of a campaign day
+    # run as 2 blocks, not 1), so that every core has work.
     workers = max(1, os.cpu_count() or 1) if workers is None else max(1, workers)
-    size = min(block, max(256, -(-todo.size // workers)))
+    least = min(256, max(1, _BLOCK_CELLS // max(1, w.t.shape[1])))
+    size = min(block, max(least, -(-todo.size // workers)))
     blocks = [todo[i : i + size] for i in range(0, todo.size, size)]
     resid = np.empty_like(w.y)  # rows filled by their block
     spent = {"kernel": 0.0, "residual": 0.0}  # thread seconds of the blocks

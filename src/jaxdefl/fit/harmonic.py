@@ -17,7 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._jax import persistent_jit
-from .._shapes import bucket, pow2_at_least, pow2_at_most
+from .._shapes import bucket, chunk_rows, pow2_at_most
 from .._sincos import sincos
 from ..series import Windows
 
@@ -258,7 +258,7 @@ def batch_windows(
     # Valid samples come first in every row; pad the sample axis to a shape bucket and
     # the batch to a power of two so that few shapes are ever compiled.
     s_pad = bucket(s_used)
-    chunk = min(pow2_at_least(rows.size), pow2_at_most(_CHUNK_CELLS // s_pad))
+    chunk = chunk_rows(rows.size, _CHUNK_CELLS // s_pad)
     group = min(chunk, pow2_at_most(group_cells // s_pad))
     res: dict[str, np.ndarray] = {}
     for c0 in range(0, rows.size, chunk):

@@ -99,7 +99,9 @@ def _bounds(t_seg: np.ndarray, window_s: float | None, step_s: float | None) -> 
     t0, t1 = float(t_seg.min()), float(t_seg.max())
     if window_s is None:
         return [(t0, t1)]
-    d = np.diff(np.unique(t_seg))
+    # the spacings of the distinct stamps: each plate's run is sorted, so a merge sort is fast
+    d = np.diff(np.sort(t_seg, kind="stable"))
+    d = d[d > 0]
     dt = float(np.median(d)) if d.size else 0.0
     span = t1 - t0 + dt
     if window_s > span * (1 + 1e-9):  # a window longer than the record is clipped to it
@@ -108,39 +110,103 @@ def _bounds(t_seg: np.ndarray, window_s: float | None, step_s: float | None) -> 
     return [(t0 + i * step_s, t0 + i * step_s + window_s) for i in range(n)]
 
 
-def _pack(series: list[tuple], min_samples: int) -> Windows:
-    """Pad (meta, t_abs, y[, (dt, k, on_clock)]) tuples into a Windows batch.
+@dataclass
+class _Block:
+    """Windows cut from one series (one segment, plate and axis): index matrices, no copies.
 
-    The optional clock triple comes from a clock fitted to the whole series; without it (or
-    when it is off the clock) the window's own clock is fitted.
+    ``pos`` (window, sample) are positions into ``t``/``y`` of each window's valid samples
+    (valid ones first, ``valid`` marks them); ``clock_dt``/``clock_k``/``clock_on`` are the
+    series clock as each window sees it (`_window_clocks`), or None to fit each window's own.
     """
-    n_max = max((len(item[1]) for item in series), default=1)
-    s = max(n_max, 1)
-    b = len(series)
-    T = np.zeros((b, s))
-    Y = np.zeros((b, s))
-    M = np.zeros((b, s), bool)
-    K = np.zeros((b, s), np.int64)
-    dt = np.full(b, np.nan)
-    on = np.zeros(b, bool)
-    rows = []
-    centre = np.zeros(b)
-    for i, (meta, t_abs, y, *clock) in enumerate(series):
-        n = t_abs.size
-        centre[i] = 0.5 * (t_abs[0] + t_abs[-1]) if n else meta["t_mid"]
-        T[i, :n] = t_abs - centre[i]
-        Y[i, :n] = y
-        M[i, :n] = True
-        if clock and clock[0][2] and n and clock[0][1][-1] - clock[0][1][0] + 1 <= MAX_GRID_FILL * n:
-            dt[i], K[i, :n], on[i] = clock[0][0], clock[0][1] - clock[0][1][0], True
-        elif n:
-            dt[i], K[i, :n], on[i] = frame_clock(t_abs - t_abs[0])
-        rows.append(
-            {**meta, "n": n, "status": Status.CONVERGED if n >= min_samples else Status.TOO_FEW_SAMPLES}
-        )
-    cols = ["segment", "window", "t_start", "t_end", "t_mid", "plate", "axis", "n", "status"]
-    table = pd.DataFrame(rows, columns=cols)
-    table.insert(5, "t_centre", centre)
+
+    meta: dict
+    t: np.ndarray
+    y: np.ndarray
+    pos: np.ndarray
+    valid: np.ndarray
+    clock_dt: np.ndarray | None = None
+    clock_k: np.ndarray | None = None
+    clock_on: np.ndarray | None = None
+
+
+def _positions(lo: np.ndarray, hi: np.ndarray, ok: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Positions of the ``ok`` samples within [lo, hi) of each window, valid ones first:
+    (window, sample) positions (0 where padded) and their mask."""
+    idx = np.flatnonzero(ok)
+    before = np.concatenate([[0], np.cumsum(ok)])  # valid samples before each position
+    first, n = before[lo], before[hi] - before[lo]
+    s = max(int(n.max(initial=0)), 1)
+    j = np.arange(s)[None, :]
+    valid = j < n[:, None]
+    pos = idx[np.minimum(first[:, None] + j, max(idx.size - 1, 0))] if idx.size else np.zeros_like(valid, int)
+    return np.where(valid, pos, 0), valid
+
+
+def _pack(blocks: list[_Block], min_samples: int) -> Windows:
+    """Pad the windows of ``blocks`` into a Windows batch.
+
+    A window takes its block's clock when that is on the frame clock and the grid is at most
+    MAX_GRID_FILL frames per sample; otherwise (or without a clock) its own clock is fitted
+    (`frame_clock`).
+    """
+    sizes = [b.pos.shape[0] for b in blocks]
+    b_all = sum(sizes)
+    s = max((int(b.valid.sum(axis=1).max(initial=0)) for b in blocks), default=1) or 1
+    T = np.zeros((b_all, s))
+    Y = np.zeros((b_all, s))
+    M = np.zeros((b_all, s), bool)
+    K = np.zeros((b_all, s), np.int64)
+    dt = np.full(b_all, np.nan)
+    on = np.zeros(b_all, bool)
+    centre = np.zeros(b_all)
+    n_all = np.zeros(b_all, np.int64)
+    r0 = 0
+    for blk, size in zip(blocks, sizes, strict=True):
+        rows = slice(r0, r0 + size)
+        r0 += size
+        w = min(blk.pos.shape[1], s)
+        pos, valid = blk.pos[:, :w], blk.valid[:, :w]
+        n = valid.sum(axis=1)
+        last = pos[np.arange(size), np.maximum(n - 1, 0)]
+        t_abs = blk.t[pos]
+        c = np.where(n > 0, 0.5 * (blk.t[pos[:, 0]] + blk.t[last]), blk.meta["t_mid"])
+        T[rows, :w] = np.where(valid, t_abs - c[:, None], 0.0)
+        Y[rows, :w] = np.where(valid, blk.y[pos], 0.0)
+        M[rows, :w] = valid
+        centre[rows], n_all[rows] = c, n
+        if blk.clock_on is not None:
+            k = blk.clock_k[:, :w]
+            fill = k[np.arange(size), np.maximum(n - 1, 0)] - k[:, 0] + 1 <= MAX_GRID_FILL * n
+            take = blk.clock_on & (n > 0) & fill
+            K[rows, :w] = np.where(valid & take[:, None], k - k[:, :1], 0)
+            dt[rows] = np.where(take, blk.clock_dt, np.nan)
+            on[rows] = take
+        # A window off its series clock (or without one) fits its own.
+        for i in np.flatnonzero(~on[rows] & (n > 0)):
+            r = rows.start + i
+            tw = t_abs[i, : n[i]]
+            dt[r], K[r, : n[i]], on[r] = frame_clock(tw - tw[0])
+    meta = {
+        k: np.concatenate([np.broadcast_to(b.meta[k], sz) for b, sz in zip(blocks, sizes, strict=True)])
+        if blocks
+        else np.zeros(0)
+        for k in ("segment", "window", "t_start", "t_end", "t_mid", "plate", "axis")
+    }
+    status = np.where(n_all >= min_samples, Status.CONVERGED, Status.TOO_FEW_SAMPLES).astype(object)
+    table = pd.DataFrame(
+        {
+            "segment": meta["segment"].tolist(),
+            "window": meta["window"].astype(np.int64),
+            "t_start": meta["t_start"].astype(np.float64),
+            "t_end": meta["t_end"].astype(np.float64),
+            "t_mid": meta["t_mid"].astype(np.float64),
+            "t_centre": centre,
+            "plate": meta["plate"].astype(np.int64),
+            "axis": meta["axis"].tolist(),
+            "n": n_all,
+            "status": [Status(x) for x in status],
+        }
+    )
     return Windows(T, Y, M, K, dt, on, table)
 
 
@@ -148,21 +214,29 @@ def _pack(series: list[tuple], min_samples: int) -> Windows:
 EXACT = 1e-5
 
 
-def _window_clock(dt: float, k: np.ndarray, r: np.ndarray) -> tuple[float, np.ndarray, bool]:
-    """The series clock as seen by one window: (interval, indices, on the grid). ``r`` are the
-    window's residuals about the series clock. A line through them (a logger restart shifts
-    the clock, a rate change tilts it) makes an exact clock of the window's own when what is
-    left is below EXACT of a frame; else the window is snapped to the series clock when its
+def _window_clocks(dt: float, k: np.ndarray, r: np.ndarray, valid: np.ndarray):
+    """The series clock as seen by each window: (interval, indices, on the grid), (window,) each.
+
+    ``k`` and ``r`` (window, sample) are the windows' frame indices and residuals about the
+    series clock (``valid`` marks the samples). A line through the residuals (a logger restart
+    shifts the clock, a rate change tilts it) makes an exact clock of the window's own when what
+    is left is below EXACT of a frame; else the window is snapped to the series clock when its
     stamps scatter by at most SNAP_MAX of a frame, and fits its own clock otherwise."""
-    if r.size < 2 or not np.isfinite(dt):
-        return dt, k, False
-    kc = k - k.mean()
-    den = float(kc @ kc)
-    slope = float(kc @ r) / den if den > 0 else 0.0
-    left = r - r.mean() - slope * kc
-    if float(np.max(np.abs(left))) <= EXACT * dt:
-        return dt + slope, k, True
-    return dt, k, bool(np.std(r) <= SNAP_MAX * dt)
+    n = valid.sum(axis=1)
+    size = np.maximum(n, 1)
+    kf = np.where(valid, k, 0).astype(np.float64)
+    rv = np.where(valid, r, 0.0)
+    kc = np.where(valid, kf - kf.sum(axis=1, keepdims=True) / size[:, None], 0.0)
+    den = np.einsum("ij,ij->i", kc, kc)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        slope = np.where(den > 0, np.einsum("ij,ij->i", kc, rv) / np.where(den > 0, den, 1.0), 0.0)
+    rc = np.where(valid, rv - rv.sum(axis=1, keepdims=True) / size[:, None], 0.0)
+    left = np.abs(np.where(valid, rc - slope[:, None] * kc, 0.0)).max(axis=1, initial=0.0)
+    std = np.sqrt(np.einsum("ij,ij->i", rc, rc) / size)
+    usable = (n >= 2) & bool(np.isfinite(dt))
+    exact = usable & (left <= EXACT * dt)
+    dt_w = np.where(exact, dt + slope, dt)
+    return dt_w, np.where(valid, k, 0), usable & (exact | (std <= SNAP_MAX * dt))
 
 
 def make_windows(
@@ -205,10 +279,11 @@ def make_windows(
         raise ConfigError(
             f"--axes: the table has no column {', '.join(missing)} (it has {', '.join(df.columns)})"
         )
-    series = []
+    blocks = []
     last = (None, None)  # plates of a frame share their stamps: one clock fit for them all
     for seg, g in df.groupby("segment", sort=False):
-        bounds = _bounds(g["t"].to_numpy(), window_s, step_s)
+        bounds = np.array(_bounds(g["t"].to_numpy(), window_s, step_s))
+        a, b = bounds[:, 0], bounds[:, 1]
         for plate, gp in g.groupby("plate", sort=True):
             t_all = gp["t"].to_numpy()
             # One clock for the whole series (all axes share the timestamps). A window takes
@@ -225,35 +300,31 @@ def make_windows(
             last = (t_all, clk)
             if clocks is not None:
                 clocks[(seg, int(plate))] = last
-            dt_all, k_all = clk.dt, clk.k
             resid = t_all - t_all[0] - clk.t if np.isfinite(clk.dt) else np.full(t_all.size, np.nan)
-            whole = {}  # the clock of a window without missing values, shared by the axes
+            if window_s is None:
+                lo, hi = np.zeros(1, np.int64), np.full(1, t_all.size)
+            else:
+                lo, hi = np.searchsorted(t_all, a, side="left"), np.searchsorted(t_all, b, side="left")
+            meta = dict(
+                segment=seg,
+                window=np.arange(a.size),
+                t_start=a,
+                t_end=b,
+                t_mid=0.5 * (a + b),
+                plate=int(plate),
+            )
+            shared = None  # the windows' clocks where no value is missing, shared by the axes
             for axis in axes:
                 v = gp[axis].to_numpy()
                 ok = np.isfinite(v)
-                for w, (a, b) in enumerate(bounds):
-                    if window_s is None:
-                        lo, hi = 0, t_all.size
-                    else:
-                        lo, hi = np.searchsorted(t_all, [a, b], side="left")
-                    sel = ok[lo:hi]
-                    meta = dict(
-                        segment=seg,
-                        window=w,
-                        t_start=a,
-                        t_end=b,
-                        t_mid=0.5 * (a + b),
-                        plate=int(plate),
-                        axis=axis,
-                    )
-                    if sel.all():
-                        if w not in whole:
-                            whole[w] = _window_clock(dt_all, k_all[lo:hi], resid[lo:hi])
-                        clock = whole[w]
-                    else:
-                        clock = _window_clock(dt_all, k_all[lo:hi][sel], resid[lo:hi][sel])
-                    series.append((meta, t_all[lo:hi][sel], v[lo:hi][sel], clock))
-    return _pack(series, min_samples)
+                pos, valid = _positions(lo, hi, ok)
+                if ok.all() and shared is not None:
+                    clock = shared
+                else:
+                    clock = _window_clocks(clk.dt, clk.k[pos], resid[pos], valid)
+                    shared = clock if ok.all() else shared
+                blocks.append(_Block({**meta, "axis": axis}, t_all, v, pos, valid, *clock))
+    return _pack(blocks, min_samples)
 
 
 def windows_like(ref: pd.DataFrame, like: pd.DataFrame, min_samples: int = 16) -> Windows:
@@ -263,24 +334,30 @@ def windows_like(ref: pd.DataFrame, like: pd.DataFrame, min_samples: int = 16) -
     reference has becomes one reference window over the same [t_start, t_end) (whole-segment
     windows include t_end). The reference's own segment labels are ignored: time decides.
     """
-    series = []
+    blocks = []
     by_plate = {int(p): g for p, g in ref.groupby("plate")}
     whole = like["window"].max() == 0
-    for _, row in like[like["axis"] == "z"].iterrows():
-        g = by_plate.get(int(row["plate"]))
+    z = like[like["axis"] == "z"]
+    # one block per run of rows of the same plate, in the order of ``like``
+    plates = z["plate"].to_numpy().astype(np.int64)
+    starts = np.flatnonzero(np.concatenate([[True], plates[1:] != plates[:-1]]))
+    for r0, r1 in zip(starts, np.append(starts[1:], plates.size), strict=True):
+        g = by_plate.get(int(plates[r0]))
         if g is None:
             continue
+        rows = z.iloc[r0:r1]
         t_all = g["t"].to_numpy()
         v = g["z"].to_numpy()
-        side = "right" if whole else "left"
-        lo = np.searchsorted(t_all, row["t_start"], side="left")
-        hi = np.searchsorted(t_all, row["t_end"], side=side)
-        ok = np.isfinite(v[lo:hi])
-        meta = {c: row[c] for c in ("segment", "window", "t_start", "t_end", "t_mid", "plate", "axis")}
-        series.append((meta, t_all[lo:hi][ok], v[lo:hi][ok]))
-    if not series:
+        lo = np.searchsorted(t_all, rows["t_start"].to_numpy(), side="left")
+        hi = np.searchsorted(t_all, rows["t_end"].to_numpy(), side="right" if whole else "left")
+        pos, valid = _positions(lo, hi, np.isfinite(v))
+        meta = {
+            c: rows[c].to_numpy() for c in ("segment", "window", "t_start", "t_end", "t_mid", "plate", "axis")
+        }
+        blocks.append(_Block(meta, t_all, v, pos, valid))
+    if not blocks:
         raise ConfigError("--reference: no plate of the reference table is in the trajectory table")
-    return _pack(series, min_samples)
+    return _pack(blocks, min_samples)
 
 
 # Windows shorter than this many frame intervals hold too few samples for a harmonic (4

@@ -25,7 +25,7 @@ import scipy.fft
 
 from .._errors import ConfigError, ParameterError
 from .._jax import persistent_jit
-from .._shapes import bucket, pow2_at_least, pow2_at_most
+from .._shapes import bucket, chunk_rows, pow2_at_least
 from .._sincos import sincos
 from ..series import Windows
 from ..series.windows import MAX_BATCH_BYTES
@@ -262,7 +262,7 @@ def _peaks_grid(w: Windows, rows, out, fmin, fmax, oversampling, keep, search_dt
         raise ConfigError(f"--fmin/--fmax: the band {f_lo:g}..{f_hi:g} Hz holds fewer than 3 frequencies")
     n_freq = j_hi - j_lo + 1
     per_chunk = max(1, _CHUNK_CELLS // n_fft)
-    chunk = min(pow2_at_least(len(rows)), pow2_at_most(per_chunk))
+    chunk = chunk_rows(len(rows), per_chunk)
     _check_memory(n_fft * chunk, length, 0, oversampling)
     keep_set = set(keep)
     for c0 in range(0, len(rows), chunk):
