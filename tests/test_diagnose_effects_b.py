@@ -135,8 +135,11 @@ def passing(ctx, states, props):
     """The proposals the search's calibrated test accepts, best (lowest ΔBIC) first."""
     cal = Calibration(N_TESTS)
     ok = [(delta_bic(ctx, states, p), k) for k, p in enumerate(props)]
-    ok = [(d, k) for d, k in ok if cal.passes(props[k], (props[k].n_params * math.log(
-        sum(s.n for s in ctx.series)) - d), 1.0, 0.0)]
+    ok = [
+        (d, k)
+        for d, k in ok
+        if cal.passes(props[k], (props[k].n_params * math.log(sum(s.n for s in ctx.series)) - d), 1.0, 0.0)
+    ]
     return [props[k] for _, k in sorted(ok)]
 
 
@@ -380,3 +383,31 @@ def test_a_line_beside_the_loading_frequency_is_no_modulation():
     ctx, states = make_case(seed=9, extra=lambda t: 0.12 * np.cos(2 * np.pi * (F0 + 0.03) * t + 0.3))
     assert not passing(ctx, states, AM.propose(ctx, states))
     assert not passing(ctx, states, FM.propose(ctx, states))
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+def test_an_amplitude_trend_on_two_plates_is_no_modulation_of_the_load(seed):
+    """A modulation of the load scales every plate's motion alike, so its term is fitted and
+    weighed on every carrier. Keeping only the series where it happens to be individually
+    significant is a look at the data that the test does not pay for: under the extracted ToF
+    frames' noise (shared by the plates of a frame and by a plate's axes) it named a 7 % trend on
+    two of seven plates of a warm-up recording and of its control at the critical value. Here a
+    21 % amplitude trend on plates 5 and 6 alone: that selection named amplitude_modulation on
+    them (LR 14-17 against 9.5, both seeds); the term fitted on every carrier does not pass."""
+    from jaxdefl.diagnose import diagnose
+    from jaxdefl.simulate.effects import RecordingSpec, make_recording
+
+    spec = RecordingSpec(duration_s=180.0, n_plates=7, reference=False, frame_common=0.75, line_of_sight=0.95)
+    traj, _, truth = make_recording(spec, [], seed=seed)
+    t = traj["t"].to_numpy()
+    mid = 0.5 * (t.min() + t.max())
+    w = 2 * np.pi * truth["recording"]["f0_hz"] * (t - mid)
+    for plate in (5, 6):
+        rows = (traj["plate"] == plate).to_numpy()
+        a = np.column_stack([np.ones(rows.sum()), np.cos(w[rows]), np.sin(w[rows])])
+        for axis in ("x", "y", "z"):
+            y = traj.loc[rows, axis].to_numpy()
+            motion = a[:, 1:] @ np.linalg.lstsq(a, y, rcond=None)[0][1:]
+            traj.loc[rows, axis] = y - 1.2e-3 * (t[rows] - mid) * motion
+    d = diagnose(traj, sensor="tof", frame_rate_hz=20.0)
+    assert "amplitude_modulation" not in {e["id"] for e in d["effects"]}, d["effects"]
