@@ -58,6 +58,18 @@ def _names(effects: list[dict]) -> list[str]:
     return [e["id"] for e in effects]
 
 
+def _default_session(cfg: str) -> tuple[str, ...]:
+    """``--session NAME`` of the session `diagnose --config` and `reconcile` take by default (the
+    config's ``recording.session`` or its first); () for a config without sessions. Without it,
+    `simulate` writes every session of a multi-session config to its own folder."""
+    import tomllib
+
+    raw = tomllib.loads(Path(cfg).read_text())
+    names = [str(s.get("name", i + 1)) for i, s in enumerate(raw.get("session", []))]
+    picked = raw.get("recording", {}).get("session") or (names[0] if names else None)
+    return ("--session", picked) if picked else ()
+
+
 def run_record(config: str, seed: int, duration: float, out: Path, do_reconcile: bool) -> dict:
     """Simulate, extract, diagnose and reconcile one control; the names each step gave."""
     rec = out / f"{config}_s{seed}"
@@ -70,8 +82,9 @@ def run_record(config: str, seed: int, duration: float, out: Path, do_reconcile:
         sim = rec / "sim"
         if not (sim / "lds.csv").exists():
             _cli(
-                "simulate", cfg, "--out", str(sim), "--duration", str(duration), "--seed", str(seed), log=log
-            )
+                "simulate", cfg, "--out", str(sim), "--duration", str(duration), "--seed", str(seed),
+                *_default_session(cfg), log=log,
+            )  # fmt: skip
         traj = rec / "traj.csv"
         if not traj.exists():
             _cli("extract", str(sim / "recording.zarr"), "--out", str(traj), log=log)

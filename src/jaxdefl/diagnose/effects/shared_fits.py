@@ -42,6 +42,7 @@ __all__ = [
     "scan_p_value",
     "chi2_p_value",
     "tap_response",
+    "quadrature_weight",
     "TiedModel",
     "TiedEffect",
     "tied_series",
@@ -141,21 +142,41 @@ def shared_fit(
 # the camera against the reference (tied series)
 
 
-def tap_response(omega, tap_spread_s: float, offsets=(0.0, 0.25, 0.5, 0.75), derivative: bool = False, xp=np):
+def tap_response(
+    omega,
+    tap_spread_s: float,
+    offsets=(0.0, 0.25, 0.5, 0.75),
+    derivative: bool = False,
+    xp=np,
+    quadrature: float = 0.5,
+):
     """H(ω; T) of four taps at offsets·T after the frame time (`fit.motion`, vectorised over ω);
-    with ``derivative`` also dH/dT. ``xp``: numpy, or jax.numpy inside a fit's term."""
+    with ``derivative`` also dH/dT. ``xp``: numpy, or jax.numpy inside a fit's term.
+
+    The phase is atan2(C₃ − C₁, C₀ − C₂): for a pixel at modulation phase φ₀ a small motion
+    reaches it through the (0, 2) pair with weight sin²φ₀ and through the (1, 3) pair with
+    weight cos²φ₀ (``quadrature``; ½, the default, is the mean over φ₀: a range not known).
+    """
     w, T = omega, tap_spread_s
     o = offsets
     al, be = (o[0] + o[2]) / 2, (o[2] - o[0]) / 2
     ga, ka = (o[1] + o[3]) / 2, (o[3] - o[1]) / 2
     e1, e2 = xp.exp(1j * w * al * T), xp.exp(1j * w * ga * T)
     c1, c2 = xp.cos(w * be * T), xp.cos(w * ka * T)
-    h = 0.5 * (e1 * c1 + e2 * c2)
+    q = quadrature
+    h = (1 - q) * e1 * c1 + q * e2 * c2
     if not derivative:
         return h
     s1, s2 = xp.sin(w * be * T), xp.sin(w * ka * T)
-    dh = 0.5 * w * (e1 * (1j * al * c1 - be * s1) + e2 * (1j * ga * c2 - ka * s2))
+    dh = w * ((1 - q) * e1 * (1j * al * c1 - be * s1) + q * e2 * (1j * ga * c2 - ka * s2))
     return h, dh
+
+
+def quadrature_weight(range_mm: float, modulation_mhz: float) -> float:
+    """cos²φ₀ of a surface at ``range_mm`` from a ToF camera modulated at ``modulation_mhz``
+    (φ₀ = 4π f_m r / c, eq. 3.1): the weight of the (1, 3) tap pair in `tap_response`."""
+    phi = 4 * math.pi * modulation_mhz * 1e6 * range_mm * 1e-3 / 299_792_458.0
+    return math.cos(phi) ** 2
 
 
 def motion_parameters(ctx: Context, T: float, sigma_T: float) -> dict:
