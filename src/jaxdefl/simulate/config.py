@@ -453,7 +453,7 @@ def config_from_dict(raw: dict, source: str = "<config>", session: str | None = 
     effects = parse_effects(source, effect_tables, parts["plates"].count)
     effects += parse_changes(source, raw_changes, parts["plates"].count)
     scoped = tuple(scopes) + ("",) * (len(effects) - len(scopes)) if any(scopes) else ()
-    for i, (e, cam) in enumerate(zip(effects, scoped, strict=True)):
+    for i, (e, cam) in enumerate(zip(effects, scoped or ("",) * len(effects), strict=True)):
         if cam and e.level not in ("range", "timestamps"):
             raise _err(
                 source,
