@@ -211,7 +211,11 @@ class SimConfig:
         return d
 
     def _scopes(self) -> tuple[str, ...]:
-        return self.effect_cameras or ("",) * len(self.effects)
+        # a config whose effects were replaced (dataclasses.replace(cfg, effects=...)) without
+        # their scopes has every effect on every camera
+        if len(self.effect_cameras) == len(self.effects):
+            return self.effect_cameras
+        return ("",) * len(self.effects)
 
     @property
     def camera_names(self) -> tuple[str, ...]:
@@ -453,7 +457,7 @@ def config_from_dict(raw: dict, source: str = "<config>", session: str | None = 
     effects = parse_effects(source, effect_tables, parts["plates"].count)
     effects += parse_changes(source, raw_changes, parts["plates"].count)
     scoped = tuple(scopes) + ("",) * (len(effects) - len(scopes)) if any(scopes) else ()
-    for i, (e, cam) in enumerate(zip(effects, scoped, strict=True)):
+    for i, (e, cam) in enumerate(zip(effects, scoped or ("",) * len(effects), strict=True)):
         if cam and e.level not in ("range", "timestamps"):
             raise _err(
                 source,
