@@ -216,7 +216,15 @@ def register_cameras(
         b = beam[cam.name]
         if cam.name == ref_name:
             clk = dict(
-                offset_ms=0.0, sigma_offset_ms=0.0, rate_ppm=0.0, sigma_rate_ppm=0.0, rms_mm=np.nan, ok=True
+                offset_ms=0.0,
+                sigma_offset_ms=0.0,
+                rate_ppm=0.0,
+                sigma_rate_ppm=0.0,
+                t_mid_s=float(b["t"].mean()),
+                offset_mid_ms=0.0,
+                sigma_offset_mid_ms=0.0,
+                rms_mm=np.nan,
+                ok=True,
             )
         else:
             use = b[b["plate"].isin(_strong_plates(b))]
@@ -231,6 +239,9 @@ def register_cameras(
                 sigma_offset_ms=clk["sigma_offset_ms"],
                 rate_ppm=clk["rate_ppm"],
                 sigma_rate_ppm=clk["sigma_rate_ppm"],
+                t_mid_s=clk["t_mid_s"],
+                offset_mid_ms=clk["offset_mid_ms"],
+                sigma_offset_mid_ms=clk["sigma_offset_mid_ms"],
                 sampling_delay_ms=float(np.mean(delays)) * 1e3,
                 rms_mm=clk["rms_mm"],
                 converged=clk["ok"],
