@@ -94,7 +94,8 @@ def main_() -> None:
     pulls = np.concatenate(df["pulls"].to_list())
     print(
         f"pose: max angle error {df['max_angle_err_mrad'].max():.3f} mrad, max position error "
-        f"{df['max_pos_err_mm'].max():.3f} mm; |pull| < 2 for {np.mean(np.abs(pulls) < 2):.0%} of {len(pulls)}"
+        f"{df['max_pos_err_mm'].max():.3f} mm; |pull| < 2 for {np.mean(np.abs(pulls) < 2):.0%} "
+        f"of {len(pulls)}"
     )
     print(
         f"clock: max |offset error| {df['clock_err_ms'].abs().max():.3f} ms; "
