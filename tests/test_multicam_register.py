@@ -227,3 +227,17 @@ def test_register_bad_arguments(tmp_path, capsys):
         ["register", "a.zarr", "b.zarr", "--trajectory", "a.csv", "--config", cfg, "--out", str(tmp_path)]
     )
     assert code == 2
+
+
+def test_beam_shape_fit_is_weighted_least_squares():
+    from jaxdefl.report.multicam import fit_beam_shape
+    from jaxdefl.synthetic import beam_shape
+
+    rng = np.random.default_rng(4)
+    x = 200.0 + 250.0 * np.arange(13)
+    sig = rng.uniform(0.05, 0.2, 13)
+    a = 3.85 * beam_shape(x / 1000, 3.4, 1.2) + sig * rng.standard_normal(13)
+    got, s = fit_beam_shape(x, a, sig, 3400.0, 1200.0)
+    g = beam_shape(x / 1000, 3.4, 1.2)
+    ref, *_ = np.linalg.lstsq((g / sig)[:, None], a / sig, rcond=None)
+    assert got == pytest.approx(ref[0]) and s == pytest.approx(1 / np.sqrt(np.sum((g / sig) ** 2)))
