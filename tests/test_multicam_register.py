@@ -132,6 +132,9 @@ def test_clock_offset_and_rate_recovered_with_covering_sigmas():
         assert ref["f_hz"] == pytest.approx(3.0844, abs=1e-5)
         got = fit_clock(cam["t"], cam["z"], cam["plate"], T0, ref)
         assert abs(got["offset_ms"] - off) < 1.0
+        mid = off + ppm * 1e-3 * (got["t_mid_s"] - T0)
+        assert abs(got["offset_mid_ms"] - mid) < 3 * got["sigma_offset_mid_ms"] + 0.05
+        assert got["sigma_offset_mid_ms"] < got["sigma_offset_ms"]
         pulls += [
             (got["offset_ms"] - off) / got["sigma_offset_ms"],
             (got["rate_ppm"] - ppm) / got["sigma_rate_ppm"],
@@ -203,7 +206,10 @@ def test_two_cameras_registered_from_the_cli(tmp_path):
         err = poses.loc[poses["camera"] == cam, "value"].to_numpy() - np.array(want)
         assert np.abs(err[:3]).max() < 2.0 and np.abs(err[3:]).max() < 2.0, (cam, err)
         c = clocks.loc[cam]
-        assert abs(c["offset_ms"] - tr["clock_offset_ms"]) < 3 * c["sigma_offset_ms"] + 0.5
+        # mid-recording, where 25 s of data pin the clock (σ ≈ 0.7 ms); the ToF sampling
+        # instant's model leaves a few ms (docs/guide/multicam.md)
+        truth_mid = tr["clock_offset_ms"] + tr["clock_drift_ppm"] * 1e-3 * (c["t_mid_s"] - 1.7e9)
+        assert abs(c["offset_mid_ms"] - truth_mid) < 5.0, (cam, c["offset_mid_ms"], truth_mid)
     common = pd.read_csv(reg / "common.csv").set_index("plate")
     assert bool(common.loc[7, "consistent"])
     traj = pd.read_csv(reg / "trajectory.csv")
@@ -221,3 +227,17 @@ def test_register_bad_arguments(tmp_path, capsys):
         ["register", "a.zarr", "b.zarr", "--trajectory", "a.csv", "--config", cfg, "--out", str(tmp_path)]
     )
     assert code == 2
+
+
+def test_beam_shape_fit_is_weighted_least_squares():
+    from jaxdefl.report.multicam import fit_beam_shape
+    from jaxdefl.synthetic import beam_shape
+
+    rng = np.random.default_rng(4)
+    x = 200.0 + 250.0 * np.arange(13)
+    sig = rng.uniform(0.05, 0.2, 13)
+    a = 3.85 * beam_shape(x / 1000, 3.4, 1.2) + sig * rng.standard_normal(13)
+    got, s = fit_beam_shape(x, a, sig, 3400.0, 1200.0)
+    g = beam_shape(x / 1000, 3.4, 1.2)
+    ref, *_ = np.linalg.lstsq((g / sig)[:, None], a / sig, rcond=None)
+    assert got == pytest.approx(ref[0]) and s == pytest.approx(1 / np.sqrt(np.sum((g / sig) ** 2)))

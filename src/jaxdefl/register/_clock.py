@@ -81,11 +81,11 @@ def _kernel(name: str):
     else:
 
         def resid(p, args):
-            s, z, plate, t0, ref, n = args
+            s, z, plate, t0, ref, mask, n = args
             tau = (s - t0 - p[0] * 1e-3) / (1 + p[1] * 1e-6)
             w = 2 * jnp.pi * ref[0] * tau
             shape = ref[1] * jnp.cos(w) + ref[2] * jnp.sin(w)
-            return z - (p[2:][plate] * shape + p[2:][n + plate])
+            return mask * (z - (p[2:][plate] * shape + p[2:][n + plate]))
 
     def solve(p0, *args):
         sol = optx.least_squares(
@@ -95,7 +95,7 @@ def _kernel(name: str):
         jac = jax.jacfwd(resid)(sol.value, args)
         return sol.value, r, jac, sol.result == optx.RESULTS.successful
 
-    _KERNELS[name] = jax.jit(solve, static_argnums=(6,) if name == "clock" else ())
+    _KERNELS[name] = jax.jit(solve, static_argnums=(7,) if name == "clock" else ())
     return _KERNELS[name]
 
 
@@ -156,25 +156,41 @@ def fit_clock(
     amp_ref = np.hypot(a, b)
     g0 = [np.hypot(c[0], c[1]) / amp_ref for c in fits]
     c0 = [c[2] for c in fits]
+    rows = len(z)
+    size = max(256, 1 << (rows - 1).bit_length())  # shape buckets: one compilation each
+    pad = size - rows
     with float64():
         import jax.numpy as jnp
 
         p, r, jac, ok = _kernel("clock")(
             jnp.asarray([off0, 0.0, *g0, *c0]),
-            jnp.asarray(stamps),
-            jnp.asarray(z),
-            jnp.asarray(idx),
+            jnp.asarray(np.r_[stamps, np.full(pad, t0)]),
+            jnp.asarray(np.r_[z, np.zeros(pad)]),
+            jnp.asarray(np.r_[idx, np.zeros(pad, idx.dtype)]),
             jnp.float64(t0),
             jnp.asarray([f, a, b]),
+            jnp.asarray(np.r_[np.ones(rows), np.zeros(pad)]),
             n,
         )
-        p, r, jac = np.asarray(p), np.asarray(r), np.asarray(jac)
-    cov = _cov(r, jac)
+        p, r, jac = np.asarray(p), np.asarray(r)[:rows], np.asarray(jac)[:rows]
+    # residuals correlated in time (a frame's range error, the motion artefacts): the σ's of a
+    # white least squares grow by sqrt((1 + rho) / (1 - rho)), rho their lag-1 correlation
+    order = np.lexsort((stamps, idx))
+    ro, same = r[order], idx[order][1:] == idx[order][:-1]
+    rho = float(np.clip(np.sum(ro[1:] * ro[:-1] * same) / max(np.sum(ro**2), 1e-300), 0.0, 0.95))
+    cov = _cov(r, jac) * (1 + rho) / (1 - rho)
+    # the clock's offset mid-recording: where the data pin it (the epoch's is extrapolated)
+    lever_ms_per_ppm = (float(np.mean(stamps)) - t0) * 1e-3
+    grad = np.array([1.0, lever_ms_per_ppm])
     return dict(
         offset_ms=float(p[0]),
         sigma_offset_ms=float(np.sqrt(cov[0, 0])),
         rate_ppm=float(p[1]),
         sigma_rate_ppm=float(np.sqrt(cov[1, 1])),
+        t_mid_s=float(np.mean(stamps)),
+        offset_mid_ms=float(p[0] + p[1] * lever_ms_per_ppm),
+        sigma_offset_mid_ms=float(np.sqrt(grad @ cov[:2, :2] @ grad)),
+        rho=rho,
         gains=dict(zip(plates.tolist(), p[2 : 2 + n].tolist(), strict=True)),
         rms_mm=float(np.sqrt(np.mean(r**2))),
         ok=bool(ok),

@@ -89,15 +89,22 @@ def solve_pose(
         theta, its covariance from the weighted Jacobian, converged, and the (point, 3)
         unweighted residuals R p + C - target (plane offsets included).
     """
+    n = len(pts_cam)
+    size = max(64, 1 << (n - 1).bit_length())  # a few shape buckets: one compilation each
+
+    def pad(a, fill=0.0):
+        a = np.asarray(a)
+        return np.concatenate([a, np.full((size - n, *a.shape[1:]), fill, a.dtype)])
+
     with float64():
         import jax.numpy as jnp
 
         theta, jac, ok = _solver()(
             jnp.asarray(theta0, jnp.float64),
-            jnp.asarray(pts_cam, jnp.float64),
-            jnp.asarray(target_beam, jnp.float64),
-            jnp.asarray(weight, jnp.float64),
-            jnp.asarray(plane, jnp.int32),
+            jnp.asarray(pad(np.asarray(pts_cam, float)), jnp.float64),
+            jnp.asarray(pad(np.asarray(target_beam, float)), jnp.float64),
+            jnp.asarray(pad(np.asarray(weight, float)), jnp.float64),  # padded rows weigh 0
+            jnp.asarray(pad(np.asarray(plane, np.int32), -1), jnp.int32),
         )
         theta, jac, ok = np.asarray(theta), np.asarray(jac), bool(ok)
     cov = np.linalg.pinv(jac.T @ jac)

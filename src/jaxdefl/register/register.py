@@ -126,10 +126,40 @@ def _pose_of(cam: CameraInput, geo: BeamGeometry) -> tuple[np.ndarray, np.ndarra
             "top": int((~is_floor).sum()),
             "targets": len(tc),
         }
+    cov = cov + _group_jackknife(pts, target, weight, plane, theta, len(pc), is_floor, len(tc))
     info = {g: (counts[g], sig[g]) for g in counts}
     info["floor_offset_mm"], info["top_offset_mm"] = float(theta[6]), float(theta[7])
     info["inliers"] = mean.index[xy_ok].tolist()
     return theta[:6], cov[:6, :6], info, ok
+
+
+def _group_jackknife(pts, target, weight, plane, theta, n_plates, is_floor, n_targets) -> np.ndarray:
+    """Delete-one-group jackknife covariance of the pose over the landmark groups (the plates' x
+    and y, the floor, the beam top, the floor targets): what the groups disagree by beyond their
+    scatter (a range bias smooth across a surface, an extraction's bias) enters the σ's.
+
+    Returns (6 + planes, 6 + planes) (G - 1) / G sum (theta_-g - mean)(theta_-g - mean)^T, zero
+    where a group is missing."""
+    n_lp = len(is_floor)
+    rows = {
+        "plates": (np.arange(n_plates), [0, 1]),
+        "floor": (n_plates + np.flatnonzero(is_floor), [2]),
+        "top": (n_plates + np.flatnonzero(~is_floor), [2]),
+        "targets": (n_plates + n_lp + np.arange(n_targets), [0, 1]),
+    }
+    out = []
+    for idx, axes in rows.values():
+        if len(idx) < 3:
+            continue
+        w = weight.copy()
+        w[np.ix_(idx, axes)] = 0.0
+        th, _, ok, _ = solve_pose(pts, target, w, plane, theta)
+        if ok:
+            out.append(th)
+    if len(out) < 2:
+        return np.zeros((len(theta), len(theta)))
+    d = np.asarray(out) - np.mean(out, axis=0)
+    return (len(out) - 1) / len(out) * d.T @ d
 
 
 def _frequency(t: np.ndarray, z: np.ndarray) -> float:
@@ -216,7 +246,15 @@ def register_cameras(
         b = beam[cam.name]
         if cam.name == ref_name:
             clk = dict(
-                offset_ms=0.0, sigma_offset_ms=0.0, rate_ppm=0.0, sigma_rate_ppm=0.0, rms_mm=np.nan, ok=True
+                offset_ms=0.0,
+                sigma_offset_ms=0.0,
+                rate_ppm=0.0,
+                sigma_rate_ppm=0.0,
+                t_mid_s=float(b["t"].mean()),
+                offset_mid_ms=0.0,
+                sigma_offset_mid_ms=0.0,
+                rms_mm=np.nan,
+                ok=True,
             )
         else:
             use = b[b["plate"].isin(_strong_plates(b))]
@@ -231,6 +269,9 @@ def register_cameras(
                 sigma_offset_ms=clk["sigma_offset_ms"],
                 rate_ppm=clk["rate_ppm"],
                 sigma_rate_ppm=clk["sigma_rate_ppm"],
+                t_mid_s=clk["t_mid_s"],
+                offset_mid_ms=clk["offset_mid_ms"],
+                sigma_offset_mid_ms=clk["sigma_offset_mid_ms"],
                 sampling_delay_ms=float(np.mean(delays)) * 1e3,
                 rms_mm=clk["rms_mm"],
                 converged=clk["ok"],

@@ -211,7 +211,11 @@ class SimConfig:
         return d
 
     def _scopes(self) -> tuple[str, ...]:
-        return self.effect_cameras or ("",) * len(self.effects)
+        # a config whose effects were replaced (dataclasses.replace(cfg, effects=...)) without
+        # their scopes has every effect on every camera
+        if len(self.effect_cameras) == len(self.effects):
+            return self.effect_cameras
+        return ("",) * len(self.effects)
 
     @property
     def camera_names(self) -> tuple[str, ...]:
