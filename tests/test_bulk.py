@@ -10,6 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import xarray as xr
+from threadpoolctl import threadpool_info
 
 from jaxdefl import ConfigError
 from jaxdefl.bulk import load_campaign, run_campaign
@@ -83,7 +84,14 @@ def test_bad_units_get_reasons_and_the_rest_finishes(tmp_path):
     pd.DataFrame({"t": np.arange(50) * 0.05, "plate": 1, "z": np.nan}).to_csv(
         tmp_path / "empty.csv", index=False
     )
+
+    def blas():  # threads of each BLAS library loaded
+        return {i["filepath"]: i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"}
+
+    before = blas()
     units = run_campaign(load_campaign(cfg), tmp_path / "out", progress=False).set_index("unit")
+    # the units ran with single-threaded BLAS; the process gets its setting back, failures or not
+    assert {k: v for k, v in blas().items() if k in before} == before
     assert units.loc["day01-cam2", "status"] == "ok" and units.loc["day02-cam2", "status"] == "ok"
     assert "nowhere.csv: file not found" in units.loc["day07-cam2", "reason"]
     assert "row 2 column 'z': expected a number" in units.loc["day08-cam2", "reason"]
