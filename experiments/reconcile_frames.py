@@ -268,8 +268,16 @@ def main(argv=None):
     if len(ctl):
         print(f"controls clean: {int((ctl.verdict == 'clean').sum())}/{len(ctl)}")
     if len(out):
+        base = {int(r.seed): set(_split(r.outside_before)) for r in ctl.itertuples()}
+        beyond = sum(
+            bool(set(_split(r.outside_before)) - base.get(int(r.seed), set()))
+            or bool(_split(r.names))
+            or r.unexplained > 0
+            for r in out.itertuples()
+        )
         print(
             f"outside physics located: {int(out.verdict.str.startswith('located').sum())}/{len(out)}, "
+            f"{beyond}/{len(out)} beyond the metrics outside on the seed's control; "
             f"with a false name: {int((~out.verdict.str.endswith('[]')).sum())}/{len(out)}"
         )
     (args.out / "summary.json").write_text(json.dumps(cases.to_dict("records"), indent=1, default=str))
