@@ -122,6 +122,8 @@ def test_a_configured_tof_cameras_tap_lag_is_nominal(tmp_path):
 
     unmodelled = lead_deg(DiagnoseSettings(sensor="tof", frame_rate_hz=facts["frame_rate_hz"]))
     modelled = lead_deg(DiagnoseSettings().with_camera(facts))
-    # the taps over a 50-ms frame lead the LDS by ~0.375 T: 20° at 3 Hz; modelled, a few degrees
+    # the taps over a 50-ms frame lead the LDS by ~0.45 T at these plates' modulation phase
+    # (`tap_response`'s quadrature): 24° at 3 Hz; modelled, what noise leaves (equal tap pairs,
+    # 0.375 T, left 4-5°, which the search named timing_error)
     assert np.all(unmodelled > 15.0)
-    assert np.all(np.abs(modelled) < 0.4 * unmodelled)
+    assert np.all(np.abs(modelled) < 2.5), modelled
