@@ -349,7 +349,6 @@ _SL_SPEC = RecordingSpec(
     plate_noise_spread=0.0,
 )
 
-
 def test_quantization_rounds_each_pixel_after_its_noise():
     """Each quantised z is the mean of P pixel readings rounded after their own noise: binned by
     the position on the step, its mean is the smoothed staircase (not the hard one), its variance

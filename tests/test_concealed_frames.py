@@ -23,9 +23,7 @@ ROOT = Path(__file__).resolve().parents[1]
 @pytest.fixture(scope="module")
 def bench():
     sys.path.insert(0, str(ROOT / "experiments"))
-    spec = importlib.util.spec_from_file_location(
-        "concealed_frames", ROOT / "experiments" / "concealed_frames.py"
-    )
+    spec = importlib.util.spec_from_file_location("concealed_frames", ROOT / "experiments" / "concealed_frames.py")
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod

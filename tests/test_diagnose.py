@@ -335,10 +335,7 @@ def test_errors_name_the_parameter():
     the table lacks fails in the stage; both name the parameter (the CLI maps it to its flag)."""
     traj = record(minutes=1, plates=2)
     for kw, match in (
-        (
-            dict(sensor="lidar"),
-            "sensor: expected one of tof, structured_light, lds, accelerometer, camera_tracking, logger, got 'lidar'",
-        ),
+        (dict(sensor="lidar"), "sensor: expected one of tof, structured_light, lds, accelerometer, camera_tracking, logger, got 'lidar'"),
         (dict(frame_rate_hz=-1.0), "frame_rate_hz: expected a positive rate in Hz, got -1"),
         (dict(modulation_mhz=0.0), "modulation_mhz: expected a positive frequency"),
         (dict(effects=("wobble",)), "effects: unknown effect 'wobble'"),

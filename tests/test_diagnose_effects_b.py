@@ -135,11 +135,8 @@ def passing(ctx, states, props):
     """The proposals the search's calibrated test accepts, best (lowest ΔBIC) first."""
     cal = Calibration(N_TESTS)
     ok = [(delta_bic(ctx, states, p), k) for k, p in enumerate(props)]
-    ok = [
-        (d, k)
-        for d, k in ok
-        if cal.passes(props[k], (props[k].n_params * math.log(sum(s.n for s in ctx.series)) - d), 1.0, 0.0)
-    ]
+    ok = [(d, k) for d, k in ok if cal.passes(props[k], (props[k].n_params * math.log(
+        sum(s.n for s in ctx.series)) - d), 1.0, 0.0)]
     return [props[k] for _, k in sorted(ok)]
 
 

@@ -56,11 +56,8 @@ def test_ljung_box_matches_a_slow_reference(dropout):
     g, _ = frame_positions(w, np.arange(len(w)))
     for i in range(len(w)):
         m = w.mask[i]
-        r = w.y[i, m] - (
-            f.params[i, 0] * np.cos(f.params[i, 3] * w.t[i, m])
-            + f.params[i, 1] * np.sin(f.params[i, 3] * w.t[i, m])
-            + f.params[i, 2]
-        )
+        r = w.y[i, m] - (f.params[i, 0] * np.cos(f.params[i, 3] * w.t[i, m])
+                         + f.params[i, 1] * np.sin(f.params[i, 3] * w.t[i, m]) + f.params[i, 2])
         want = _ljung_box_slow(r, g[i, m], int(est.noise.lags[i]))
         assert est.table["whiteness_p"].iat[i] == pytest.approx(want, rel=1e-6, abs=1e-12)
 

@@ -170,3 +170,9 @@ def test_exp1_two_cameras_config_loads():
     assert cfg.camera_names == ("cam3", "cam4")
     assert 7 in cfg.cameras[0].plates and 7 in cfg.cameras[1].plates
     assert {c.modulation_mhz for c in cfg.cameras} == {29.0, 31.0}
+
+
+def test_live_simulation_takes_one_camera(tmp_path, capsys):
+    cfg = str(CONFIGS / "exp1_two_cameras.toml")
+    assert main(["simulate", cfg, "--out", str(tmp_path / "o"), "--live", "--duration", "1"]) == 2
+    assert "--live simulates one camera; got 2 [[camera]] tables" in capsys.readouterr().err

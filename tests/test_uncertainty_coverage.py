@@ -67,18 +67,8 @@ def test_coloured_noise_default_sigmas_cover_and_white_ones_do_not():
     (a seed not used while tuning). The binomial σ of a 95 % coverage over 600 windows is 0.9 %:
     the default intervals must cover within 0.95 ± 0.027 (3σ); the white-noise ones cover ~0.75
     (issue 13's figure)."""
-    est, truth = simulate_case(
-        2.5,
-        0.75,
-        30.0,
-        0.03,
-        600,
-        seed=2024,
-        noise="ar1",
-        rho=0.6,
-        f0_range_hz=(0.95, 1.05),
-        band_hz=(0.6, 1.4),
-    )
+    est, truth = simulate_case(2.5, 0.75, 30.0, 0.03, 600, seed=2024, noise="ar1", rho=0.6,
+                               f0_range_hz=(0.95, 1.05), band_hz=(0.6, 1.4))
     r = case_coverage(est, truth)
     assert r["fitted"] == 1.0
     for k in ("lin_a_95", "lin_f0_95"):
@@ -119,9 +109,8 @@ def test_low_snr_posterior_restores_coverage():
 def test_ar1_posterior_covers_under_coloured_noise():
     """AR(1) ρ 0.6 at 1 Hz, 10-s windows: the emcee posterior with the AR(1) likelihood covers A
     and f0 (40 windows, binomial σ 3.4 %: at least 0.85), the white σ's do not."""
-    est, truth = simulate_case(
-        2.5, 0.75, 10.0, 0.03, 40, seed=21, noise="ar1", rho=0.6, f0_range_hz=(0.95, 1.05), band_hz=(0.6, 1.4)
-    )
+    est, truth = simulate_case(2.5, 0.75, 10.0, 0.03, 40, seed=21, noise="ar1", rho=0.6,
+                               f0_range_hz=(0.95, 1.05), band_hz=(0.6, 1.4))
     ok = np.flatnonzero(est.fit.converged)
     post = sample_posteriors(est, ok, noise="ar1", n_walkers=16, n_steps=1000, seed=5, chunk=40)
     r = case_coverage(est, truth, post)

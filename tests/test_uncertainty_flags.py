@@ -11,26 +11,20 @@ def _estimates(cases):
     """One plate and segment per (duration_s, amp, sigma, dropout) case."""
     from conftest import harmonic_table
 
-    frames = [
-        harmonic_table(duration_s=d, amp=a, sigma=s, dropout=do, seed=i, t0=1.7e9 + 1e4 * i).assign(
-            plate=i + 1, segment=f"s{i}"
-        )
-        for i, (d, a, s, do) in enumerate(cases)
-    ]
+    frames = [harmonic_table(duration_s=d, amp=a, sigma=s, dropout=do, seed=i, t0=1.7e9 + 1e4 * i)
+              .assign(plate=i + 1, segment=f"s{i}") for i, (d, a, s, do) in enumerate(cases)]
     df = validate_trajectory(pd.concat(frames, ignore_index=True))
     return estimate_windows(make_windows(df, axes=("z",)), fap_max=1.0)
 
 
 def test_flags_name_the_reason():
-    est = _estimates(
-        [
-            (30.0, 2.5, 0.75, 0.03),  # thesis vertical SNR: ok
-            (30.0, 0.25, 0.75, 0.03),  # A/σ_A about 4: low_snr
-            (1.5, 2.5, 0.10, 0.0),  # 4.6 cycles: few_cycles
-            (30.0, 2.5, 0.75, 0.75),  # 75 % of frames lost: heavy_dropouts
-            (30.0, 0.0, 0.75, 0.03),  # nothing there: not fitted or low_snr
-        ]
-    )
+    est = _estimates([
+        (30.0, 2.5, 0.75, 0.03),   # thesis vertical SNR: ok
+        (30.0, 0.25, 0.75, 0.03),  # A/σ_A about 4: low_snr
+        (1.5, 2.5, 0.10, 0.0),     # 4.6 cycles: few_cycles
+        (30.0, 2.5, 0.75, 0.75),   # 75 % of frames lost: heavy_dropouts
+        (30.0, 0.0, 0.75, 0.03),   # nothing there: not fitted or low_snr
+    ])
     flags = honesty_flags(est)
     feat = honesty_features(est)
     assert flags[0] == "ok"

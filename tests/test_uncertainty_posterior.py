@@ -100,9 +100,8 @@ def test_ar1_likelihood_widens_the_posterior_as_the_coloured_sigmas_do():
     """AR(1) ρ 0.6 at 1 Hz: the white-noise σ's are ~0.6 of the truth (coverage ~0.75). The AR(1)
     posterior finds ρ, and its σ's agree with the default (coloured) σ's; the white-likelihood
     posterior agrees with the white σ's (so it under-covers alike)."""
-    est, _ = simulate_case(
-        2.5, 0.75, 30.0, 0.03, 2, seed=8, noise="ar1", rho=0.6, f0_range_hz=(0.95, 1.05), band_hz=(0.6, 1.4)
-    )
+    est, _ = simulate_case(2.5, 0.75, 30.0, 0.03, 2, seed=8, noise="ar1", rho=0.6,
+                           f0_range_hz=(0.95, 1.05), band_hz=(0.6, 1.4))
     rows = np.arange(2)
     ar1 = sample_posteriors(est, rows, noise="ar1", n_steps=1000, seed=1)
     white = sample_posteriors(est, rows, noise="white", n_steps=1000, seed=1)

@@ -37,13 +37,8 @@ from .._shapes import pow2_at_least
 from ..series import Windows
 
 __all__ = [
-    "BAND_MIN_ORDINATES",
-    "LJUNG_BOX_MAX_LAG",
-    "WHITENESS_P_MIN",
-    "ResidualNoise",
-    "frame_positions",
-    "harmonic_residual",
-    "residual_noise",
+    "BAND_MIN_ORDINATES", "LJUNG_BOX_MAX_LAG", "WHITENESS_P_MIN", "ResidualNoise", "frame_positions",
+    "harmonic_residual", "residual_noise",
 ]
 
 LJUNG_BOX_MAX_LAG = 20

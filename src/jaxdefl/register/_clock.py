@@ -143,7 +143,8 @@ def fit_clock(
         delay_s: (row,) or scalar: how long after its stamp (camera clock) a row's measurement
             was taken (`sampling_delay_s`).
     """
-    stamps = np.asarray(stamps, float) + np.broadcast_to(np.asarray(delay_s, float), np.shape(stamps))
+    delay_row = np.broadcast_to(np.asarray(delay_s, float), np.shape(stamps))
+    stamps = np.asarray(stamps, float) + delay_row
     z = np.asarray(z, float)
     plates, idx = np.unique(np.asarray(plate), return_inverse=True)
     n = len(plates)
@@ -173,12 +174,19 @@ def fit_clock(
             n,
         )
         p, r, jac = np.asarray(p), np.asarray(r)[:rows], np.asarray(jac)[:rows]
-    # residuals correlated in time (a frame's range error, the motion artefacts): the σ's of a
-    # white least squares grow by sqrt((1 + rho) / (1 - rho)), rho their lag-1 correlation
-    order = np.lexsort((stamps, idx))
-    ro, same = r[order], idx[order][1:] == idx[order][:-1]
-    rho = float(np.clip(np.sum(ro[1:] * ro[:-1] * same) / max(np.sum(ro**2), 1e-300), 0.0, 0.95))
-    cov = _cov(r, jac) * (1 + rho) / (1 - rho)
+    # a frame's range error is shared by its plates: the covariance is the cluster-robust
+    # sandwich with a frame per cluster (White 1980; Liang & Zeger 1986), and the frames'
+    # residuals correlated in time grow it by sqrt((1 + rho) / (1 - rho)), rho their lag-1
+    # correlation
+    frame, inv = np.unique(np.round(stamps - delay_row, 6), return_inverse=True)
+    score = np.zeros((len(frame), jac.shape[1]))
+    np.add.at(score, inv, jac * r[:, None])
+    bread = np.linalg.pinv(jac.T @ jac)
+    dof = len(frame) / max(len(frame) - 2, 1)
+    cs = np.zeros(len(frame))
+    np.add.at(cs, inv, r)
+    rho = float(np.clip(np.sum(cs[1:] * cs[:-1]) / max(np.sum(cs**2), 1e-300), 0.0, 0.95))
+    cov = bread @ (score.T @ score) @ bread * dof * (1 + rho) / (1 - rho)
     # the clock's offset mid-recording: where the data pin it (the epoch's is extrapolated)
     lever_ms_per_ppm = (float(np.mean(stamps)) - t0) * 1e-3
     grad = np.array([1.0, lever_ms_per_ppm])

@@ -17,6 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ..simulate.scene import plate_centres_world
+
 __all__ = ["BeamGeometry", "scene_points", "plane_landmarks", "floor_targets"]
 
 
@@ -34,8 +36,6 @@ class BeamGeometry:
     @classmethod
     def from_config(cls, cfg) -> BeamGeometry:
         """From a `jaxdefl.simulate.SimConfig` (its beam, plates and scene tables)."""
-        from ..simulate.scene import plate_centres_world
-
         b = cfg.beam
         return cls(
             plate_centres_world(cfg),

@@ -162,13 +162,14 @@ def _group_jackknife(pts, target, weight, plane, theta, n_plates, is_floor, n_ta
     return (len(out) - 1) / len(out) * d.T @ d
 
 
-def _frequency(t: np.ndarray, z: np.ndarray) -> float:
-    """The strongest line of a series (Hz): the best single sinusoid over a grid of frequencies."""
+def _frequency(t: np.ndarray, z: np.ndarray, fmax_hz: float) -> float:
+    """The strongest line of a series (Hz) up to ``fmax_hz`` (the cameras' Nyquist frequency):
+    the best single sinusoid over a grid of frequencies."""
     t = np.asarray(t, float) - t[0]
     z = np.asarray(z, float) - np.mean(z)
     span = t[-1]
     dt = np.median(np.diff(t))
-    grid = np.arange(2.0 / span, 0.5 / dt, 0.2 / span)
+    grid = np.arange(2.0 / span, min(0.5 / dt, fmax_hz), 0.2 / span)
     w = 2 * np.pi * grid[:, None] * t[None, :]
     c, s = np.cos(w) @ z, np.sin(w) @ z
     return float(grid[np.argmax(c * c + s * s)])
@@ -238,7 +239,8 @@ def register_cameras(
         rs = b[b["plate"] == ref_plate].sort_values("t")
         ref_t = rs["t"].to_numpy(float) + first.delays_s(rs["plate"].to_numpy())
         ref_z = rs["z"].to_numpy(float)
-    ref = fit_reference(ref_t, ref_z, t0, _frequency(ref_t, ref_z))
+    nyquist = min(0.5 / np.median(np.diff(np.unique(b["t"].to_numpy()))) for b in beam.values())
+    ref = fit_reference(ref_t, ref_z, t0, _frequency(ref_t, ref_z, nyquist))
     ref.update(source=ref_name, plate=int(ref_plate), t0_s=t0)
 
     clock_rows, traj_rows = [], []

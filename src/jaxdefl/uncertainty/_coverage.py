@@ -30,15 +30,8 @@ from ..status import Status
 from ._posterior import PosteriorSummary
 
 __all__ = [
-    "NOISES",
-    "Z68",
-    "Z95",
-    "noise_series",
-    "simulate_case",
-    "case_coverage",
-    "window_scores",
-    "rice_interval",
-    "debiased_amplitude",
+    "NOISES", "Z68", "Z95", "noise_series", "simulate_case", "case_coverage", "window_scores",
+    "rice_interval", "debiased_amplitude",
 ]
 
 Z68 = float(stats.norm.ppf(0.84))
@@ -51,20 +44,10 @@ FRAME_PLATES = 13
 
 
 def simulate_case(
-    amplitude_mm: float,
-    sigma_mm: float,
-    window_s: float,
-    dropout: float,
-    n_windows: int,
-    seed: int = 0,
-    fs_hz: float = 20.0,
-    f0_range_hz=(2.9, 3.1),
-    fap_max: float = 1.0,
-    band_hz: tuple[float, float] | None = (2.0, 4.0),
-    burst_frames: float = 1.0,
-    noise: str = "white",
-    rho: float = 0.6,
-    jitter_s: float = 0.0,
+    amplitude_mm: float, sigma_mm: float, window_s: float, dropout: float, n_windows: int,
+    seed: int = 0, fs_hz: float = 20.0, f0_range_hz=(2.9, 3.1), fap_max: float = 1.0,
+    band_hz: tuple[float, float] | None = (2.0, 4.0), burst_frames: float = 1.0,
+    noise: str = "white", rho: float = 0.6, jitter_s: float = 0.0,
 ) -> tuple[Estimates, dict]:
     """Estimates of ``n_windows`` independent simulated windows and their truth (f0_hz, amplitude_mm).
 
@@ -100,9 +83,8 @@ def simulate_case(
     plate = np.repeat(np.arange(n_windows), n).reshape(n_windows, n)
     df = pd.DataFrame({"t": stamps[keep], "plate": plate[keep], "z": 5.0 + y[keep]})
     fmin, fmax = (None, None) if band_hz is None else band_hz
-    est = estimate_windows(
-        make_windows(validate_trajectory(df), axes=("z",)), fmin_hz=fmin, fmax_hz=fmax, fap_max=fap_max
-    )
+    est = estimate_windows(make_windows(validate_trajectory(df), axes=("z",)), fmin_hz=fmin,
+                           fmax_hz=fmax, fap_max=fap_max)
     return est, {"f0_hz": f0, "amplitude_mm": np.full(n_windows, float(amplitude_mm))}
 
 
@@ -205,8 +187,7 @@ def case_coverage(est: Estimates, truth: dict, post: PosteriorSummary | None = N
     sa_w, sf_w = tab["sigma_amplitude_white_mm"].to_numpy()[ok], tab["sigma_f0_white_hz"].to_numpy()[ok]
     at, ft = truth["amplitude_mm"][ok], truth["f0_hz"][ok]
     out = dict(
-        n_windows=len(est.table),
-        fitted=ok.size / max(len(est.table), 1),
+        n_windows=len(est.table), fitted=ok.size / max(len(est.table), 1),
         detected=float(np.mean(est.table["peak_fap"].to_numpy() <= 0.01)),
         snr_window=float(np.median(at / sa)) if ok.size else np.nan,
         bias_a_rel=float(np.mean(a / at - 1)) if ok.size else np.nan,

@@ -53,12 +53,7 @@ from ..fit import WHITENESS_P_MIN, Estimates
 from ..status import Status
 
 __all__ = [
-    "SNR_MIN",
-    "CYCLES_MIN",
-    "DROPOUT_MAX",
-    "R2_MIN",
-    "WHITENESS_P_MIN",
-    "honesty_features",
+    "SNR_MIN", "CYCLES_MIN", "DROPOUT_MAX", "R2_MIN", "WHITENESS_P_MIN", "honesty_features",
     "honesty_flags",
 ]
 
@@ -91,16 +86,10 @@ def honesty_features(estimates: Estimates) -> pd.DataFrame:
         missing = np.clip(1.0 - n / frames, 0.0, 1.0)
         snr = f.amplitude_mm / estimates.table["sigma_amplitude_mm"].to_numpy()
     tab = estimates.table
-    return pd.DataFrame(
-        {
-            "snr": snr,
-            "cycles": f.f0_hz * span,
-            "missing": missing,
-            "n": n,
-            "r2": tab["r2"].to_numpy(),
-            "whiteness_p": tab["whiteness_p"].to_numpy(),
-        }
-    )
+    return pd.DataFrame({
+        "snr": snr, "cycles": f.f0_hz * span, "missing": missing, "n": n,
+        "r2": tab["r2"].to_numpy(), "whiteness_p": tab["whiteness_p"].to_numpy(),
+    })
 
 
 def honesty_flags(estimates: Estimates) -> np.ndarray:

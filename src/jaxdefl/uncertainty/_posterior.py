@@ -37,14 +37,8 @@ from .._sincos import sincos
 from ..fit import Estimates, frame_positions
 
 __all__ = [
-    "PARAMS",
-    "A_MAX_FACTOR",
-    "NOISE_MODELS",
-    "PosteriorSummary",
-    "ar1_log_posterior",
-    "harmonic_log_posterior",
-    "sample_posteriors",
-    "chain_diagnostics",
+    "PARAMS", "A_MAX_FACTOR", "NOISE_MODELS", "PosteriorSummary", "ar1_log_posterior",
+    "harmonic_log_posterior", "sample_posteriors", "chain_diagnostics",
 ]
 
 PARAMS = ("C", "D", "E", "omega", "log_sigma", "atanh_rho")
@@ -123,12 +117,8 @@ def chain_diagnostics(chain: np.ndarray, accepted_fraction: float) -> dict:
     tau_max = float(np.max(tau))
     n_steps, n_walkers = chain.shape[:2]
     n_eff = n_steps * n_walkers / tau_max
-    ok = (
-        np.isfinite(tau_max)
-        and n_steps >= TAU_TOL * tau_max
-        and n_eff >= N_EFF_MIN
-        and ACCEPTANCE_RANGE[0] <= accepted_fraction <= ACCEPTANCE_RANGE[1]
-    )
+    ok = (np.isfinite(tau_max) and n_steps >= TAU_TOL * tau_max and n_eff >= N_EFF_MIN
+          and ACCEPTANCE_RANGE[0] <= accepted_fraction <= ACCEPTANCE_RANGE[1])
     return dict(tau_max=tau_max, n_effective=n_eff, converged_chain=bool(ok))
 
 
@@ -232,13 +222,12 @@ def sample_posteriors(
     dim = 5 if noise == "white" else 6
     if n_walkers < 2 * dim + 2 or n_walkers % 2:
         raise ConfigError(
-            f"n_walkers: expected an even number >= {2 * dim + 2} (2 x {dim} parameters + 2), got {n_walkers}"
-        )
+            f"n_walkers: expected an even number >= {2 * dim + 2} (2 x {dim} parameters + 2), "
+            f"got {n_walkers}")
     discard = n_steps // 4 if discard is None else discard
     if n_steps - discard < 100:
         raise ConfigError(
-            f"n_steps: expected at least {discard + 100} (burn-in {discard} + 100), got {n_steps}"
-        )
+            f"n_steps: expected at least {discard + 100} (burn-in {discard} + 100), got {n_steps}")
     bad = rows[~est.fit.converged[rows]]
     if bad.size:
         status = est.table["status"].iloc[bad[0]]
@@ -266,17 +255,12 @@ def sample_posteriors(
     f = out["f"]
     return PosteriorSummary(
         rows=rows,
-        amplitude_mm=np.array([v.mean() for v in a]),
-        sigma_amplitude_mm=np.array([v.std(ddof=1) for v in a]),
+        amplitude_mm=np.array([v.mean() for v in a]), sigma_amplitude_mm=np.array([v.std(ddof=1) for v in a]),
         amplitude_q=np.array([np.percentile(v, QUANTILES) for v in a]).reshape(-1, 4),
-        f0_hz=np.array([v.mean() for v in f]),
-        sigma_f0_hz=np.array([v.std(ddof=1) for v in f]),
+        f0_hz=np.array([v.mean() for v in f]), sigma_f0_hz=np.array([v.std(ddof=1) for v in f]),
         f0_q=np.array([np.percentile(v, QUANTILES) for v in f]).reshape(-1, 4),
-        rho=np.array(out["rho"]),
-        tau_max=np.array(out["tau"]),
-        acceptance=np.array(out["acc"]),
-        n_effective=np.array(out["neff"]),
-        converged_chain=np.array(out["ok"], dtype=bool),
+        rho=np.array(out["rho"]), tau_max=np.array(out["tau"]), acceptance=np.array(out["acc"]),
+        n_effective=np.array(out["neff"]), converged_chain=np.array(out["ok"], dtype=bool),
     )
 
 

@@ -13,28 +13,12 @@ from ._flags import honesty_features, honesty_flags
 from ._posterior import sample_posteriors
 
 __all__ = [
-    "POSTERIOR_COLUMNS",
-    "UNCERTAINTY_COLUMNS",
-    "choose_windows",
-    "posterior_table",
-    "uncertainty_table",
+    "POSTERIOR_COLUMNS", "UNCERTAINTY_COLUMNS", "choose_windows", "posterior_table", "uncertainty_table",
 ]
 
 UNCERTAINTY_COLUMNS = [
-    "segment",
-    "window",
-    "plate",
-    "axis",
-    "snr",
-    "cycles",
-    "missing",
-    "r2",
-    "whiteness_p",
-    "flag",
-    "trust_amplitude",
-    "trust_f0",
-    "amplitude_debiased_mm",
-    "amplitude_rice_lo95_mm",
+    "segment", "window", "plate", "axis", "snr", "cycles", "missing", "r2", "whiteness_p", "flag",
+    "trust_amplitude", "trust_f0", "amplitude_debiased_mm", "amplitude_rice_lo95_mm",
     "amplitude_rice_hi95_mm",
 ]
 
@@ -64,43 +48,19 @@ def uncertainty_table(estimates: Estimates) -> pd.DataFrame:
         trust[bad_model] = "inadequate_model"
         trust[flags == "not_fitted"] = "none"
     unc = tab[["segment", "window", "plate", "axis"]].assign(
-        snr=feat["snr"].to_numpy(),
-        cycles=feat["cycles"].to_numpy(),
-        missing=feat["missing"].to_numpy(),
-        r2=feat["r2"].to_numpy(),
-        whiteness_p=feat["whiteness_p"].to_numpy(),
-        flag=flags,
-        trust_amplitude=trust_a,
-        trust_f0=trust_f,
-        amplitude_debiased_mm=debiased_amplitude(amp, sig),
-        amplitude_rice_lo95_mm=lo,
-        amplitude_rice_hi95_mm=hi,
+        snr=feat["snr"].to_numpy(), cycles=feat["cycles"].to_numpy(),
+        missing=feat["missing"].to_numpy(), r2=feat["r2"].to_numpy(),
+        whiteness_p=feat["whiteness_p"].to_numpy(), flag=flags, trust_amplitude=trust_a,
+        trust_f0=trust_f, amplitude_debiased_mm=debiased_amplitude(amp, sig),
+        amplitude_rice_lo95_mm=lo, amplitude_rice_hi95_mm=hi,
     )
     return unc[UNCERTAINTY_COLUMNS].reset_index(drop=True)
 
-
 POSTERIOR_COLUMNS = [
-    "segment",
-    "window",
-    "plate",
-    "axis",
-    "amplitude_post_mm",
-    "sigma_amplitude_post_mm",
-    "amplitude_lo95_mm",
-    "amplitude_hi95_mm",
-    "f0_post_hz",
-    "sigma_f0_post_hz",
-    "f0_lo95_hz",
-    "f0_hi95_hz",
-    "sigma_amplitude_lin_mm",
-    "sigma_f0_lin_hz",
-    "sigma_ratio_amplitude",
-    "noise_model",
-    "rho_post",
-    "tau_max",
-    "acceptance",
-    "n_effective",
-    "converged_chain",
+    "segment", "window", "plate", "axis", "amplitude_post_mm", "sigma_amplitude_post_mm",
+    "amplitude_lo95_mm", "amplitude_hi95_mm", "f0_post_hz", "sigma_f0_post_hz", "f0_lo95_hz",
+    "f0_hi95_hz", "sigma_amplitude_lin_mm", "sigma_f0_lin_hz", "sigma_ratio_amplitude",
+    "noise_model", "rho_post", "tau_max", "acceptance", "n_effective", "converged_chain",
 ]
 
 
@@ -122,11 +82,7 @@ def choose_windows(estimates: Estimates, n_windows: int, seed: int = 0) -> np.nd
 
 
 def posterior_table(
-    estimates: Estimates,
-    n_windows: int,
-    seed: int = 0,
-    n_walkers: int = 32,
-    n_steps: int = 2000,
+    estimates: Estimates, n_windows: int, seed: int = 0, n_walkers: int = 32, n_steps: int = 2000,
     noise: str = "ar1",
 ) -> pd.DataFrame:
     """emcee posterior of A and f0 for ``n_windows`` converged windows, beside the linearised σ's.
@@ -151,29 +107,16 @@ def posterior_table(
     p = sample_posteriors(estimates, rows, seed=seed, n_walkers=n_walkers, n_steps=n_steps, noise=noise)
     tab = estimates.table.iloc[rows]
     sa_lin = tab["sigma_amplitude_mm"].to_numpy()
-    out = pd.DataFrame(
-        {
-            "segment": tab["segment"].to_numpy(),
-            "window": tab["window"].to_numpy(),
-            "plate": tab["plate"].to_numpy(),
-            "axis": tab["axis"].to_numpy(),
-            "amplitude_post_mm": p.amplitude_mm,
-            "sigma_amplitude_post_mm": p.sigma_amplitude_mm,
-            "amplitude_lo95_mm": p.amplitude_q[:, 0],
-            "amplitude_hi95_mm": p.amplitude_q[:, 3],
-            "f0_post_hz": p.f0_hz,
-            "sigma_f0_post_hz": p.sigma_f0_hz,
-            "f0_lo95_hz": p.f0_q[:, 0],
-            "f0_hi95_hz": p.f0_q[:, 3],
-            "sigma_amplitude_lin_mm": sa_lin,
-            "sigma_f0_lin_hz": tab["sigma_f0_hz"].to_numpy(),
-            "sigma_ratio_amplitude": p.sigma_amplitude_mm / sa_lin,
-            "noise_model": noise,
-            "rho_post": p.rho,
-            "tau_max": p.tau_max,
-            "acceptance": p.acceptance,
-            "n_effective": p.n_effective,
-            "converged_chain": p.converged_chain,
-        }
-    )
+    out = pd.DataFrame({
+        "segment": tab["segment"].to_numpy(), "window": tab["window"].to_numpy(),
+        "plate": tab["plate"].to_numpy(), "axis": tab["axis"].to_numpy(),
+        "amplitude_post_mm": p.amplitude_mm, "sigma_amplitude_post_mm": p.sigma_amplitude_mm,
+        "amplitude_lo95_mm": p.amplitude_q[:, 0], "amplitude_hi95_mm": p.amplitude_q[:, 3],
+        "f0_post_hz": p.f0_hz, "sigma_f0_post_hz": p.sigma_f0_hz,
+        "f0_lo95_hz": p.f0_q[:, 0], "f0_hi95_hz": p.f0_q[:, 3],
+        "sigma_amplitude_lin_mm": sa_lin, "sigma_f0_lin_hz": tab["sigma_f0_hz"].to_numpy(),
+        "sigma_ratio_amplitude": p.sigma_amplitude_mm / sa_lin, "noise_model": noise, "rho_post": p.rho,
+        "tau_max": p.tau_max, "acceptance": p.acceptance, "n_effective": p.n_effective,
+        "converged_chain": p.converged_chain,
+    })
     return out[POSTERIOR_COLUMNS]
