@@ -121,6 +121,29 @@ def test_a_range_effect_reported_on_each_axis_is_simulated_once():
     assert all("simulated once" in why for s, why in mapped if s is None)
 
 
+def test_one_jump_timed_apart_on_two_axes_within_its_errors_is_simulated_once():
+    # A frame recording's range jump (seed 401 of experiments/reconcile_frames.py): z sees it at
+    # 65.4 s ± 0.4 s, x (a fifth of the size) at 67.4 s ± 1.6 s; injected twice it doubled the
+    # step and slow_mm stayed apart (0.61 against a band of 0.36). Two jumps whose times differ by
+    # more than their errors stay two.
+    def jump(t, sigma, axis):
+        return {
+            "id": "level_jump",
+            "plates": [1, 2, 3, 4],
+            "axes": [axis],
+            "parameters": {"t_jump_s": {"value": t, "sigma": sigma}, "size_mm": {"value": 0.25}},
+        }
+
+    mapped = specs_from_diagnosis(
+        [jump(65.4, 0.4, "z"), jump(67.4, 1.6, "x"), jump(140.0, 0.4, "z"), jump(146.0, 0.5, "x")],
+        duration_s=300.0,
+        n_plates=4,
+    )
+    times = [s.p("t_jump_s") for s, _ in mapped if s is not None]
+    assert times == [65.4, 140.0, 146.0], mapped
+    assert mapped[1][0] is None and "simulated once" in mapped[1][1]
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize(
     "eid, seed, metric",
