@@ -261,6 +261,40 @@ def refine_range_effects(twin: Twin, df: pd.DataFrame, specs: tuple[EffectSpec, 
         else:
             params["size_mm"] = fit(None)[0]
         out.append(make_spec(spec.id, params, spec.plates))
+    return _joint_range_sizes(twin, df, tuple(out), gain_of)
+
+
+def _joint_range_sizes(twin: Twin, df: pd.DataFrame, specs: tuple[EffectSpec, ...], gain_of):
+    """The range effects' sizes fitted together (time constants kept): every pixel reads their
+    sum, so two reports of one step (a jump seen on z and, a little later, on x) share it
+    instead of each taking all of it (injected side by side they doubled the step)."""
+    idx = [j for j, sp in enumerate(specs) if sp.id in ("drift", "level_jump")]
+    if len(idx) < 2:
+        return specs
+    ata = np.zeros((len(idx), len(idx)))
+    atb = np.zeros(len(idx))
+    for s in twin.series:
+        g = gain_of(s.plate, s.axis)
+        if abs(g) < 0.05 or s.sigma <= 0:
+            continue
+        cols = [k for k, j in enumerate(idx) if not specs[j].plates or s.plate in specs[j].plates]
+        if not cols:
+            continue
+        y = df[s.axis].to_numpy()[s.rows]
+        a = np.stack([np.ones_like(s.t), np.cos(twin.omega * s.t), np.sin(twin.omega * s.t)], 1)
+        q = np.linalg.qr(a)[0]
+        r = (y - q @ (q.T @ y)) / s.sigma
+        u = np.zeros((s.t.size, len(idx)))
+        for k in cols:
+            u[:, k] = g / s.sigma * _range_columns(specs[idx[k]], s.t)
+        u = u - q @ (q.T @ u)
+        ata += u.T @ u
+        atb += u.T @ r
+    size = np.linalg.lstsq(ata, atb, rcond=None)[0]
+    out = list(specs)
+    for k, j in enumerate(idx):
+        name = "amplitude_mm" if specs[j].id == "drift" else "size_mm"
+        out[j] = make_spec(specs[j].id, {**dict(specs[j].parameters), name: float(size[k])}, specs[j].plates)
     return tuple(out)
 
 
