@@ -122,10 +122,9 @@ def test_a_range_effect_reported_on_each_axis_is_simulated_once():
 
 
 def test_one_jump_timed_apart_on_two_axes_within_its_errors_is_simulated_once():
-    # A frame recording's range jump (seed 401 of experiments/reconcile_frames.py): z sees it at
-    # 65.4 s ± 0.4 s, x (a fifth of the size) at 67.4 s ± 1.6 s; injected twice it doubled the
-    # step and slow_mm stayed apart (0.61 against a band of 0.36). Two jumps whose times differ by
-    # more than their errors stay two.
+    # One range step reported on z and on x with times that agree within their errors is one
+    # injection (injected twice, a step doubles); two jumps whose times differ by more than their
+    # errors stay two.
     def jump(t, sigma, axis):
         return {
             "id": "level_jump",

@@ -87,8 +87,8 @@ def _same_injection(a: tuple, b: tuple) -> bool:
     error of the pixels' ranges and a motion or clock effect one motion of the beam or one clock,
     whatever axes the diagnosis saw it on; they differ only in what locates them (a jump's time,
     a line's frequency, a harmonic's order, a mode's number), and two estimates of one locator
-    from different axes agree within their errors (a jump seen on z at 65.4 s and on x, with a
-    fifth of the size, at 67.4 s ± 1.6 s is one jump: injected twice, it doubled the step)."""
+    from different axes agree within their errors (3 σ, or half the locator's resolution). Reports
+    that stay apart are still sized together (`refine_range_effects`)."""
     (eid, plates, x, sx), (eid2, plates2, y, sy) = a, b
     if (eid, plates) != (eid2, plates2):
         return False
