@@ -181,6 +181,9 @@ def main(argv=None):
 
     for seed in args.seeds:
         rng = np.random.default_rng([seed, 23])
+        names = ["control", *args.effects, *args.outside]
+        if all(f"{seed}/{n}" in seen for n in names):
+            continue  # a finished seed (a resumed run): nothing to render
         with tempfile.TemporaryDirectory(prefix="reconcile_frames_") as tmp:
             work = Path(tmp)
             t0 = time.perf_counter()

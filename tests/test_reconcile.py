@@ -121,6 +121,49 @@ def test_a_range_effect_reported_on_each_axis_is_simulated_once():
     assert all("simulated once" in why for s, why in mapped if s is None)
 
 
+def test_one_jump_timed_apart_on_two_axes_within_its_errors_is_simulated_once():
+    # One range step reported on z and on x with times that agree within their errors is one
+    # injection (injected twice, a step doubles); two jumps whose times differ by more than their
+    # errors stay two.
+    def jump(t, sigma, axis):
+        return {
+            "id": "level_jump",
+            "plates": [1, 2, 3, 4],
+            "axes": [axis],
+            "parameters": {"t_jump_s": {"value": t, "sigma": sigma}, "size_mm": {"value": 0.25}},
+        }
+
+    mapped = specs_from_diagnosis(
+        [jump(65.4, 0.4, "z"), jump(67.4, 1.6, "x"), jump(140.0, 0.4, "z"), jump(146.0, 0.5, "x")],
+        duration_s=300.0,
+        n_plates=4,
+    )
+    times = [s.p("t_jump_s") for s, _ in mapped if s is not None]
+    assert times == [65.4, 140.0, 146.0], mapped
+    assert mapped[1][0] is None and "simulated once" in mapped[1][1]
+
+
+def test_two_reports_of_one_range_step_share_it_when_refined():
+    # Reports of one step that stay two injections (their times disagree beyond their errors)
+    # are sized together: every pixel reads their sum. Each fitted alone took the whole step.
+    from jaxdefl.reconcile.engine import refine_range_effects
+
+    df, _, truth = _table(5)
+    f0 = truth["recording"]["f0_hz"]
+    twin = Twin(df, f0)
+    step = make_spec("level_jump", {"t_jump_s": 60.0, "size_mm": 1.2})
+    rec = twin.simulate((step,), seed=4)
+    two = (
+        make_spec("level_jump", {"t_jump_s": 60.0, "size_mm": 0.5}),
+        make_spec("level_jump", {"t_jump_s": 62.0, "size_mm": 0.5}),
+    )
+    sizes = [s.p("size_mm") for s in refine_range_effects(twin, rec, two, None)]
+    assert sum(sizes) == pytest.approx(1.2, abs=0.1), sizes
+    assert sizes[0] == pytest.approx(1.2, abs=0.15), sizes  # the one at the step's time takes it
+    alone = refine_range_effects(twin, rec, two[1:], None)[0].p("size_mm")
+    assert alone == pytest.approx(1.2, abs=0.15)  # a single report still takes the whole step
+
+
 @pytest.mark.slow
 @pytest.mark.parametrize(
     "eid, seed, metric",

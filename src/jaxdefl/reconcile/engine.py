@@ -71,24 +71,41 @@ def _per_range(sizes: dict, value: float, calibration) -> float:
     return float(np.median(ratios)) if ratios else value
 
 
-def _injection_key(eid: str, params: dict, plates: tuple) -> tuple:
-    """What makes two reports of an effect one injection: a range effect is one error of the
-    pixels' ranges and a motion or clock effect one motion of the beam or one clock, whatever
-    axes the diagnosis saw it on; they differ only in what locates them (a jump's time, a line's
-    frequency, a harmonic's order, a mode's number)."""
-    where = {
-        "level_jump": ("t_jump_s", 0),
-        "extra_periodic": ("freq_hz", 3),
-        "mode_shape": ("mode", 0),
-        "harmonic_distortion": ("order", 0),
-        "stiffness_change": ("t_s", 0),
-    }
-    if eid in where:
-        name, digits = where[eid]
-        return (eid, plates, round(float(params[name]), digits))
-    if eid in ("amplitude_modulation", "frequency_modulation") and "freq_hz" in params:
-        return (eid, plates, round(float(params["freq_hz"]), 3))
-    return (eid, plates)
+_LOCATOR = {  # what tells two injections of an id apart, and its resolution
+    "level_jump": ("t_jump_s", 1.0),
+    "extra_periodic": ("freq_hz", 1e-3),
+    "mode_shape": ("mode", 1.0),
+    "harmonic_distortion": ("order", 1.0),
+    "stiffness_change": ("t_s", 1.0),
+    "amplitude_modulation": ("freq_hz", 1e-3),
+    "frequency_modulation": ("freq_hz", 1e-3),
+}
+
+
+def _same_injection(a: tuple, b: tuple) -> bool:
+    """Whether two reports (id, plates, locator, σ) are one injection: a range effect is one
+    error of the pixels' ranges and a motion or clock effect one motion of the beam or one clock,
+    whatever axes the diagnosis saw it on; they differ only in what locates them (a jump's time,
+    a line's frequency, a harmonic's order, a mode's number), and two estimates of one locator
+    from different axes agree within their errors (3 σ, or half the locator's resolution). Reports
+    that stay apart are still sized together (`refine_range_effects`)."""
+    (eid, plates, x, sx), (eid2, plates2, y, sy) = a, b
+    if (eid, plates) != (eid2, plates2):
+        return False
+    if x is None or y is None:
+        return x is None and y is None
+    step = _LOCATOR[eid][1]
+    return abs(x - y) <= max(3.0 * math.hypot(sx, sy), 0.5 * step)
+
+
+def _report(eid: str, params: dict, plates: tuple, sigmas: dict) -> tuple:
+    """(id, plates, locator, its σ) of a report (`_same_injection`)."""
+    name = _LOCATOR.get(eid, (None, 0.0))[0]
+    if name is None or name not in params:
+        return (eid, plates, None, 0.0)
+    sigma = sigmas.get(name)
+    sigma = float(sigma) if sigma is not None and math.isfinite(float(sigma)) else 0.0
+    return (eid, plates, float(params[name]), sigma)
 
 
 def specs_from_diagnosis(
@@ -104,9 +121,9 @@ def specs_from_diagnosis(
     A range effect is one error of the pixels' ranges, seen on every axis of a plate (the centroid
     moves along its line of sight), and a motion effect one motion of the beam: the diagnosis
     may report either once per axis, and it is simulated once (the first report, z first: a
-    motion's size is the mid-span's; the others say so, `_injection_key`)."""
+    motion's size is the mid-span's; the others say so, `_same_injection`)."""
     out: list[tuple[EffectSpec | None, str] | None] = [None] * len(effects)
-    ranges: set = set()
+    ranges: list = []
     # z first: a motion effect's amplitude is reported at mid-span, as z sees it
     order = sorted(range(len(effects)), key=lambda j: "z" not in effects[j].get("axes", ["z"]))
     for j in order:
@@ -114,7 +131,7 @@ def specs_from_diagnosis(
     return out
 
 
-def _spec_of(e: dict, duration_s: float, calibration, n_plates: int, ranges: set):
+def _spec_of(e: dict, duration_s: float, calibration, n_plates: int, ranges: list):
     """One diagnosed effect as (spec or None, why); ``ranges``: the injections made so far."""
     eid = e["id"]
     p = {k: _value(v) for k, v in e.get("parameters", {}).items()}
@@ -176,10 +193,11 @@ def _spec_of(e: dict, duration_s: float, calibration, n_plates: int, ranges: set
         plates = ()
     if any(v is None or not math.isfinite(float(v)) for v in params.values()):
         return None, f"{eid}: a parameter was not estimated"
-    key = _injection_key(eid, params, plates)
-    if key in ranges:
+    sigmas = {k: v.get("sigma") for k, v in e.get("parameters", {}).items() if isinstance(v, dict)}
+    key = _report(eid, params, plates, sigmas)
+    if any(_same_injection(key, k) for k in ranges):
         return None, f"the same {eid} as one above, seen on other axes: simulated once"
-    ranges.add(key)
+    ranges.append(key)
     try:
         return make_spec(eid, {k: float(v) for k, v in params.items()}, plates), "simulated"
     except ConfigError as err:
@@ -243,6 +261,40 @@ def refine_range_effects(twin: Twin, df: pd.DataFrame, specs: tuple[EffectSpec, 
         else:
             params["size_mm"] = fit(None)[0]
         out.append(make_spec(spec.id, params, spec.plates))
+    return _joint_range_sizes(twin, df, tuple(out), gain_of)
+
+
+def _joint_range_sizes(twin: Twin, df: pd.DataFrame, specs: tuple[EffectSpec, ...], gain_of):
+    """The range effects' sizes fitted together (time constants kept): every pixel reads their
+    sum, so two reports of one step (a jump seen on z and, a little later, on x) share it
+    instead of each taking all of it (injected side by side they doubled the step)."""
+    idx = [j for j, sp in enumerate(specs) if sp.id in ("drift", "level_jump")]
+    if len(idx) < 2:
+        return specs
+    ata = np.zeros((len(idx), len(idx)))
+    atb = np.zeros(len(idx))
+    for s in twin.series:
+        g = gain_of(s.plate, s.axis)
+        if abs(g) < 0.05 or s.sigma <= 0:
+            continue
+        cols = [k for k, j in enumerate(idx) if not specs[j].plates or s.plate in specs[j].plates]
+        if not cols:
+            continue
+        y = df[s.axis].to_numpy()[s.rows]
+        a = np.stack([np.ones_like(s.t), np.cos(twin.omega * s.t), np.sin(twin.omega * s.t)], 1)
+        q = np.linalg.qr(a)[0]
+        r = (y - q @ (q.T @ y)) / s.sigma
+        u = np.zeros((s.t.size, len(idx)))
+        for k in cols:
+            u[:, k] = g / s.sigma * _range_columns(specs[idx[k]], s.t)
+        u = u - q @ (q.T @ u)
+        ata += u.T @ u
+        atb += u.T @ r
+    size = np.linalg.lstsq(ata, atb, rcond=None)[0]
+    out = list(specs)
+    for k, j in enumerate(idx):
+        name = "amplitude_mm" if specs[j].id == "drift" else "size_mm"
+        out[j] = make_spec(specs[j].id, {**dict(specs[j].parameters), name: float(size[k])}, specs[j].plates)
     return tuple(out)
 
 
