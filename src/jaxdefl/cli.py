@@ -152,7 +152,9 @@ def register(
     ],
     config: Annotated[
         Path,
-        typer.Option("--config", help="Config whose \\[beam], \\[plates], \\[scene] give the beam's geometry."),
+        typer.Option(
+            "--config", help="Config whose \\[beam], \\[plates], \\[scene] give the beam's geometry."
+        ),
     ],
     out: Annotated[Path, typer.Option("--out", help="Output directory.")],
     lds: Annotated[

@@ -8,10 +8,11 @@ names to its flags (`FIT_FLAGS`: ``--window: ...``).
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, Literal
 
-from ._errors import ParameterError
+from ._errors import ConfigError, ParameterError
 
 __all__ = [
     "DIAGNOSE_FLAGS",
@@ -29,7 +30,16 @@ __all__ = [
     "SENSORS",
     "SIMULATE_FLAGS",
     "SimulateSettings",
+    "MAX_HARMONICS",
+    "MAX_LINES",
+    "MODEL_KINDS",
+    "MONITOR_METHODS",
+    "SignalModel",
+    "TIMESTAMP_POLICIES",
+    "check_scheduler",
+    "check_timestamp_policy",
     "resolve_device",
+    "signal_model",
 ]
 
 # parameter -> flag of `jaxdefl fit`
@@ -96,6 +106,119 @@ MONITOR_FLAGS = {
     "seed": "--seed",
     "timestamps": "--timestamps",
 }
+# --------------------------------------------------------------------------------------------
+# the vocabularies the settings check (the stages import them from here)
+
+TIMESTAMP_POLICIES = ("strict", "reclock", "merge")
+MONITOR_METHODS = ("ekf", "rls")  # `jaxdefl.monitor.estimator.METHODS` implements each
+
+ModelKind = Literal["harmonic", "damped"]
+MODEL_KINDS = ("harmonic", "damped")
+MAX_HARMONICS = 20
+MAX_LINES = 8
+
+
+@dataclass(frozen=True)
+class SignalModel:
+    """Which model `jaxdefl fit` fits (hashable: it is a static argument of the jitted kernels).
+
+    Attributes:
+        kind: "harmonic" (undamped sinusoids) or "damped" (each line decays exponentially).
+        harmonics: K, components at f0, 2 f0, ..., K f0 (undamped only).
+        lines: N, independent frequencies.
+    """
+
+    kind: ModelKind = "harmonic"
+    harmonics: int = 1
+    lines: int = 1
+
+    @property
+    def is_default(self) -> bool:
+        """The thesis model (one harmonic + offset): fitted by `fit_harmonics`."""
+        return self.kind == "harmonic" and self.harmonics == 1 and self.lines == 1
+
+    @property
+    def damped(self) -> bool:
+        return self.kind == "damped"
+
+    @property
+    def n_components(self) -> int:
+        return self.harmonics * self.lines
+
+    @property
+    def n_params(self) -> int:
+        return 2 * self.n_components + 1 + self.lines * (2 if self.damped else 1)
+
+    def line_of(self, j: int) -> int:
+        """The frequency (line) that component ``j`` oscillates at."""
+        return 0 if self.harmonics > 1 else j
+
+    def multiplier(self, j: int) -> int:
+        """Component ``j`` oscillates at ``multiplier(j)`` times its line's frequency."""
+        return j + 1 if self.harmonics > 1 else 1
+
+    @property
+    def offset_index(self) -> int:
+        return 2 * self.n_components
+
+    def omega_index(self, line: int) -> int:
+        return 2 * self.n_components + 1 + line
+
+    def decay_index(self, line: int) -> int:
+        return 2 * self.n_components + 1 + self.lines + line
+
+
+def signal_model(kind: str = "harmonic", harmonics: int = 1, lines: int = 1) -> SignalModel:
+    """A `SignalModel` from the `fit` flags ``--model``, ``--harmonics`` and ``--lines``.
+
+    Raises:
+        ConfigError: an unknown model, a count out of range, or flags that do not combine.
+    """
+    if kind not in MODEL_KINDS:
+        raise ConfigError(f"--model: expected one of {', '.join(MODEL_KINDS)}, got {kind!r}")
+    for flag, v, top in (("--harmonics", harmonics, MAX_HARMONICS), ("--lines", lines, MAX_LINES)):
+        if isinstance(v, bool) or int(v) != v or not 1 <= v <= top:
+            raise ConfigError(f"{flag}: expected a whole number from 1 to {top}, got {v}")
+    if harmonics > 1 and lines > 1:
+        raise ConfigError(
+            f"--harmonics {harmonics} with --lines {lines}: expected one of them (harmonics of one f0, "
+            "or independent lines), not both"
+        )
+    if kind == "damped" and harmonics > 1:
+        raise ConfigError(
+            f"--harmonics {harmonics} with --model damped: the damped model has no harmonics "
+            "(use --lines N for several modes)"
+        )
+    return SignalModel(kind, int(harmonics), int(lines))
+
+
+def check_timestamp_policy(policy: str) -> str:
+    """The policy, or a ConfigError naming --timestamps and the choices."""
+    if policy not in TIMESTAMP_POLICIES:
+        raise ConfigError(f"--timestamps: expected one of {', '.join(TIMESTAMP_POLICIES)}, got {policy!r}")
+    return policy
+
+
+# a dask scheduler's address: [protocol://]host:port
+_ADDRESS = re.compile(r"^(?:(?:tcp|tls|ucx|ws|wss)://)?(?:\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9._-]+):(\d{1,5})$")
+
+
+def check_scheduler(scheduler: str) -> str:
+    """The scheduler: none, local, local:N (N >= 1 workers) or an address ``[tcp://]host:port``;
+    else a `ParameterError`."""
+    s = scheduler.strip()
+    kind, colon, n = s.partition(":")
+    local = kind == "local" and (not colon or (n.isdigit() and int(n) >= 1))
+    address = _ADDRESS.match(s)
+    if not (s == "none" or local or (address and 1 <= int(address.group(1)) <= 65535)):
+        raise ParameterError(
+            "scheduler",
+            "expected none, local, local:N with N >= 1 workers or a scheduler address host:port "
+            f"(e.g. tcp://10.0.0.5:8786), got {scheduler!r}",
+        )
+    return s
+
+
 AXES = ("z", "x", "y")
 SENSORS = ("tof", "structured_light", "lds", "accelerometer", "camera_tracking", "logger")
 
@@ -180,9 +303,6 @@ class FitSettings:
         if self.posterior_noise not in ("ar1", "white"):
             raise bad("posterior_noise", "ar1 or white")
         _check_axes(self)
-        from .fit import signal_model
-        from .io import check_timestamp_policy
-
         check_timestamp_policy(self.timestamps)
         # signal models other than the thesis' (the posterior check knows only the default model)
         spec = signal_model(self.model, self.harmonics, self.lines)
@@ -250,8 +370,6 @@ class DiagnoseSettings:
                 )
             object.__setattr__(self, "effects", effects)
         _check_axes(self)
-        from .io import check_timestamp_policy
-
         check_timestamp_policy(self.timestamps)
 
     def with_camera(self, facts: dict) -> DiagnoseSettings:
@@ -294,8 +412,6 @@ class ReconcileSettings:
             raise ParameterError("n_sims", f"expected at least 1 simulation, got {self.n_sims}")
         if self.seed < 0:
             raise ParameterError("seed", f"expected a seed >= 0, got {self.seed}")
-        from .io import check_timestamp_policy
-
         check_timestamp_policy(self.timestamps)
 
 
@@ -391,12 +507,8 @@ class RunSettings:
     timestamps: str | None = None
 
     def __post_init__(self):
-        from .bulk.scheduling import check_scheduler
-
         check_scheduler(self.scheduler)
         if self.timestamps is not None:
-            from .io import check_timestamp_policy
-
             check_timestamp_policy(self.timestamps)
 
 
@@ -433,11 +545,10 @@ class MonitorSettings:
         _check_positive(self, ("until_s", "duration_s", "block_s", "snapshot_s", "idle_s"), "a time > 0 s")
         _check_positive(self, ("alarms_per_day",), "a rate > 0 per day")
         _check_seed(self)
-        from .io import check_timestamp_policy
-        from .monitor.estimator import METHODS
-
-        if self.method not in METHODS:
-            raise ParameterError("method", f"expected one of {', '.join(METHODS)}, got {_got(self.method)}")
+        if self.method not in MONITOR_METHODS:
+            raise ParameterError(
+                "method", f"expected one of {', '.join(MONITOR_METHODS)}, got {_got(self.method)}"
+            )
         check_timestamp_policy(self.timestamps)
         if self.timestamps != "strict" and not self.replay:
             raise ParameterError(

@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import ctypes
 import gc
-import re
 
-from .._errors import ConfigError, ParameterError
+from .._errors import ConfigError
 from ..progress import NoProgress as NoBar
 from ..progress import progress_bar
+from ..settings import check_scheduler
 
 __all__ = ["NoBar", "check_scheduler", "connect", "progress_bar", "release_memory"]
 
@@ -22,26 +22,6 @@ def release_memory() -> None:
         ctypes.CDLL("libc.so.6").malloc_trim(0)
     except (OSError, AttributeError):  # not glibc
         pass
-
-
-# a dask scheduler's address: [protocol://]host:port
-_ADDRESS = re.compile(r"^(?:(?:tcp|tls|ucx|ws|wss)://)?(?:\[[0-9A-Fa-f:.]+\]|[A-Za-z0-9._-]+):(\d{1,5})$")
-
-
-def check_scheduler(scheduler: str) -> str:
-    """The scheduler: none, local, local:N (N >= 1 workers) or an address ``[tcp://]host:port``;
-    else a `ParameterError`."""
-    s = scheduler.strip()
-    kind, colon, n = s.partition(":")
-    local = kind == "local" and (not colon or (n.isdigit() and int(n) >= 1))
-    address = _ADDRESS.match(s)
-    if not (s == "none" or local or (address and 1 <= int(address.group(1)) <= 65535)):
-        raise ParameterError(
-            "scheduler",
-            "expected none, local, local:N with N >= 1 workers or a scheduler address host:port "
-            f"(e.g. tcp://10.0.0.5:8786), got {scheduler!r}",
-        )
-    return s
 
 
 def connect(scheduler: str):

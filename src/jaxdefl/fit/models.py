@@ -28,17 +28,16 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass
 from functools import partial
-from typing import Literal
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pandas as pd
 
-from .._errors import ConfigError
 from .._jax import float64, persistent_jit
 from .._sincos import sincos
 from ..series import Windows
+from ..settings import MAX_HARMONICS, MAX_LINES, MODEL_KINDS, SignalModel, signal_model
 from ..spectral import Periodogram, lomb_peaks
 from ..status import Status
 from .harmonic import ATOL, MAX_STEPS, RTOL, HarmonicFit, batch_windows, gauss_newton, normal_equations
@@ -59,10 +58,6 @@ __all__ = [
     "signal_model",
 ]
 
-ModelKind = Literal["harmonic", "damped"]
-MODEL_KINDS = ("harmonic", "damped")
-MAX_HARMONICS = 20
-MAX_LINES = 8
 # Segments of a window whose amplitudes give a damped model's start decay rate (a weighted
 # straight line through their log amplitudes).
 _ENVELOPE_SEGMENTS = 8
@@ -76,80 +71,6 @@ _ENVELOPE_SEGMENTS = 8
 # window against 0.38-0.41 for 8k (K = 3), 0.35-0.36 against 0.37-0.38 (damped, its weakest
 # windows; CPU time, load 3-4).
 GROUP_CELLS = 1 << 14
-
-
-@dataclass(frozen=True)
-class SignalModel:
-    """Which model `jaxdefl fit` fits (hashable: it is a static argument of the jitted kernels).
-
-    Attributes:
-        kind: "harmonic" (undamped sinusoids) or "damped" (each line decays exponentially).
-        harmonics: K, components at f0, 2 f0, ..., K f0 (undamped only).
-        lines: N, independent frequencies.
-    """
-
-    kind: ModelKind = "harmonic"
-    harmonics: int = 1
-    lines: int = 1
-
-    @property
-    def is_default(self) -> bool:
-        """The thesis model (one harmonic + offset): fitted by `fit_harmonics`."""
-        return self.kind == "harmonic" and self.harmonics == 1 and self.lines == 1
-
-    @property
-    def damped(self) -> bool:
-        return self.kind == "damped"
-
-    @property
-    def n_components(self) -> int:
-        return self.harmonics * self.lines
-
-    @property
-    def n_params(self) -> int:
-        return 2 * self.n_components + 1 + self.lines * (2 if self.damped else 1)
-
-    def line_of(self, j: int) -> int:
-        """The frequency (line) that component ``j`` oscillates at."""
-        return 0 if self.harmonics > 1 else j
-
-    def multiplier(self, j: int) -> int:
-        """Component ``j`` oscillates at ``multiplier(j)`` times its line's frequency."""
-        return j + 1 if self.harmonics > 1 else 1
-
-    @property
-    def offset_index(self) -> int:
-        return 2 * self.n_components
-
-    def omega_index(self, line: int) -> int:
-        return 2 * self.n_components + 1 + line
-
-    def decay_index(self, line: int) -> int:
-        return 2 * self.n_components + 1 + self.lines + line
-
-
-def signal_model(kind: str = "harmonic", harmonics: int = 1, lines: int = 1) -> SignalModel:
-    """A `SignalModel` from the `fit` flags ``--model``, ``--harmonics`` and ``--lines``.
-
-    Raises:
-        ConfigError: an unknown model, a count out of range, or flags that do not combine.
-    """
-    if kind not in MODEL_KINDS:
-        raise ConfigError(f"--model: expected one of {', '.join(MODEL_KINDS)}, got {kind!r}")
-    for flag, v, top in (("--harmonics", harmonics, MAX_HARMONICS), ("--lines", lines, MAX_LINES)):
-        if isinstance(v, bool) or int(v) != v or not 1 <= v <= top:
-            raise ConfigError(f"{flag}: expected a whole number from 1 to {top}, got {v}")
-    if harmonics > 1 and lines > 1:
-        raise ConfigError(
-            f"--harmonics {harmonics} with --lines {lines}: expected one of them (harmonics of one f0, "
-            "or independent lines), not both"
-        )
-    if kind == "damped" and harmonics > 1:
-        raise ConfigError(
-            f"--harmonics {harmonics} with --model damped: the damped model has no harmonics "
-            "(use --lines N for several modes)"
-        )
-    return SignalModel(kind, int(harmonics), int(lines))
 
 
 # --------------------------------------------------------------------------------------------

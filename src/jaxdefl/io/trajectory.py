@@ -35,7 +35,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .._errors import ConfigError, InputError, echo
+from .._errors import InputError, echo
+from ..settings import TIMESTAMP_POLICIES, check_timestamp_policy
 
 __all__ = [
     "TIMESTAMP_POLICIES",
@@ -49,7 +50,6 @@ __all__ = [
     "layout_note",
 ]
 
-TIMESTAMP_POLICIES = ("strict", "reclock", "merge")
 _LENGTH_MM = {"mm": 1.0, "m": 1000.0, "cm": 10.0, "um": 1e-3, "µm": 1e-3, "micron": 1e-3}
 _TIME_S = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "µs": 1e-6, "ns": 1e-9}
 # Unit plausibility of headers without a unit (see `_check_plausible`).
@@ -69,13 +69,6 @@ def _hint(given: str) -> str:
     """The policies other than ``given`` that would read a table with repeated timestamps."""
     other = [text for policy, text in _READS.items() if policy != given]
     return "rerun with " + " or ".join(other)
-
-
-def check_timestamp_policy(policy: str) -> str:
-    """The policy, or a ConfigError naming --timestamps and the choices."""
-    if policy not in TIMESTAMP_POLICIES:
-        raise ConfigError(f"--timestamps: expected one of {', '.join(TIMESTAMP_POLICIES)}, got {policy!r}")
-    return policy
 
 
 def _plain(v) -> str:
