@@ -122,7 +122,8 @@ def test_simulate_makes_every_session_and_extract_says_what_it_wrote(tmp_path, c
     np.testing.assert_array_equal(pd.read_csv(one / "truth.csv")["z"], truth["b"]["z"])
     table = tmp_path / "t.csv"
     assert main(["extract", str(one / "recording.zarr"), "--out", str(table)]) == 0
-    assert _wrote(capsys.readouterr().err, "extract") == [str(table)]
+    # the table and the camera facts beside it (TRAJ.camera.json)
+    assert _wrote(capsys.readouterr().err, "extract") == [str(table), str(tmp_path / "t.camera.json")]
     assert len(pd.read_csv(table)) > 0
 
 
