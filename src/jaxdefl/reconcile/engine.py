@@ -210,41 +210,45 @@ def _range_columns(spec: EffectSpec, t: np.ndarray, tau: float | None = None) ->
     return (t >= spec.p("t_jump_s")).astype(float)
 
 
+def _nuisance_free(twin: Twin, df: pd.DataFrame, gain_of) -> list:
+    """Per series the range effects reach (its calibrated gain ≥ 0.05): (plate, t, its residual
+    and the projector of its offset and harmonic, the gain), all in units of its noise."""
+    out = []
+    for s in twin.series:
+        g = gain_of(s.plate, s.axis)
+        if abs(g) < 0.05 or s.sigma <= 0:
+            continue
+        y = df[s.axis].to_numpy()[s.rows]
+        a = np.stack([np.ones_like(s.t), np.cos(twin.omega * s.t), np.sin(twin.omega * s.t)], 1)
+        q = np.linalg.qr(a)[0]
+        out.append((s.plate, s.t, (y - q @ (q.T @ y)) / s.sigma, q, g / s.sigma))
+    return out
+
+
 def refine_range_effects(twin: Twin, df: pd.DataFrame, specs: tuple[EffectSpec, ...], calibration):
     """Fit a drift's or a jump's range size (and a drift's time constant, on a grid from a third
     to three times the diagnosed one) to the recording as the frame simulator would show them:
     one range effect seen through every series' calibrated gain (without a calibration: z, gain
     1), the series' offsets and harmonics as nuisances, weighted by their noise. The diagnosis
-    fits a free size per series; this is the physics the simulator injects."""
+    fits a free size per series; this is the physics the simulator injects. Several range
+    effects then have their sizes fitted together (`_joint_range_sizes`)."""
 
     def gain_of(plate: int, axis: str) -> float:
         if calibration is None:  # as the twin injects without one: z alone, gain 1
             return float(axis == "z")
         return calibration.gain_of(plate, axis)
 
+    series = _nuisance_free(twin, df, gain_of)
     out = []
     for spec in specs:
-        if spec.id not in ("drift", "level_jump"):
-            out.append(spec)
-            continue
-        parts = []
-        for s in twin.series:
-            if spec.plates and s.plate not in spec.plates:
-                continue
-            g = gain_of(s.plate, s.axis)
-            if abs(g) < 0.05 or s.sigma <= 0:
-                continue
-            y = df[s.axis].to_numpy()[s.rows]
-            a = np.stack([np.ones_like(s.t), np.cos(twin.omega * s.t), np.sin(twin.omega * s.t)], 1)
-            q = np.linalg.qr(a)[0]
-            parts.append((s.t, (y - q @ (q.T @ y)) / s.sigma, q, g / s.sigma))
-        if not parts:
+        parts = [x for x in series if not spec.plates or x[0] in spec.plates]
+        if spec.id not in ("drift", "level_jump") or not parts:
             out.append(spec)
             continue
 
         def fit(tau, spec=spec, parts=parts):
             num = den = 0.0
-            for t, r, q, g in parts:
+            for _, t, r, q, g in parts:
                 u = g * _range_columns(spec, t, tau)
                 u = u - q @ (q.T @ u)
                 num += float(u @ r)
@@ -261,10 +265,10 @@ def refine_range_effects(twin: Twin, df: pd.DataFrame, specs: tuple[EffectSpec, 
         else:
             params["size_mm"] = fit(None)[0]
         out.append(make_spec(spec.id, params, spec.plates))
-    return _joint_range_sizes(twin, df, tuple(out), gain_of)
+    return _joint_range_sizes(series, tuple(out))
 
 
-def _joint_range_sizes(twin: Twin, df: pd.DataFrame, specs: tuple[EffectSpec, ...], gain_of):
+def _joint_range_sizes(series: list, specs: tuple[EffectSpec, ...]):
     """The range effects' sizes fitted together (time constants kept): every pixel reads their
     sum, so two reports of one step (a jump seen on z and, a little later, on x) share it
     instead of each taking all of it (injected side by side they doubled the step)."""
@@ -273,20 +277,13 @@ def _joint_range_sizes(twin: Twin, df: pd.DataFrame, specs: tuple[EffectSpec, ..
         return specs
     ata = np.zeros((len(idx), len(idx)))
     atb = np.zeros(len(idx))
-    for s in twin.series:
-        g = gain_of(s.plate, s.axis)
-        if abs(g) < 0.05 or s.sigma <= 0:
-            continue
-        cols = [k for k, j in enumerate(idx) if not specs[j].plates or s.plate in specs[j].plates]
+    for plate, t, r, q, g in series:
+        cols = [k for k, j in enumerate(idx) if not specs[j].plates or plate in specs[j].plates]
         if not cols:
             continue
-        y = df[s.axis].to_numpy()[s.rows]
-        a = np.stack([np.ones_like(s.t), np.cos(twin.omega * s.t), np.sin(twin.omega * s.t)], 1)
-        q = np.linalg.qr(a)[0]
-        r = (y - q @ (q.T @ y)) / s.sigma
-        u = np.zeros((s.t.size, len(idx)))
+        u = np.zeros((t.size, len(idx)))
         for k in cols:
-            u[:, k] = g / s.sigma * _range_columns(specs[idx[k]], s.t)
+            u[:, k] = g * _range_columns(specs[idx[k]], t)
         u = u - q @ (q.T @ u)
         ata += u.T @ u
         atb += u.T @ r
