@@ -15,24 +15,11 @@ from __future__ import annotations
 import numpy as np
 
 from .._jax import float64
+from ..simulate.scene import rotation_matrix
 
 __all__ = ["rotation_matrix", "solve_pose", "PARAMS"]
 
 PARAMS = ("roll_mrad", "pitch_mrad", "yaw_mrad", "x_mm", "y_mm", "z_mm")
-
-
-def rotation_matrix(roll, pitch, yaw, xp=np):
-    """R = Rz(yaw) Ry(pitch) Rx(roll) (radians), numpy or jax.numpy by ``xp``."""
-    ca, sa = xp.cos(roll), xp.sin(roll)
-    cb, sb = xp.cos(pitch), xp.sin(pitch)
-    cc, sc = xp.cos(yaw), xp.sin(yaw)
-    return xp.stack(
-        [
-            xp.stack([cc * cb, cc * sb * sa - sc * ca, cc * sb * ca + sc * sa]),
-            xp.stack([sc * cb, sc * sb * sa + cc * ca, sc * sb * ca - cc * sa]),
-            xp.stack([-sb, cb * sa, cb * ca]),
-        ]
-    )
 
 
 def _residuals(theta, args):

@@ -31,6 +31,7 @@ if TYPE_CHECKING:  # the config validates geometry through this module: no impor
 
 __all__ = [
     "beam_shape",
+    "rotation_matrix",
     "Intrinsics",
     "intrinsics",
     "plate_centres_world",
@@ -95,6 +96,20 @@ def plate_centres_world(cfg: SimConfig) -> np.ndarray:
     return np.stack([x, y, z], axis=1)
 
 
+def rotation_matrix(roll, pitch, yaw, xp=np):
+    """R = Rz(yaw) Ry(pitch) Rx(roll) (radians), numpy or jax.numpy by ``xp``."""
+    ca, sa = xp.cos(roll), xp.sin(roll)
+    cb, sb = xp.cos(pitch), xp.sin(pitch)
+    cc, sc = xp.cos(yaw), xp.sin(yaw)
+    return xp.stack(
+        [
+            xp.stack([cc * cb, cc * sb * sa - sc * ca, cc * sb * ca + sc * sa]),
+            xp.stack([sc * cb, sc * sb * sa + cc * ca, sc * sb * ca - cc * sa]),
+            xp.stack([-sb, cb * sa, cb * ca]),
+        ]
+    )
+
+
 def camera_rotation(cam) -> np.ndarray | None:
     """(3, 3) rotation R taking camera-frame vectors to the world (beam) frame, or None for a
     camera looking straight down with its columns along the beam (R = I).
@@ -104,11 +119,7 @@ def camera_rotation(cam) -> np.ndarray | None:
     """
     if cam.roll_deg == 0.0 and cam.pitch_deg == 0.0 and cam.yaw_deg == 0.0:
         return None
-    a, b, c = (math.radians(v) for v in (cam.roll_deg, cam.pitch_deg, cam.yaw_deg))
-    rx = np.array([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]])
-    ry = np.array([[math.cos(b), 0, math.sin(b)], [0, 1, 0], [-math.sin(b), 0, math.cos(b)]])
-    rz = np.array([[math.cos(c), -math.sin(c), 0], [math.sin(c), math.cos(c), 0], [0, 0, 1]])
-    return rz @ ry @ rx
+    return rotation_matrix(*(math.radians(v) for v in (cam.roll_deg, cam.pitch_deg, cam.yaw_deg)))
 
 
 def camera_origin(cam) -> np.ndarray:
