@@ -54,6 +54,12 @@ def note_commit_under_signal() -> None:
         _committed.append(True)
 
 
+def note_finished() -> None:
+    """The command returned having written its outputs: a signal still pending now came after
+    they were committed, so they are whole and new (the message says so)."""
+    _committed.append(True)
+
+
 def committed_under_signal() -> bool:
     return bool(_committed)
 

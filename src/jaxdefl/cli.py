@@ -13,7 +13,7 @@ import typer
 
 from . import settings as _settings  # the defaults of every flag (one source)
 from ._errors import Interrupted, JaxdeflError, ParameterError, one_line
-from ._signals import check_interrupt, committed_under_signal, handle_signals
+from ._signals import check_interrupt, committed_under_signal, handle_signals, note_finished
 
 app = typer.Typer(
     add_completion=False,
@@ -481,6 +481,8 @@ def main(argv: list[str] | None = None) -> int:
                 # numeric warnings (NaN windows, empty slices) are reported as statuses instead
                 warnings.simplefilter("ignore", RuntimeWarning)
             code = _run(argv)
+            if code == 0:
+                note_finished()
             check_interrupt()  # a signal whose exception was lost (see jaxdefl._signals)
             return code
     except Interrupted as err:
