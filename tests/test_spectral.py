@@ -29,6 +29,36 @@ def test_grid_equals_slow_reference(make_table, dropout):
     np.testing.assert_allclose(power, ref, rtol=1e-8, atol=1e-8 * ref.max())
 
 
+@pytest.mark.parametrize("search_dtype", ["float64", "float32"])
+def test_a_grid_searched_in_sub_grids_equals_the_slow_reference(make_table, monkeypatch, search_dtype):
+    """A grid longer than one FFT chunk is searched residue by residue (interleaved sub-grids,
+    so that its memory does not grow with the oversampling): every bin and every peak is the
+    one of the slow reference on the same grid."""
+    import jaxdefl.spectral.lomb as lomb
+
+    w = _windows(make_table, duration_s=20, dropout=0.05, seed=4, n_plates=3)
+    monkeypatch.setattr(lomb, "_CHUNK_CELLS", 1 << 11)
+    monkeypatch.setattr(lomb, "_SUB_CELLS", 1 << 10)
+    strides = []
+    strided = lomb._grid_batch_strided
+    monkeypatch.setattr(
+        lomb, "_grid_batch_strided", lambda *a, **k: strides.append(k["stride"]) or strided(*a, **k)
+    )
+    p = lomb_peaks(w, method="grid", keep=(1,), oversampling=7, search_dtype=search_dtype)
+    f, power = p.spectra[1]
+    assert strides and min(strides) > 1  # each window's grid was searched in sub-grids
+    m = w.mask[1]
+    ref = lomb_slow(w.t[1, m], w.y[1, m], f)
+    tol = 1e-8 if search_dtype == "float64" else 1e-3
+    np.testing.assert_allclose(power, ref, rtol=tol, atol=tol * ref.max())
+    for r in range(w.y.shape[0]):
+        m = w.mask[r]
+        ref = lomb_slow(w.t[r, m], w.y[r, m], f)
+        top = int(np.argmax(ref))
+        assert abs(p.freq_hz[r] - f[top]) <= p.df_hz[r]
+        np.testing.assert_allclose(p.power[r], ref[top], rtol=1e-10)
+
+
 def test_nufft_equals_slow_reference_on_irregular_times():
     rng = np.random.default_rng(1)
     t = np.sort(rng.uniform(0, 30, 500))

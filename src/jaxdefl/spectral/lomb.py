@@ -19,6 +19,7 @@ import math
 from dataclasses import dataclass, field
 from typing import Literal
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.fft
@@ -38,10 +39,14 @@ Method = Literal["auto", "grid", "nufft"]
 # Largest number of complex grid cells per FFT chunk (~64 MB): chunks of a few hundred windows.
 _CHUNK_CELLS = 1 << 22
 # Working memory per frequency of one window's periodogram (FFT buffers, tau sums, powers), and
-# per extra series of a non-uniform one. Measured peak per grid point on the frame clock: ~53 B
-# on a 2-core machine, ~110 B on the CI machine (XLA keeps more buffers live with more threads);
-# the bound takes the larger, with room.
+# per extra series of a non-uniform one. A single FFT over the whole grid peaked at ~53 B per
+# grid point on a 2-core machine and ~110-160 B on the CI machine (its FFT keeps more buffers).
+# A window whose grid is longer than _CHUNK_CELLS is therefore searched in interleaved sub-grids
+# of at most _SUB_CELLS bins (`_grid_batch_strided`): its peak memory no longer grows with the
+# oversampling (0.52 GiB at an oversampling of 26,214 on a 1,280-sample window, against 1.73 GiB
+# in one FFT, on the 2-core machine). The bound then covers a kept spectrum and caps the work.
 _BYTES_PER_FREQ = 128
+_SUB_CELLS = 1 << 20
 _BYTES_PER_SERIES_FREQ = 8
 
 
@@ -166,6 +171,62 @@ def _grid_batch(h_dense, m_dense, terms, which, var, df_dt, *, n_fft, j_lo, j_hi
     return i, p0, pm, pp, (power if keep else None)
 
 
+@persistent_jit(static_argnames=("n_sub", "stride", "j_lo", "j_hi", "keep", "search_dtype"))
+def _grid_batch_strided(h_dense, m_dense, var, df_dt, *, n_sub, stride, j_lo, j_hi, keep, search_dtype):
+    """`_grid_batch` for grids too large for one FFT per window: the same bins, searched in
+    ``stride`` interleaved sub-grids j = q·stride + r (q < n_sub), one residue r at a time.
+
+    With M = n_sub·stride and frames k < n_sub, Σ_k h_k e^{-2πi k (q·stride + r)/M} is bin q of
+    the n_sub-point FFT of h_k e^{-2πi k r/M}; the τ sums at 2j are bin 2q mod n_sub of the FFT
+    of m_k e^{-2πi k 2r/M}. The peak memory is that of one sub-grid, whatever the oversampling.
+    The peak bin and its neighbours are then evaluated exactly, in float64, by direct sums.
+    """
+    dtype = jnp.dtype(search_dtype)
+    cdtype = jnp.result_type(dtype, jnp.complex64)
+    n_fft = n_sub * stride
+    k = jnp.arange(h_dense.shape[1])
+    q = jnp.arange(n_sub)
+    n = jnp.sum(m_dense, axis=1, keepdims=True)
+    hv = h_dense.astype(cdtype)
+    mv = m_dense.astype(cdtype)
+    rows = jnp.arange(h_dense.shape[0])
+
+    def one(carry, r):
+        best_p, best_j = carry
+        ramp = jnp.exp(-2j * jnp.pi * ((k * r) % n_fft) / n_fft)
+        zh = jnp.fft.fft(hv * ramp.astype(cdtype), n=n_sub, axis=-1)
+        zm = jnp.fft.fft(mv * (ramp**2).astype(cdtype), n=n_sub, axis=-1)[:, (2 * q) % n_sub]
+        cwt, swt, inv_cc, inv_ss = _tau_terms(zm.real, -zm.imag, n.astype(dtype))
+        ch, sh = zh.real, -zh.imag
+        yc = ch * cwt + sh * swt
+        ys = sh * cwt - ch * swt
+        j = q * stride + r
+        power = (yc**2 * inv_cc + ys**2 * inv_ss) / (2 * var[:, None].astype(dtype))
+        power = jnp.where((j >= j_lo) & (j <= j_hi), power, -1.0)
+        i = jnp.argmax(power, axis=1)
+        p = power[rows, i].astype(best_p.dtype)
+        better = p > best_p
+        return (jnp.where(better, p, best_p), jnp.where(better, j[i], best_j)), (power if keep else None)
+
+    start = (jnp.full(rows.shape, -2.0, var.dtype), jnp.full(rows.shape, j_lo, jnp.int64))
+    (_, j_best), power = jax.lax.scan(one, start, jnp.arange(stride))
+    last = j_hi - j_lo
+
+    def exact(j):
+        theta = 2 * jnp.pi * df_dt * j
+        ch, sh = _dft_at(h_dense, theta)
+        c2, s2 = _dft_at(m_dense, 2 * theta)
+        return lomb_from_sums(ch, sh, c2, s2, n[:, 0], var)
+
+    i = j_best - j_lo
+    p0 = exact(j_best)
+    pm = jnp.where(i > 0, exact(j_best - 1), 0.0)
+    pp = jnp.where(i < last, exact(j_best + 1), 0.0)
+    if keep:  # (residue, window, q) -> (window, j) on the searched band
+        power = jnp.transpose(power, (1, 2, 0)).reshape(rows.size, n_fft)[:, j_lo : j_hi + 1]
+    return i, p0, pm, pp, power
+
+
 def _dft_at(x, theta):
     """Σ_k x_k cos θk and Σ_k x_k sin θk over the frames k of each row of ``x`` (window, frame).
 
@@ -251,8 +312,13 @@ def _unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _peaks_grid(w: Windows, rows, out, fmin, fmax, oversampling, keep, search_dtype):
     dt = float(np.mean(w.dt[rows]))
     length = bucket(int(w.k[rows].max()) + 1)  # few distinct shapes: few compilations
-    n_fft = scipy.fft.next_fast_len(int(math.ceil(oversampling * length)), real=True)
-    n_fft += n_fft % 2
+    want_fft = int(math.ceil(oversampling * length))
+    stride = 1
+    if want_fft > _CHUNK_CELLS:  # one window's grid in interleaved sub-grids of <= _SUB_CELLS
+        stride = pow2_at_least(-(-want_fft // _SUB_CELLS))
+    n_sub = scipy.fft.next_fast_len(max(-(-want_fft // stride), length), real=True)
+    n_sub += n_sub % 2
+    n_fft = n_sub * stride
     df = 1.0 / (n_fft * dt)
     f_hi = 0.5 / dt if fmax is None else min(fmax, 0.5 / dt)
     f_lo = 1.0 / (length * dt) if fmin is None else fmin
@@ -261,15 +327,30 @@ def _peaks_grid(w: Windows, rows, out, fmin, fmax, oversampling, keep, search_dt
     if j_hi - j_lo < 2:
         raise ConfigError(f"--fmin/--fmax: the band {f_lo:g}..{f_hi:g} Hz holds fewer than 3 frequencies")
     n_freq = j_hi - j_lo + 1
-    per_chunk = max(1, _CHUNK_CELLS // n_fft)
+    per_chunk = max(1, _CHUNK_CELLS // n_sub)
     chunk = chunk_rows(len(rows), per_chunk)
-    _check_memory(n_fft * chunk, length, 0, oversampling)
+    _check_memory(n_fft * (chunk if stride == 1 else 1), length, 0, oversampling)
     keep_set = set(keep)
     for c0 in range(0, len(rows), chunk):
         sel = rows[c0 : c0 + chunk]
         pad = np.concatenate([sel, np.repeat(sel[:1], chunk - sel.size)])
         want = bool(keep_set.intersection(sel.tolist()))
         h, m, _, var = _dense_grid(w, pad, length)
+        if stride > 1:
+            i, p0, pm, pp, power = _grid_batch_strided(
+                h,
+                m.astype(np.float64),
+                var,
+                df * dt,
+                n_sub=n_sub,
+                stride=stride,
+                j_lo=j_lo,
+                j_hi=j_hi,
+                keep=want,
+                search_dtype=search_dtype,
+            )
+            _store_grid_peaks(out, sel, want, keep_set, (i, p0, pm, pp, power), j_lo, n_freq, df)
+            continue
         # Frame drop-outs hit every plate and axis of a frame alike: windows of the same span
         # share their mask, so its FFT (the tau sums) is computed once per distinct mask.
         uniq, inverse = _unique_rows(np.packbits(m, axis=1))
@@ -290,19 +371,24 @@ def _peaks_grid(w: Windows, rows, out, fmin, fmax, oversampling, keep, search_dt
             keep=want,
             search_dtype=search_dtype,
         )
-        i, p0, pm, pp = (np.asarray(a)[: sel.size] for a in (i, p0, pm, pp))
-        out["freq_hz"][sel] = (j_lo + i + _parabola(i, p0, pm, pp, n_freq)) * df
-        out["power"][sel] = p0
-        out["fmin_hz"][sel] = j_lo * df
-        out["fmax_hz"][sel] = j_hi * df
-        out["df_hz"][sel] = df
-        out["method"][sel] = "grid"
-        if want:
-            freqs = (j_lo + np.arange(n_freq)) * df
-            power = np.asarray(power)
-            for pos, r in enumerate(sel.tolist()):
-                if r in keep_set:
-                    out["spectra"][r] = (freqs, power[pos])
+        _store_grid_peaks(out, sel, want, keep_set, (i, p0, pm, pp, power), j_lo, n_freq, df)
+
+
+def _store_grid_peaks(out, sel, want, keep_set, found, j_lo, n_freq, df):
+    """Write a chunk's peaks (bin, power, neighbours, kept spectra) into ``out`` for rows ``sel``."""
+    i, p0, pm, pp = (np.asarray(a)[: sel.size] for a in found[:4])
+    out["freq_hz"][sel] = (j_lo + i + _parabola(i, p0, pm, pp, n_freq)) * df
+    out["power"][sel] = p0
+    out["fmin_hz"][sel] = j_lo * df
+    out["fmax_hz"][sel] = (j_lo + n_freq - 1) * df
+    out["df_hz"][sel] = df
+    out["method"][sel] = "grid"
+    if want:
+        freqs = (j_lo + np.arange(n_freq)) * df
+        power = np.asarray(found[4])
+        for pos, r in enumerate(sel.tolist()):
+            if r in keep_set:
+                out["spectra"][r] = (freqs, power[pos])
 
 
 def _stamp_groups(w: Windows, rows: np.ndarray) -> list[np.ndarray]:
