@@ -287,6 +287,40 @@ def diagnose(
             )
 
 
+@app.command()
+def attribute(
+    traj: Annotated[
+        Path,
+        typer.Argument(
+            help="Registered trajectory with a camera column (`jaxdefl register` OUT/trajectory.csv)."
+        ),
+    ],
+    out: Annotated[Path, typer.Option("--out", help="Attribution to write (JSON; OUT.md beside it).")],
+    reference: Annotated[
+        Path | None, typer.Option(help="Reference (LDS) table t, plate, z on the registered clock.")
+    ] = None,
+    effects: Annotated[
+        str | None, typer.Option(help="Restrict the library to these effect ids, comma separated.")
+    ] = None,
+    camera_column: Annotated[
+        str, typer.Option("--camera-column", help="The column naming each row's camera.")
+    ] = "camera",
+    timestamps: Annotated[
+        str, typer.Option("--timestamps", help=_TIMESTAMPS_HELP)
+    ] = _settings.DiagnoseSettings.timestamps,
+    wait: Annotated[bool, typer.Option("--wait", help=_WAIT_HELP)] = False,
+) -> None:
+    """Diagnose each camera of a multi-camera recording; say of each finding: camera side or structure."""
+    from .settings import DiagnoseSettings
+
+    settings = DiagnoseSettings(effects=effects, timestamps=timestamps)
+    _jax_setup()
+    from . import pipeline
+
+    with _locked(out, "attribute", wait):
+        pipeline.attribute_file(traj, out, settings, reference=reference, column=camera_column)
+
+
 _TWINS_HELP = (
     "With a config: simulated twins of it (rendered, extracted, diagnosed alike) whose findings "
     "are the sensor's own physics, not missing physics; 0: none."

@@ -642,6 +642,71 @@ def diagnose_file(
     return d
 
 
+def attribute_file(
+    traj: Path,
+    out: Path,
+    settings: DiagnoseSettings,
+    reference: Path | None = None,
+    column: str = "camera",
+) -> dict:
+    """`jaxdefl attribute`: diagnose every camera of a registered trajectory and say of each
+    finding whether it is on a camera's side or the structure's (`jaxdefl.diagnose.attribution`);
+    OUT.json and OUT.md."""
+    from .diagnose.attribution import attribute, attribution_table
+
+    traj, out = Path(traj), Path(out)
+    outs = Outputs(inputs=[traj, reference])
+    outs.reserve(out, "--out", suffixes=(".json",))
+    outs.reserve(out.with_suffix(".md"), "the attribution report")
+    with status(f"jaxdefl attribute: reading {traj}"):
+        df = load_table(traj)
+        ref = load_table(reference) if reference is not None else None
+    _check_diagnosis_memory(df, traj, settings)
+
+    def on_camera(c: str) -> None:
+        console.print(f"diagnosing camera [bold]{c}[/bold]")
+
+    with status(f"jaxdefl attribute: {traj}, camera by camera ..."):
+        a = attribute(df, ref, settings, column=column, source=str(traj), on_camera=on_camera)
+    d = a.to_json()
+    d["settings"] = {
+        "jaxdefl_version": __version__,
+        "trajectory": str(traj),
+        "reference": str(reference) if reference else None,
+        "camera_column": column,
+        "effects": list(settings.effects) if settings.effects else None,
+        "timestamps": settings.timestamps,
+    }
+    rows = attribution_table(a)
+    md = [
+        f"# Attribution of {traj.name}",
+        "",
+        "Cameras: "
+        + ", ".join(f"{c} (plates {', '.join(map(str, v['plates']))})" for c, v in a.cameras.items())
+        + f"; shared plates: {', '.join(map(str, a.shared_plates)) or 'none'}.",
+        "",
+        "| effect | named by | attribution | why |",
+        "| --- | --- | --- | --- |",
+        *[f"| {' | '.join(r)} |" for r in rows],
+    ]
+    if not rows:
+        md.append("| none | | | no camera's diagnosis named an effect |")
+    with outs:
+        outs.json(out, d)
+        outs.text(out.with_suffix(".md"), "\n".join(md) + "\n")
+    for r in rows:
+        console.print(f"  {r[0]} ({r[1]}): [bold]{r[2]}[/bold] - {r[3]}", highlight=False, soft_wrap=True)
+    wrote(
+        "attribute",
+        out,
+        out.with_suffix(".md"),
+        detail=f"{len(rows)} findings: "
+        + (", ".join(f"{r[0]} {r[2]}" for r in rows) or "none")
+        + f"; {a.seconds:.1f} s",
+    )
+    return d
+
+
 # --------------------------------------------------------------------------------------------
 # reconcile
 

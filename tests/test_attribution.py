@@ -1,0 +1,98 @@
+"""Camera side or structure side (`jaxdefl.diagnose.attribution`, `jaxdefl attribute`): a drift
+in one of two cameras is that camera's; a stiffness change is the structure's; a control has
+nothing to attribute."""
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from jaxdefl import InputError
+from jaxdefl.cli import main
+from jaxdefl.diagnose.attribution import attribute
+
+PLATES = {"cam3": range(1, 8), "cam4": range(7, 14)}
+SPAN_MM = 3400.0
+
+
+def registered(seed, *, drift_mm=0.0, crack_at_s=None, duration_s=90.0, fs=20.0, f0=3.0, sigma=0.12):
+    """A registered two-camera trajectory (beam frame, one clock; plate 7 seen by both): the
+    first bending shape at f0 with white noise; ``drift_mm`` a warm-up drift in cam3's ranges;
+    ``crack_at_s`` a stiffness loss in the beam from then on (under load control at f0: 15 %
+    more amplitude)."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for k, (cam, plates) in enumerate(PLATES.items()):
+        t = np.arange(int(duration_s * fs)) / fs + 0.013 * k  # the cameras' own frame instants
+        phase = 2 * np.pi * f0 * t
+        amp = np.ones_like(t)
+        if crack_at_s is not None:  # load control at f0: the softer beam deflects more
+            amp = np.where(t >= crack_at_s, 1.15, 1.0)
+        for p in plates:
+            x = 100.0 + (p - 1) * 266.0
+            z = 4.0 * np.sin(np.pi * x / SPAN_MM) * amp * np.sin(phase) + sigma * rng.standard_normal(t.size)
+            if cam == "cam3":
+                z = z + drift_mm * np.exp(-t / 30.0)
+            xs = x + 0.05 * rng.standard_normal(t.size)
+            ys = 400.0 + 0.05 * rng.standard_normal(t.size)
+            rows.append(
+                pd.DataFrame(
+                    {"segment": cam, "camera": cam, "t": 1.7e9 + t, "plate": p, "x": xs, "y": ys, "z": z}
+                )
+            )
+    return pd.concat(rows, ignore_index=True)
+
+
+def _by_id(a):
+    return {f.id: f for f in a.findings}
+
+
+def test_a_drift_in_one_camera_is_that_cameras():
+    a = attribute(registered(1, drift_mm=2.0))
+    assert a.shared_plates == [7]
+    f = _by_id(a)
+    assert "drift" in f, a.to_json()
+    assert f["drift"].attribution == "camera" and f["drift"].side == "cam3", f["drift"].reason
+    assert f["drift"].tests["cam3"].named and not f["drift"].tests["cam4"].named
+    assert not any(g.attribution == "structure" for g in a.findings), a.to_json()
+
+
+@pytest.mark.slow
+def test_a_stiffness_change_is_the_structures():
+    a = attribute(registered(2, crack_at_s=45.0))
+    f = _by_id(a)
+    assert "stiffness_change" in f, a.to_json()
+    g = f["stiffness_change"]
+    assert g.attribution == "structure", g.reason
+    assert sorted(g.cameras) == ["cam3", "cam4"]  # one finding, named by both
+    assert not any(h.attribution == "camera" for h in a.findings), a.to_json()
+
+
+@pytest.mark.slow
+def test_a_control_has_nothing_on_either_side():
+    a = attribute(registered(3))
+    assert not [f for f in a.findings if f.attribution != "undecided"], a.to_json()
+
+
+def test_the_cli_writes_json_and_markdown_and_refuses_one_camera(tmp_path, capsys):
+    df = registered(4, drift_mm=2.0)
+    df.to_csv(tmp_path / "reg.csv", index=False)
+    assert (
+        main(
+            ["attribute", str(tmp_path / "reg.csv"), "--out", str(tmp_path / "A.json"), "--effects", "drift"]
+        )
+        == 0
+    )
+    d = json.loads((tmp_path / "A.json").read_text())
+    assert d["shared_plates"] == [7] and set(d["cameras"]) == {"cam3", "cam4"}
+    assert [(f["id"], f["attribution"], f["camera"]) for f in d["findings"]] == [("drift", "camera", "cam3")]
+    assert "| drift | cam3 | camera (cam3) |" in (tmp_path / "A.md").read_text()
+    one = df[df["camera"] == "cam3"]
+    one.to_csv(tmp_path / "one.csv", index=False)
+    capsys.readouterr()
+    assert main(["attribute", str(tmp_path / "one.csv"), "--out", str(tmp_path / "B.json")]) == 2
+    err = [x for x in capsys.readouterr().err.splitlines() if x.startswith("jaxdefl: ")]
+    assert len(err) == 1 and "names 1 camera; expected at least 2" in err[0], err
+    with pytest.raises(InputError, match="has no 'camera' column"):
+        attribute(df.drop(columns=["camera"]))
