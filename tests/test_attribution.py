@@ -96,3 +96,33 @@ def test_the_cli_writes_json_and_markdown_and_refuses_one_camera(tmp_path, capsy
     assert len(err) == 1 and "names 1 camera; expected at least 2" in err[0], err
     with pytest.raises(InputError, match="has no 'camera' column"):
         attribute(df.drop(columns=["camera"]))
+
+
+def test_plates_sampled_with_their_own_delays_go_back_on_the_cameras_frame_clock():
+    """A registered table gives each plate the instant it stands for (a ToF camera's per-plate
+    delay): the rows go back onto one clock, each plate's delay taken out, their mean kept."""
+    from jaxdefl.diagnose.attribution import on_frame_clock
+
+    rng = np.random.default_rng(5)
+    dt = 0.05 * (1 + 40e-6)  # a registered clock: the camera's rate corrected
+    frames = np.arange(600)
+    delays = {1: 0.0125, 2: 0.0150, 3: 0.0210}
+    rows = []
+    for p, d in delays.items():
+        k = np.sort(rng.choice(frames, 560, replace=False))  # each plate its own drop-outs
+        rows.append(
+            pd.DataFrame({"t": 1.7e9 + 0.2 + k * dt + d, "plate": p, "z": rng.standard_normal(k.size)})
+        )
+    part = pd.concat(rows, ignore_index=True)
+    out, spread = on_frame_clock(part)
+    assert spread == pytest.approx(0.0085, abs=1e-6)
+    frame_of = {
+        p: np.round((g["t"].to_numpy() - 1.7e9 - 0.2 - delays[p]) / dt) for p, g in part.groupby("plate")
+    }
+    mean_delay = np.mean(list(delays.values()))
+    for p, g in out.groupby("plate"):
+        np.testing.assert_allclose(g["t"].to_numpy() - 1.7e9, 0.2 + frame_of[p] * dt + mean_delay, atol=1e-6)
+    np.testing.assert_array_equal(out["z"], part["z"])
+    shared = part.assign(t=np.round((part["t"] - 1.7e9 - 0.2) / dt) * dt + 1.7e9)
+    same, none = on_frame_clock(shared)
+    assert none == 0.0 and same is shared

@@ -153,7 +153,8 @@ def test_a_refused_lock_leaves_no_folder(tmp_path):
 @pytest.mark.slow
 def test_concurrent_runs_at_random_moments_never_leave_a_partial_store(tmp_path):
     """Two `run`s on one folder, the second started 0-3 s after the first: one exits 2 naming
-    the other (or, with --wait, both finish); results.zarr always has every variable."""
+    the other (or, with --wait, the waiting one finishes); results.zarr always has every
+    variable."""
     import xarray as xr
     from test_bulk import make_campaign
 
@@ -173,7 +174,10 @@ def test_concurrent_runs_at_random_moments_never_leave_a_partial_store(tmp_path)
         codes = [p.wait(timeout=600) for p in (first, second)]
         errs = [p.stderr.read() for p in (first, second)]
         if wait:
-            assert codes == [0, 0], errs
+            # the one that waits always finishes; the first, which does not wait, is refused
+            # only if it took longer to start than the second took to take the lock (under load)
+            assert codes[1] == 0, errs
+            assert codes[0] == 0 or (codes[0] == 2 and "in use by jaxdefl run (pid" in errs[0]), errs
         else:
             assert sorted(codes) == [0, 2], errs
             refused = errs[codes.index(2)]

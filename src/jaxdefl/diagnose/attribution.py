@@ -121,7 +121,7 @@ def on_frame_clock(part: pd.DataFrame) -> tuple[pd.DataFrame, float]:
     stamps no longer coincide. For a diagnosis the offset of a plate is a constant phase of its
     series, which the nominal model holds; the rows go back onto one clock (the most complete
     plate's, fitted as t0 + k dt, shifted by the plates' mean offset) so that the frames are
-    shared again. A table whose plates share their stamps is returned unchanged.
+    shared again. A table whose plates share their stamps (within 1 µs) is returned unchanged.
     """
     t = part["t"].to_numpy(np.float64)
     plate = part["plate"].to_numpy()
@@ -136,7 +136,7 @@ def on_frame_clock(part: pd.DataFrame) -> tuple[pd.DataFrame, float]:
     offsets = pd.Series(frac).groupby(plate).median()
     off = offsets.reindex(plate).to_numpy()
     spread = float((offsets.max() - offsets.min()) * dt)
-    if spread == 0.0:
+    if spread < 1e-6:  # shared stamps, to their rounding
         return part, 0.0
     out = part.copy()
     out["t"] = t0 + (np.round(frames - off) + float(offsets.mean())) * dt
