@@ -108,6 +108,32 @@ def test_backward_keeps_effects_that_are_both_there():
     assert [a.proposal.effect for a in kept] == ["level_jump", "extra_periodic"] and dropped == []
 
 
+def test_two_effects_that_trade_places_end_the_search(monkeypatch):
+    """Two effects that explain the same residual, each dropped by the backward step when the
+    other is added (seen on a registered camera: outliers and heteroscedastic_noise, 1,000
+    rounds without end): the search stops at the first model it has had before, and says so."""
+    import jaxdefl.diagnose._search as search
+    from jaxdefl.diagnose._search import Dropped, run_diagnosis
+
+    traj = harmonic_record(seconds=120.0, warmup=(1.5, 30.0), seed=5)
+    t = traj["t"].to_numpy()
+    traj["z"] = traj["z"] + 0.8 * np.cos(2 * np.pi * 0.61 * t)  # a second cause besides the warm-up
+    rounds = []
+
+    def trading(ctx, states, accepted, dropped, calib, corr, n_total, usable):
+        newest, older = accepted[-1], accepted[:-1]
+        for a in older:  # the newest replaces every older effect, whatever the evidence
+            states = search._without(states, a)
+            dropped.append(Dropped(a.proposal.effect, "traded", 0.0, 1.0, newest.proposal.effect))
+        return states, [newest]
+
+    monkeypatch.setattr(search, "_backward", trading)
+    d = run_diagnosis(traj, on_round=lambda r, e: rounds.append(e))
+    assert len(rounds) < 20, rounds
+    assert any("came back to a model it had already had" in n for n in d.notes), d.notes
+    assert len(d.accepted) == 1
+
+
 def _ramp_hold_ramp(t):
     """The friction damper's envelope: up over the first fifth, held, down over the last fifth."""
     T = t[-1]

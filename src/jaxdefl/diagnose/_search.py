@@ -767,6 +767,7 @@ def run_diagnosis(
     for eid in usable:
         screen(eid)
     fresh_round = True
+    models_seen: set = set()
     while len(accepted) < MAX_EFFECTS:
         scored = []
         for eid, props in cache.items():
@@ -848,6 +849,24 @@ def run_diagnosis(
             states[i] = chosen.proposal.states[i]
         if len(accepted) > 1:
             states, accepted = _backward(ctx, states, accepted, dropped, calib, corr, n_total, usable)
+        # Two effects that explain the same residual can trade places for ever: one added drops
+        # the other, which then passes again and drops the first. A model the search has had
+        # before ends it, as it stands.
+        model = (len(terms), tuple(sorted((a.proposal.effect, tuple(a.proposal.series)) for a in accepted)))
+        if model in models_seen:
+            last = dropped[-1] if dropped else None
+            traded = sorted({last.effect, last.replaced_by} - {None}) if last else []
+            notes.append(
+                "the search came back to a model it had already had"
+                + (
+                    f" ({' and '.join(traded)} explain the same residual, each replacing the other)"
+                    if traded
+                    else ""
+                )
+                + ": it stopped there"
+            )
+            break
+        models_seen.add(model)
         cache.pop(chosen.proposal.effect, None)
         screen(chosen.proposal.effect)  # the same effect may be there twice (a second line, jump)
         # An effect that proposed nothing has no cached change to re-score: it looks again at
