@@ -374,6 +374,11 @@ class Effect(abc.ABC):
             name the diagnosis may give (`cannot_tell`). Default: every kind.
         causes: {sensor kind: the mechanism that makes it on that sensor}, for explanations
             (`cause`); a kind not listed gets ``causes["*"]``.
+        structural: the beam itself can make it (its motion or its shape change), not only a
+            measurement. Seen alike by several cameras, a structural effect is the structure's;
+            one that only a measurement makes (a noise structure, a clock, a camera's motion) is
+            the cameras' common physics (`jaxdefl.diagnose.attribution`). Default: not
+            ``noise_structure``.
     """
 
     id: str = ""
@@ -386,6 +391,11 @@ class Effect(abc.ABC):
     noise_structure: bool = False
     sensors: tuple[str, ...] = SENSOR_KINDS
     causes: dict[str, str] = {}  # noqa: RUF012 (read-only class data)
+    structural: bool | None = None
+
+    @classmethod
+    def can_be_structural(cls) -> bool:
+        return (not cls.noise_structure) if cls.structural is None else cls.structural
 
     def cause(self, ctx: Context) -> str:
         """The mechanism that makes this effect on the record's sensor (for explanations)."""

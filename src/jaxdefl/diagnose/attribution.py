@@ -8,13 +8,17 @@ multipath); what every camera sees on a shared plate is the structure (a crack, 
 test of a finding (effect id ``e`` named in camera ``c``) is the diagnosis, restricted to ``e``, of
 each camera's shared plates alone:
 
-- ``structure``: ``e`` is named on the shared plates by ``c`` and by every other camera there;
+- ``structure``: ``e`` is named on the shared plates by ``c`` and by every other camera there,
+  with parameters that agree within `DISAGREE` combined σ's, and the beam can make it
+  (`Effect.can_be_structural`);
+- ``measurement``: every camera there names it, but only a measurement makes it (outliers, a
+  noise level, a clock, a lattice): the cameras' common physics, not the beam;
 - ``camera``: by ``c`` alone, while every other camera had the power to see it (its residual
   on the shared plates is at most `NOISIER` times ``c``'s);
 - ``undecided``: ``c``'s own shared plates do not show it, no other camera sees them, another
-  camera is too noisy, or the cameras disagree among themselves. The reason is said.
+  camera is too noisy, or the cameras disagree among themselves or on its size. The reason is said.
 
-The same effect named by several cameras and attributed to the structure is one finding.
+One effect on one side is one finding, whatever axes and cameras report it.
 """
 
 from __future__ import annotations
@@ -28,9 +32,13 @@ import pandas as pd
 from .._errors import InputError
 from ..settings import DiagnoseSettings
 from ._search import run_diagnosis
+from .effects import load_effects
 
 __all__ = ["NOISIER", "Attribution", "Finding", "attribute", "on_frame_clock"]
 
+# Two cameras' reports of a structural effect on the same plates agree within this many
+# combined σ's in every parameter they both give.
+DISAGREE = 4.0
 # Another camera had the power to see a finding when its residual on the shared plates is at
 # most this many times the finding camera's (a 1.5-fold noise costs 2.25 in Δχ² of a term).
 NOISIER = 1.5
@@ -44,6 +52,7 @@ class CameraTest:
     delta_bic: float | None
     rms_mm: float
     plates: list[int]
+    parameters: dict = field(default_factory=dict)  # of its strongest report, as DIAG.json has them
 
     def to_json(self) -> dict:
         return {
@@ -51,6 +60,7 @@ class CameraTest:
             "delta_bic": self.delta_bic,
             "rms_mm": _finite(self.rms_mm),
             "plates": self.plates,
+            "parameters": self.parameters,
         }
 
 
@@ -62,7 +72,7 @@ class Finding:
     id: str
     cameras: list[str]
     plates: dict[str, list[int]]
-    attribution: str  # "camera", "structure" or "undecided"
+    attribution: str  # "camera", "structure", "measurement" or "undecided"
     side: str | None  # the camera a camera-side finding belongs to
     reason: str
     tests: dict[str, CameraTest] = field(default_factory=dict)
@@ -150,10 +160,33 @@ def _test(df: pd.DataFrame, plates: list[int], eid: str, reference, settings: Di
         d = run_diagnosis(part, reference, replace(settings, effects=(eid,), segment=None)).to_json()
     except InputError:  # e.g. no periodic motion on these plates: nothing can be tested
         return CameraTest(False, None, math.nan, plates)
-    hits = [e for e in d["effects"] if e["id"] == eid]
+    hits = sorted((e for e in d["effects"] if e["id"] == eid), key=lambda e: e["delta_bic"])
     return CameraTest(
-        bool(hits), min((e["delta_bic"] for e in hits), default=None), float(d["final"]["rms_mm"]), plates
+        bool(hits),
+        hits[0]["delta_bic"] if hits else None,
+        float(d["final"]["rms_mm"]),
+        plates,
+        hits[0]["parameters"] if hits else {},
     )
+
+
+def _disagreement(a: dict, b: dict) -> tuple[str, float] | None:
+    """The parameter two reports of one effect differ most in, in combined σ's (None: no
+    parameter with a value and a σ in both)."""
+    worst = None
+    for k, va in a.items():
+        vb = b.get(k)
+        if not (isinstance(va, dict) and isinstance(vb, dict)):
+            continue
+        x, y, sx, sy = va.get("value"), vb.get("value"), va.get("sigma"), vb.get("sigma")
+        if not all(isinstance(v, (int, float)) and math.isfinite(v) for v in (x, y, sx, sy)):
+            continue
+        if sx <= 0 or sy <= 0:
+            continue
+        z = abs(x - y) / math.hypot(sx, sy)
+        if worst is None or z > worst[1]:
+            worst = (k, z)
+    return worst
 
 
 def attribute(
@@ -210,22 +243,31 @@ def attribute(
             tests[c, eid] = _test(per[c], [p for p in seen[c] if p in shared], eid, reference, settings)
         return tests[c, eid]
 
+    library = load_effects()
     findings: list[Finding] = []
     for c in per:
         for e in diag[c]["effects"]:
-            f = _attribute_one(c, e, per, seen, shared, test)
+            f = _attribute_one(c, e, per, seen, shared, test, library)
+            # one finding per effect and side: its axes, and the cameras that all show it
             same = next(
-                (g for g in findings if g.id == f.id and g.attribution == "structure" == f.attribution), None
+                (
+                    g
+                    for g in findings
+                    if (g.id, g.attribution, g.side) == (f.id, f.attribution, f.side)
+                    and (f.attribution in ("structure", "measurement") or g.cameras == [c])
+                ),
+                None,
             )
             if same is not None:
-                same.cameras.append(c)
-                same.plates[c] = e["plates"]
+                if c not in same.cameras:
+                    same.cameras.append(c)
+                same.plates[c] = sorted(set(same.plates.get(c, [])) | set(e["plates"]))
                 continue
             findings.append(f)
     return Attribution(cameras, shared, findings, time.perf_counter() - start)
 
 
-def _attribute_one(c, e, per, seen, shared, test) -> Finding:
+def _attribute_one(c, e, per, seen, shared, test, library) -> Finding:
     eid = e["id"]
     mine = [p for p in seen[c] if p in shared]
     others = [o for o in per if o != c and any(p in seen[o] for p in mine)]
@@ -243,8 +285,26 @@ def _attribute_one(c, e, per, seen, shared, test) -> Finding:
         return f
     named = [o for o in others if f.tests[o].named]
     if len(named) == len(others):
+        everyone = ", ".join([c, *named])
+        effect = library.get(eid)
+        if effect is not None and not effect.can_be_structural():
+            f.attribution = "measurement"
+            f.reason = (
+                f"every camera on plates {shared_txt} shows it ({everyone}), and only a measurement "
+                "makes it: the cameras' common physics (their kind, their processing), not the beam"
+            )
+            return f
+        for o in named:
+            worst = _disagreement(own.parameters, f.tests[o].parameters)
+            if worst is not None and worst[1] > DISAGREE:
+                f.reason = (
+                    f"every camera on plates {shared_txt} shows it ({everyone}), but its {worst[0]} "
+                    f"differs between {c} and {o} by {worst[1]:.1f} combined σ: a beam's effect "
+                    "would be the same in both"
+                )
+                return f
         f.attribution = "structure"
-        f.reason = f"every camera on plates {shared_txt} shows it: {', '.join([c, *named])}"
+        f.reason = f"every camera on plates {shared_txt} shows it alike: {everyone}"
         return f
     if named:
         silent = ", ".join(o for o in others if o not in named)

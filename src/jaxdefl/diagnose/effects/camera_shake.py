@@ -74,6 +74,7 @@ def _long_run(e: np.ndarray, ok: np.ndarray) -> float:
 
 class CameraShake(Effect):
     id = "camera_shake"
+    structural = False  # the camera moves, not the beam
     meaning = "the camera moves: a displacement common to every plate (and the static scene) on an axis"
     sensors = ("tof", "structured_light", "camera_tracking")  # a sensor that sees every plate at once
     plausible, plausible_unit, gate_params = 0.1, "noise", 8

@@ -41,6 +41,7 @@ def clip_column(theta: np.ndarray, side: int, c: float) -> np.ndarray:
 
 class Clipping(Effect):
     id = "clipping"
+    structural = False  # a depth band's or a converter's bound
     meaning = "a plate's reading saturating at the peaks of its motion (the depth band's bound)"
     plausible, plausible_unit, gate_params = 0.03, "motion", 2
 

@@ -46,6 +46,7 @@ P_MAX = 5e-3  # weaker signatures cannot pass the search's level (α = 0.05 over
 
 class MotionArtefact(TiedEffect):
     id = "motion_artefact"
+    structural = False  # the four taps' sequence of a ToF camera
     meaning = "gain loss and lag of the camera against the LDS from its sequential four-phase sampling"
     sensors = ("tof",)  # only a four-phase (ToF) camera samples its taps in sequence
     plausible, plausible_unit, gate_params = 0.001, "seconds", 1  # 1 ms of lag against the LDS

@@ -357,6 +357,7 @@ MIN_STEPS_ONE_SERIES = 10.0  # steps a single series' motion must span for its l
 
 class Quantization(Effect):
     id = "quantization"
+    structural = False  # a converter's or a disparity's lattice
     meaning = "depth measured in steps (structured-light disparity quantisation, a logger's ADC)"
     # A ToF camera's range is a 14-bit phase (a lattice of ~0.3 mm per pixel, averaged away over
     # a plate's pixels): no lattice a plate's centroid can show. Disparity, ADCs and trackers do.

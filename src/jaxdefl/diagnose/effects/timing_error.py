@@ -51,6 +51,7 @@ VARIANTS = {"offset": [1], "rate": [2], "both": [1, 2]}
 
 class TimingError(TiedEffect):
     id = "timing_error"
+    structural = False  # a clock's offset or rate: the measurement's
     meaning = "the camera's clock runs late or at another rate than the reference's"
     plausible, plausible_unit, gate_params = 0.002, "seconds", 1  # 2 ms late (stamped on delivery)
 
