@@ -4,9 +4,11 @@ percentiles."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from jaxdefl.io import validate_trajectory
@@ -139,3 +141,50 @@ def test_pooled_frames_band_is_a_95th_percentile_where_four_clips_give_an_80th()
         empirical.append(dist(clips[4]) > np.quantile([dist(c) for c in clips[:4]], 0.95))
     assert abs(np.mean(ours) - 0.05) < 0.015
     assert np.mean(empirical) > 0.15  # what the band from 4 clips' order statistic gave
+
+
+def test_a_reference_plate_the_config_marks_defective_is_left_out():
+    from jaxdefl._configs import resolve_config
+    from jaxdefl.simulate import load_config, usable_reference
+
+    cfg = load_config(resolve_config("exp1"))
+    assert cfg.lds.defective_plate == 9
+    ref = pd.DataFrame({"t": np.arange(6.0), "plate": [3, 9, 3, 9, 11, 9], "z": np.zeros(6)})
+    kept, note = usable_reference(ref, cfg, "lds.csv")
+    assert sorted(kept["plate"].unique()) == [3, 11] and len(kept) == 3
+    assert "plate 9 left out" in note and "lds.csv" in note
+    # only the defective plate: no reference at all, and the note says so
+    none, note = usable_reference(ref[ref["plate"] == 9], cfg, "lds.csv")
+    assert none is None and "without a reference" in note
+    # nothing marked defective: the reference as it came
+    good = dataclasses.replace(cfg, lds=dataclasses.replace(cfg.lds, defective_plate=0))
+    same, note = usable_reference(ref, good)
+    assert same is ref and note is None
+
+
+def test_diagnose_with_a_config_ties_no_plate_to_its_defective_lds(tmp_path):
+    from jaxdefl._configs import resolve_config
+    from jaxdefl.pipeline import diagnose_file
+    from jaxdefl.settings import DiagnoseSettings
+    from jaxdefl.simulate import simulate_trajectories
+
+    config = resolve_config("exp1")
+    truth, lds = simulate_trajectories(config, 12.0, 3)
+    rng = np.random.default_rng(0)
+    for axis in "xyz":
+        truth[axis] = truth[axis] + 0.05 * rng.standard_normal(len(truth))
+    truth.to_csv(tmp_path / "traj.csv", index=False)
+    lds.to_csv(tmp_path / "lds.csv", index=False)
+    d = diagnose_file(
+        tmp_path / "traj.csv",
+        tmp_path / "diag.json",
+        DiagnoseSettings(effects=("drift",)),  # the search is not what is tested
+        reference=tmp_path / "lds.csv",
+        config=config,
+        figures=False,
+        twins=0,
+    )
+    assert d["input"]["reference_plates"] == [3, 5, 7, 11]
+    assert any("plate 9 left out of the reference" in n for n in d["notes"])
+    # the sensor's 0.6 gain would have left a line at f0 on plate 9 (unexplained)
+    assert not any(9 in u.get("plates", []) for u in d["unexplained"])

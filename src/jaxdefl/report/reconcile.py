@@ -288,6 +288,8 @@ def reconcile_markdown(rec, d: dict, figures: list[str], recording: str, config:
             lines.append(f"- unnamed `{u['kind']}`: {u.get('explanation', '')}")
         for u in found.unexplained:
             lines.append(f"- unexplained: {_unexplained_text(u)}")
+    if d.get("notes"):
+        lines += ["", "## Notes", ""] + [f"- {n}" for n in d["notes"]]
     lines += ["", "## What to do next", ""]
     lines += [f"- {a}" for a in found.advice()] or [
         "- Nothing: the simulation with the named physics reproduces the recording."
