@@ -4,12 +4,14 @@ simulation with the named physics comes back inside the null band.
 1. The recording is diagnosed (`jaxdefl.diagnose.run_diagnosis`, with the camera facts of the
    simulation config): its f0, and the effects it names with their fitted parameters.
 2. The simulation a user would set up (`Twin`: the recording's frame times, plates and fitted
-   harmonics, white noise at each series' level) is rendered ``n_sims`` times and compared with
-   the recording on every metric (`jaxdefl.reconcile.metrics`): *before*.
+   harmonics, white noise at each series' level and, with a calibration, the extraction's own
+   outliers) is rendered ``n_sims`` times and compared with the recording on every metric
+   (`jaxdefl.reconcile.metrics`, `compare`): *before*.
 3. The null band: ``n_null`` further simulations of the same model, each compared as if it were
    the recording; ``null_95`` is the 95th percentile of those distances.
-4. The named effects that the simulator can inject become ``[[effect]]`` specs; the simulation is
-   rendered again with them and compared again: *after*.
+4. The named effects that the simulator can inject become ``[[effect]]`` specs (range effects'
+   sizes, lines' and harmonics' mid-span amplitudes and phases refitted to the recording as the
+   twin renders them); the simulation is rendered again with them and compared again: *after*.
 
 A metric is reconciled when *before* lies outside the null band and *after* inside it.
 """
@@ -31,7 +33,15 @@ from .chain import apply_chain_null
 from .metrics import METRICS, TableStats, distance, null_95, table_stats
 from .twin import Twin
 
-__all__ = ["Reconciliation", "effect_tables_toml", "keep_shown", "reconcile", "specs_from_diagnosis"]
+__all__ = [
+    "Reconciliation",
+    "compare",
+    "effect_tables_toml",
+    "keep_shown",
+    "reconcile",
+    "refine_motion_lines",
+    "specs_from_diagnosis",
+]
 
 
 @dataclass
@@ -295,6 +305,44 @@ def _joint_range_sizes(series: list, specs: tuple[EffectSpec, ...]):
     return tuple(out)
 
 
+def _line_columns(twin: Twin, spec: EffectSpec, t: np.ndarray) -> np.ndarray:
+    """(t, 2) the cos and sin whose combination p cos + q sin is the spec's motion term as the
+    twin renders it (`Twin.simulate`): an extra line at its frequency, a harmonic at its order
+    of the simulator's phase θ."""
+    if spec.id == "extra_periodic":
+        arg = 2 * math.pi * spec.p("freq_hz") * t
+    else:
+        arg = spec.p("order") * (twin.omega * t - twin.phi_ref + math.pi / 2)
+    return np.stack([np.cos(arg), np.sin(arg)], axis=1)
+
+
+def refine_motion_lines(twin: Twin, df: pd.DataFrame, specs: tuple[EffectSpec, ...]):
+    """Fit an extra line's or a harmonic's mid-span amplitude and phase (its frequency or order
+    kept) to the recording as the twin renders it: one motion of the beam seen on every series
+    through its transfer (`Twin.transfer`), the series' offsets and harmonics as nuisances,
+    weighted by their noise. The diagnosis reports a line's median amplitude on the axis that
+    carries it, and no phase the twin can use; this is the motion the simulator injects."""
+    series = _nuisance_free(twin, df, lambda plate, axis: twin.transfer.get((plate, axis), 0.0))
+    out = []
+    for spec in specs:
+        if spec.id not in ("extra_periodic", "harmonic_distortion") or not series:
+            out.append(spec)
+            continue
+        ata, atb = np.zeros((2, 2)), np.zeros(2)
+        for _, t, r, q, g in series:
+            u = g * _line_columns(twin, spec, t)
+            u = u - q @ (q.T @ u)
+            ata += u.T @ u
+            atb += u.T @ r
+        p, qs = np.linalg.lstsq(ata, atb, rcond=None)[0]
+        params = dict(spec.parameters)
+        params["amplitude_mm"] = float(math.hypot(p, qs))
+        # a cos(2πft + ψ) = a cos ψ cos − a sin ψ sin; a cos(kθ − ψ) = a cos ψ cos + a sin ψ sin
+        params["phase_rad"] = float(math.atan2(-qs if spec.id == "extra_periodic" else qs, p))
+        out.append(make_spec(spec.id, params, spec.plates))
+    return tuple(out)
+
+
 _NOT_SHOWN = (
     "{} changes nothing in the trajectory simulation of this recording (it cannot render it here): "
     "not simulated, so 'after' would not test it"
@@ -316,6 +364,50 @@ def _median_distance(r: TableStats, sims: list[TableStats], metric: str) -> floa
     d = [distance(r, s, metric) for s in sims]
     d = [x for x in d if np.isfinite(x)]
     return float(np.median(d)) if d else float("nan")
+
+
+def compare(
+    twin: Twin,
+    df: pd.DataFrame,
+    specs: tuple[EffectSpec, ...] = (),
+    n_sims: int = 4,
+    n_null: int = 20,
+    seed: int = 0,
+    calibration=None,
+    say: Callable[[str], None] = lambda _msg: None,
+) -> tuple[list[dict], dict[str, TableStats]]:
+    """The trajectories' and estimates' rows of reconcile.json: each metric's distance of the
+    recording ``df`` from ``n_sims`` renders of ``twin`` without (*before*) and with ``specs``
+    (*after*), and its null band from ``n_null`` further renders (`null_95`); and the statistics
+    of the recording, the first nominal render and the first reconciled one."""
+    f0 = twin.f0_hz
+    rec = table_stats(df, f0)
+    nominal, fixed, null = [], [], []
+    for m in range(n_sims):
+        check_interrupt()
+        nominal.append(table_stats(twin.simulate((), seed=seed + 1 + m), f0))
+        fixed.append(table_stats(twin.simulate(specs, seed=seed + 1 + m), f0) if specs else nominal[-1])
+    say("null band from repeated simulation")
+    for j in range(n_null):
+        check_interrupt()
+        null.append(table_stats(twin.simulate((), seed=seed + 1000 + j), f0))
+    levels = []
+    for metric, level in METRICS.items():
+        band, how = null_95([_median_distance(p, nominal, metric) for p in null])
+        if metric == "frame_common" and calibration is not None:
+            # the simulator's share was measured on a short clip: its error widens the band
+            band = math.hypot(band, 1.96 * calibration.frame_common_se)
+        levels.append(
+            dict(
+                level=level,
+                metric=metric,
+                before=_median_distance(rec, nominal, metric),
+                after=_median_distance(rec, fixed, metric),
+                null_95=band,
+                null_method=how,
+            )
+        )
+    return levels, {"recording": rec, "nominal": nominal[0], "reconciled": fixed[0]}
 
 
 def reconcile(
@@ -351,38 +443,12 @@ def reconcile(
 
     say("simulating the experiment")
     twin = Twin(df, f0, calibration)
-    specs = refine_range_effects(twin, df, specs, calibration)
+    specs = refine_motion_lines(twin, df, refine_range_effects(twin, df, specs, calibration))
     refined = iter(specs)
     mapped = [(next(refined) if spec is not None else None, why) for spec, why in mapped]
     mapped = keep_shown(twin, mapped, seed)
     specs = tuple(spec for spec, _ in mapped if spec is not None)
-    rec = table_stats(df, f0)
-    nominal, fixed, null = [], [], []
-    for m in range(n_sims):
-        check_interrupt()
-        nominal.append(table_stats(twin.simulate((), seed=seed + 1 + m), f0))
-        fixed.append(table_stats(twin.simulate(specs, seed=seed + 1 + m), f0) if specs else nominal[-1])
-    say("null band from repeated simulation")
-    for j in range(n_null):
-        check_interrupt()
-        null.append(table_stats(twin.simulate((), seed=seed + 1000 + j), f0))
-
-    levels = []
-    for metric, level in METRICS.items():
-        band, how = null_95([_median_distance(p, nominal, metric) for p in null])
-        if metric == "frame_common" and calibration is not None:
-            # the simulator's share was measured on a short clip: its error widens the band
-            band = math.hypot(band, 1.96 * calibration.frame_common_se)
-        levels.append(
-            dict(
-                level=level,
-                metric=metric,
-                before=_median_distance(rec, nominal, metric),
-                after=_median_distance(rec, fixed, metric),
-                null_95=band,
-                null_method=how,
-            )
-        )
+    levels, stats = compare(twin, df, specs, n_sims, n_null, seed, calibration, say)
     effects = []
     for e, (spec, why) in zip(diag["effects"], mapped, strict=True):
         effects.append(
@@ -400,7 +466,6 @@ def reconcile(
                 explanation=e.get("explanation", ""),
             )
         )
-    stats = {"recording": rec, "nominal": nominal[0], "reconciled": fixed[0]}
     return Reconciliation(levels, effects, specs, diag, f0, stats)
 
 

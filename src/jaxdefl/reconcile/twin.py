@@ -7,11 +7,15 @@ shared by the plates of a frame as the frame simulator shares it (`SensorCalibra
 ``[[effect]]`` specs (`jaxdefl.simulate.injection`) are injected as the frame simulator injects
 them: range effects through the calibrated range-to-centroid gains of each plate and axis (z
 alone, gain 1, without a calibration), timing errors on the written stamps, motion effects on the
-harmonic (AM, FM) and on z in the beam's shape (extra lines, harmonics; the shape is the plates'
-z amplitudes over the largest), other bending modes on z in their own shape at each plate's place
-along the span (known from the config's calibration only). What the twin cannot render (a mode
-without a calibration, one plate's clipping) leaves its output unchanged: `reconcile` checks
-each effect and says so.
+harmonic (AM, FM) and, on every series, in the way the series carries the beam's motion (extra
+lines, harmonics: the series' harmonic over the largest z harmonic, signed by their phases — a
+plate's x and y see the beam's motion through the camera's geometry as they see the load), other
+bending modes on z in their own shape at each plate's place along the span (known from the
+config's calibration only). With a calibration, each series also has the extraction's outliers
+at the rate and size the calibration clip shows them (`SensorCalibration.outliers`; the rate drawn
+per simulation from its posterior, Gamma(k + ½) / n, so that the null band carries the clip's
+uncertainty). What the twin cannot render (a mode without a calibration, one plate's clipping)
+leaves its output unchanged: `reconcile` checks each effect and says so.
 """
 
 from __future__ import annotations
@@ -72,9 +76,19 @@ class Twin:
                 coef = np.linalg.lstsq(a, y[ok], rcond=None)[0]
                 sigma = short_term_noise(y[ok] - a @ coef)
                 self.series.append(_Series(int(plate), axis, rows, t, coef, sigma))
-        amps = {s.plate: math.hypot(s.coef[1], s.coef[2]) for s in self.series if s.axis == "z"}
-        top = max(amps.values(), default=0.0)
-        self.shape = {p: (a / top if top > 0 else 0.0) for p, a in amps.items()}
+        # the beam's motion as each series carries it: its harmonic over the largest z harmonic's
+        # (the mid-span's, as the simulator sizes motion effects), signed by their phases
+        polar = {
+            (s.plate, s.axis): (math.hypot(s.coef[1], s.coef[2]), math.atan2(s.coef[2], s.coef[1]))
+            for s in self.series
+        }
+        zs = [k for k in polar if k[1] == "z"] or list(polar)
+        top_key = max(zs, key=lambda k: polar[k][0], default=None)
+        top, self.phi_ref = polar[top_key] if top_key is not None else (0.0, 0.0)
+        self.transfer = {
+            k: (a / top * math.copysign(1.0, math.cos(phi - self.phi_ref)) if top > 0 else 0.0)
+            for k, (a, phi) in polar.items()
+        }
 
     def shows(self, effect: EffectSpec, seed: int = 0) -> bool:
         """Whether ``effect`` changes the simulated table (same seed, with and without it)."""
@@ -88,6 +102,7 @@ class Twin:
         """A table like the recording (same rows), rendered with ``effects``."""
         out = self.df.copy()
         rng = np.random.default_rng([int(seed), 9301])
+        rng_far = np.random.default_rng([int(seed), 9302])  # the outliers: apart from the noise
         gain, shift, extra = motion_modulations(effects, 0.0, self.f0_hz)
         stamps = stamp_times(effects, self.df["t"].to_numpy(), self.t_first)
         cal = self.calibration
@@ -105,10 +120,10 @@ class Twin:
             g = gain(t) if gain is not None else 1.0
             dphi = shift(t) if shift is not None else 0.0
             y = c + amp * g * np.cos(theta + dphi)
+            k = self.transfer.get((s.plate, s.axis), 0.0)
+            for f in extra:  # the simulator's phase θ is the twin's + π/2 (sin against cos)
+                y = y + k * f(t, self.omega * t - self.phi_ref + math.pi / 2)
             if s.axis == "z":
-                shape = self.shape.get(s.plate, 0.0)
-                for f in extra:
-                    y = y + shape * f(t, theta + math.pi / 2)
                 xi = cal.plate_xi.get(s.plate) if cal is not None else None
                 modal = mode_displacement(effects, t, np.array([xi])) if xi is not None else None
                 if modal is not None:  # another bending mode, in its own shape at the plate
@@ -121,6 +136,12 @@ class Twin:
                 math.sqrt(1 - rho) * rng.standard_normal(t.size)
                 + math.sqrt(rho) * common[s.axis][self.frame[s.rows]]
             )
+            far = cal.outliers.get((s.plate, s.axis)) if cal is not None else None
+            if far is not None and far[1]:  # the extraction's outliers, as the clip has them
+                n_clip, sizes = far
+                rate = rng_far.gamma(len(sizes) + 0.5) / n_clip
+                hit = rng_far.random(t.size) < rate
+                eps[hit] = rng_far.choice(np.asarray(sizes), int(hit.sum()))
             y = y + s.sigma * eps
             out.loc[s.rows, s.axis] = y
         out["t"] = stamps
