@@ -35,7 +35,7 @@ from ..simulate.injection import (
 )
 from .metrics import short_term_noise
 
-__all__ = ["Twin"]
+__all__ = ["Twin", "line_key"]
 
 
 @dataclass
@@ -46,6 +46,15 @@ class _Series:
     t: np.ndarray  # s since the table's first stamp
     coef: np.ndarray  # offset, cos, sin at ω
     sigma: float
+
+
+def line_key(spec: EffectSpec) -> tuple:
+    """What tells an additive motion term apart: its id and its frequency (or order)."""
+    if spec.id == "extra_periodic":
+        return (spec.id, round(spec.p("freq_hz"), 9))
+    if spec.id == "harmonic_distortion":
+        return (spec.id, int(spec.p("order")))
+    return (spec.id,)
 
 
 class Twin:
@@ -85,10 +94,29 @@ class Twin:
         zs = [k for k in polar if k[1] == "z"] or list(polar)
         top_key = max(zs, key=lambda k: polar[k][0], default=None)
         top, self.phi_ref = polar[top_key] if top_key is not None else (0.0, 0.0)
+        # a line's or a harmonic's size on each axis against the axis that sizes it, where the
+        # recording shows it otherwise than the transfer at f0 says (a ToF camera's range channel
+        # passes a faster motion less than the image's x and y): {line_key: {axis: gain}}
+        self.line_gain: dict[tuple, dict[str, float]] = {}
         self.transfer = {
             k: (a / top * math.copysign(1.0, math.cos(phi - self.phi_ref)) if top > 0 else 0.0)
             for k, (a, phi) in polar.items()
         }
+
+    def noise_without_lines(self, freqs_hz) -> None:
+        """Each series' noise level again, from its residual about the harmonic *and* lines at
+        ``freqs_hz``: the level comes from first differences, which a line well above the load's
+        frequency inflates (a 5.5-Hz line at 20 Hz moves 1.5× its amplitude a frame), so a
+        named line would otherwise be rendered twice, once as noise."""
+        freqs = [float(f) for f in freqs_hz if f > 0]
+        if not freqs:
+            return
+        y_all = {axis: self.df[axis].to_numpy() for axis in ("z", "x", "y") if axis in self.df}
+        for s in self.series:
+            w = [self.omega, *(2 * math.pi * f for f in freqs)]
+            a = np.stack([np.ones_like(s.t)] + [g(x * s.t) for x in w for g in (np.cos, np.sin)], 1)
+            y = y_all[s.axis][s.rows]
+            s.sigma = short_term_noise(y - a @ np.linalg.lstsq(a, y, rcond=None)[0])
 
     def shows(self, effect: EffectSpec, seed: int = 0) -> bool:
         """Whether ``effect`` changes the simulated table (same seed, with and without it)."""
@@ -103,7 +131,13 @@ class Twin:
         out = self.df.copy()
         rng = np.random.default_rng([int(seed), 9301])
         rng_far = np.random.default_rng([int(seed), 9302])  # the outliers: apart from the noise
-        gain, shift, extra = motion_modulations(effects, 0.0, self.f0_hz)
+        gain, shift, _ = motion_modulations(effects, 0.0, self.f0_hz)
+        # each additive motion term with its axes' gains (`line_gain`, set by the refit)
+        extra = [
+            (f, self.line_gain.get(line_key(e), {}))
+            for e in effects
+            for f in motion_modulations((e,), 0.0, self.f0_hz)[2]
+        ]
         stamps = stamp_times(effects, self.df["t"].to_numpy(), self.t_first)
         cal = self.calibration
         n_frames = int(self.frame.max()) + 1
@@ -121,8 +155,8 @@ class Twin:
             dphi = shift(t) if shift is not None else 0.0
             y = c + amp * g * np.cos(theta + dphi)
             k = self.transfer.get((s.plate, s.axis), 0.0)
-            for f in extra:  # the simulator's phase θ is the twin's + π/2 (sin against cos)
-                y = y + k * f(t, self.omega * t - self.phi_ref + math.pi / 2)
+            for f, by_axis in extra:  # the simulator's phase θ is the twin's + π/2 (sin against cos)
+                y = y + k * by_axis.get(s.axis, 1.0) * f(t, self.omega * t - self.phi_ref + math.pi / 2)
             if s.axis == "z":
                 xi = cal.plate_xi.get(s.plate) if cal is not None else None
                 modal = mode_displacement(effects, t, np.array([xi])) if xi is not None else None
