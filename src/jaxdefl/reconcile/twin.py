@@ -11,7 +11,9 @@ harmonic (AM, FM) and, on every series, in the way the series carries the beam's
 lines, harmonics: the series' harmonic over the largest z harmonic, signed by their phases — a
 plate's x and y see the beam's motion through the camera's geometry as they see the load), other
 bending modes on z in their own shape at each plate's place along the span (known from the
-config's calibration only). With a calibration, each series also has the extraction's outliers
+config's calibration only). A plate's axes share their noise as the recording's do (their
+correlation from the residuals' frame-to-frame changes: a ToF camera's range noise moves a
+centroid along its line of sight). With a calibration, each series also has the extraction's outliers
 at the rate and size the calibration clip shows them (`SensorCalibration.outliers`; the rate drawn
 per simulation from its posterior, Gamma(k + ½) / n, so that the null band carries the clip's
 uncertainty). What the twin cannot render (a mode without a calibration, one plate's clipping)
@@ -35,7 +37,9 @@ from ..simulate.injection import (
 )
 from .metrics import short_term_noise
 
-__all__ = ["Twin", "line_key"]
+__all__ = ["AXES", "Twin", "line_key"]
+
+AXES = ("z", "x", "y")
 
 
 @dataclass
@@ -85,6 +89,7 @@ class Twin:
                 coef = np.linalg.lstsq(a, y[ok], rcond=None)[0]
                 sigma = short_term_noise(y[ok] - a @ coef)
                 self.series.append(_Series(int(plate), axis, rows, t, coef, sigma))
+        self.axis_corr = self._axis_correlations(axes)
         # the beam's motion as each series carries it: its harmonic over the largest z harmonic's
         # (the mid-span's, as the simulator sizes motion effects), signed by their phases
         polar = {
@@ -102,6 +107,45 @@ class Twin:
             k: (a / top * math.copysign(1.0, math.cos(phi - self.phi_ref)) if top > 0 else 0.0)
             for k, (a, phi) in polar.items()
         }
+
+    def _axis_correlations(self, axes: tuple[str, ...]) -> dict[int, np.ndarray]:
+        """Per plate, the correlation of its axes' noise (axes in ``AXES`` order; identity where
+        an axis is missing), from the residuals' frame-to-frame changes (blind to slow
+        structure), each clipped at 6 σ (outliers): a ToF camera's range noise moves a centroid
+        along its line of sight, so a plate's x, y and z noise are nearly one variable, and a
+        twin with independent axes has a null band too narrow for every per-series metric."""
+        out = {}
+        by_plate: dict[int, dict[str, _Series]] = {}
+        for s in self.series:
+            by_plate.setdefault(s.plate, {})[s.axis] = s
+        for plate, series in by_plate.items():
+            c = np.eye(len(AXES))
+            cols, keys = [], []
+            rows = None
+            for axis in AXES:
+                if axis in series and axis in axes:
+                    rows = series[axis].rows if rows is None else np.intersect1d(rows, series[axis].rows)
+                    keys.append(axis)
+            if rows is not None and len(keys) > 1 and rows.size > 20:
+                for axis in keys:
+                    ser = series[axis]
+                    r = self.df[axis].to_numpy()[rows] - self._harmonic(ser, rows)
+                    d = np.diff(r) / (math.sqrt(2.0) * max(ser.sigma, 1e-12))
+                    cols.append(np.clip(d, -6.0, 6.0))
+                m = np.corrcoef(np.stack(cols))
+                if np.all(np.isfinite(m)):
+                    w, v = np.linalg.eigh(m)  # nearest positive definite, unit diagonal
+                    m = (v * np.maximum(w, 1e-6)) @ v.T
+                    m = m / np.sqrt(np.outer(np.diag(m), np.diag(m)))
+                    idx = [AXES.index(a) for a in keys]
+                    c[np.ix_(idx, idx)] = m
+            out[plate] = c
+        return out
+
+    def _harmonic(self, s: _Series, rows: np.ndarray) -> np.ndarray:
+        """The series' offset and harmonic at table rows ``rows``."""
+        t = self.df["t"].to_numpy()[rows] - self.t_first
+        return s.coef[0] + s.coef[1] * np.cos(self.omega * t) + s.coef[2] * np.sin(self.omega * t)
 
     def noise_without_lines(self, freqs_hz) -> None:
         """Each series' noise level again, from its residual about the harmonic *and* lines at
@@ -141,7 +185,14 @@ class Twin:
         stamps = stamp_times(effects, self.df["t"].to_numpy(), self.t_first)
         cal = self.calibration
         n_frames = int(self.frame.max()) + 1
-        common = {a: rng.standard_normal(n_frames) for a in ("z", "x", "y")}
+        # unit noise per frame and axis: each plate's own (its axes correlated as the recording's
+        # are), and the part every plate of a frame shares (the plates' mean correlation)
+        mean_corr = np.mean(list(self.axis_corr.values()), axis=0) if self.axis_corr else np.eye(3)
+        common = rng.standard_normal((n_frames, len(AXES))) @ np.linalg.cholesky(mean_corr).T
+        own = {
+            p: rng.standard_normal((n_frames, len(AXES))) @ np.linalg.cholesky(c).T
+            for p, c in self.axis_corr.items()
+        }
         off = None
         if any(e.level == "range" for e in effects):  # once per frame, indexed per series below
             frame_t = np.unique(self.df["t"].to_numpy()) - self.t_first
@@ -166,10 +217,8 @@ class Twin:
                 g_range = cal.gain_of(s.plate, s.axis) if cal is not None else float(s.axis == "z")
                 y = y + g_range * off[self.frame[s.rows], s.plate]
             rho = cal.frame_common.get(s.axis, 0.0) if cal is not None else 0.0
-            eps = (
-                math.sqrt(1 - rho) * rng.standard_normal(t.size)
-                + math.sqrt(rho) * common[s.axis][self.frame[s.rows]]
-            )
+            j, frames = AXES.index(s.axis), self.frame[s.rows]
+            eps = math.sqrt(1 - rho) * own[s.plate][frames, j] + math.sqrt(rho) * common[frames, j]
             far = cal.outliers.get((s.plate, s.axis)) if cal is not None else None
             if far is not None and far[1]:  # the extraction's outliers, as the clip has them
                 n_clip, sizes = far
