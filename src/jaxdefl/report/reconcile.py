@@ -253,7 +253,9 @@ def reconcile_markdown(rec, d: dict, figures: list[str], recording: str, config:
         found.summary(),
         "",
         f"Recording `{recording}` against the simulation of `{config}` (the same frame times, plates "
-        f"and fitted harmonics, f0 = {rec.f0_hz:.6f} Hz, white noise at each series' level). Each "
+        f"and fitted harmonics, f0 = {rec.f0_hz:.6f} Hz, white noise at each series' level shared by "
+        "a plate's axes as the recording's, and the extraction's own outliers when a config "
+        "calibrates them). Each "
         "distance is the recording's against the simulation's statistics; the null band is the "
         "95th percentile of the same distance between repeated simulations. The effects are those "
         "the diagnosis names (`jaxdefl diagnose`). " + selection_rule(),
