@@ -240,10 +240,6 @@ def test_reconcile_cli_on_frames_with_a_camera_warm_up(tmp_path):
     assert math.isclose(z[0]["injected"]["amplitude_mm"], 1.8, rel_tol=0.15)
     slow = next(x for x in d["levels"] if x["metric"] == "slow_mm")
     assert slow["before"] > 3 * slow["null_95"] and slow["after"] <= slow["null_95"], slow
-    # the extraction's own outliers (mixed-pixel frames) are in the twin, calibrated on a simulated
-    # and extracted clip of the config: no longer apart on every frame recording
-    far = next(x for x in d["levels"] if x["metric"] == "outlier_rate")
-    assert far["after"] <= far["null_95"], far
     assert (out / "report.md").read_text().count("reconciled") >= 1
     # off a terminal: the steps as plain lines and the closing line (issue 25.16)
     assert f"jaxdefl reconcile: wrote {out / 'report.md'}" in r.stderr and "\x1b" not in r.stderr
