@@ -25,7 +25,10 @@ config (its twins included, ``--twins``). Scored:
 
 - a registry effect is *named* when its id is among the effects, *reconciled* when it is named,
   simulated, and no metric is still apart after (every metric outside its band before is inside
-  after); the metric that carries it (``CARRIER``) and its verdict are printed. The summary also
+  after); the metric that carries it (``CARRIER``) and its verdict are printed. An effect not
+  named by its own id whose recording another simulated id brings back inside every band (a
+  level jump named a drift) is *missed, reconciled as* that id: counted apart, never as
+  reconciled (the name is wrong even where the simulation agrees). The summary also
   counts it leaving aside the metrics outside on the seed's own control (what the chain does to
   every recording of that config, e.g. the extraction's mixed-pixel outliers against a trajectory
   twin that has none);
@@ -216,10 +219,17 @@ def main(argv=None):
                     carrier = next(r for r in d["levels"] if r["metric"] == CARRIER[eid])
                     named = eid in s["names"].split(",")
                     fixed = named and eid in s["simulated"].split(",") and not s["still_apart"]
-                    return (
-                        f"{'reconciled' if fixed else 'named' if named else 'missed'}"
-                        f" ({CARRIER[eid]} {carrier['verdict']})"
-                    )
+                    other = [n for n in _split(s["simulated"]) if n != eid]
+                    if fixed:
+                        word = "reconciled"
+                    elif named:
+                        word = "named"
+                    elif other and not s["still_apart"]:
+                        # another id brought every metric back: not its name, so not reconciled
+                        word = f"missed, reconciled as {'+'.join(other)}"
+                    else:
+                        word = "missed"
+                    return f"{word} ({CARRIER[eid]} {carrier['verdict']})"
 
                 case(name, "registry", eid, seed, work / eid / "recording.zarr", signal, t0, effect_verdict)
             for kind in args.outside:
@@ -252,7 +262,7 @@ def main(argv=None):
     print(f"\nseeds {args.seeds}, {args.seconds:g}-s SR4000 recordings, twins {args.twins}")
     if len(reg):
         fixed = int(reg.verdict.str.startswith("reconciled").sum())
-        named = int((~reg.verdict.str.startswith("missed")).sum())
+        named = int((~reg.verdict.str.startswith("missed")).sum())  # its own id among the names
         # the metrics outside on the seed's own control are the chain's (the sensor as the
         # extraction sees it, which the trajectory twin lacks): the same on every recording
         seeds = set(reg.seed.astype(int))
@@ -263,11 +273,15 @@ def main(argv=None):
             and not set(_split(r.still_apart)) - own.get(int(r.seed), set())
             for r in reg.itertuples()
         )
+        as_other = int(reg.verdict.str.contains("reconciled as").sum())
         print(
             f"registry effects reconciled: {fixed}/{len(reg)}; {chain}/{len(reg)} leaving aside the metrics "
             f"outside on the seed's control ({'; '.join(f'{k}: {sorted(v)}' for k, v in own.items())}); "
-            f"named: {named}/{len(reg)}"
+            f"named: {named}/{len(reg)}; missed but reconciled under another id: {as_other}/{len(reg)}"
         )
+        for seed, g in reg.groupby("seed"):
+            cells = [f"{r.effect} S {r.signal:.0f}: {r.verdict}" for r in g.itertuples()]
+            print(f"  seed {seed}: " + "; ".join(cells))
     if len(ctl):
         print(f"controls clean: {int((ctl.verdict == 'clean').sum())}/{len(ctl)}")
     if len(out):

@@ -4,9 +4,11 @@ percentiles."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
+import pandas as pd
 import pytest
 
 from jaxdefl.io import validate_trajectory
@@ -139,3 +141,180 @@ def test_pooled_frames_band_is_a_95th_percentile_where_four_clips_give_an_80th()
         empirical.append(dist(clips[4]) > np.quantile([dist(c) for c in clips[:4]], 0.95))
     assert abs(np.mean(ours) - 0.05) < 0.015
     assert np.mean(empirical) > 0.15  # what the band from 4 clips' order statistic gave
+
+
+def test_a_reference_plate_the_config_marks_defective_is_left_out():
+    from jaxdefl._configs import resolve_config
+    from jaxdefl.simulate import load_config, usable_reference
+
+    cfg = load_config(resolve_config("exp1"))
+    assert cfg.lds.defective_plate == 9
+    ref = pd.DataFrame({"t": np.arange(6.0), "plate": [3, 9, 3, 9, 11, 9], "z": np.zeros(6)})
+    kept, note = usable_reference(ref, cfg, "lds.csv")
+    assert sorted(kept["plate"].unique()) == [3, 11] and len(kept) == 3
+    assert "plate 9 left out" in note and "lds.csv" in note
+    # only the defective plate: no reference at all, and the note says so
+    none, note = usable_reference(ref[ref["plate"] == 9], cfg, "lds.csv")
+    assert none is None and "without a reference" in note
+    # nothing marked defective: the reference as it came
+    good = dataclasses.replace(cfg, lds=dataclasses.replace(cfg.lds, defective_plate=0))
+    same, note = usable_reference(ref, good)
+    assert same is ref and note is None
+
+
+def test_diagnose_with_a_config_ties_no_plate_to_its_defective_lds(tmp_path):
+    from jaxdefl._configs import resolve_config
+    from jaxdefl.pipeline import diagnose_file
+    from jaxdefl.settings import DiagnoseSettings
+    from jaxdefl.simulate import simulate_trajectories
+
+    config = resolve_config("exp1")
+    truth, lds = simulate_trajectories(config, 12.0, 3)
+    rng = np.random.default_rng(0)
+    for axis in "xyz":
+        truth[axis] = truth[axis] + 0.05 * rng.standard_normal(len(truth))
+    truth.to_csv(tmp_path / "traj.csv", index=False)
+    lds.to_csv(tmp_path / "lds.csv", index=False)
+    d = diagnose_file(
+        tmp_path / "traj.csv",
+        tmp_path / "diag.json",
+        DiagnoseSettings(effects=("drift",)),  # the search is not what is tested
+        reference=tmp_path / "lds.csv",
+        config=config,
+        figures=False,
+        twins=0,
+    )
+    assert d["input"]["reference_plates"] == [3, 5, 7, 11]
+    assert any("plate 9 left out of the reference" in n for n in d["notes"])
+    # the sensor's 0.6 gain would have left a line at f0 on plate 9 (unexplained)
+    assert not any(9 in u.get("plates", []) for u in d["unexplained"])
+
+
+def _with_outliers(df, f0: float, seed: int, key=(7, "x"), rate: float = 0.01, size: float = 9.0):
+    """``df`` with outliers of ±``size`` noise σ's on one series at ``rate`` (the chain's kind:
+    a ToF camera's mixed-pixel frames on the plate under it)."""
+    from jaxdefl.reconcile.metrics import series_residuals
+
+    out = df.copy()
+    rng = np.random.default_rng(seed)
+    noise = series_residuals(df, f0)[key][2]
+    rows = np.flatnonzero((out["plate"] == key[0]).to_numpy())
+    hit = rows[rng.random(rows.size) < rate]
+    out.loc[hit, key[1]] += rng.choice([-1.0, 1.0], hit.size) * size * noise
+    return out
+
+
+def test_the_twins_outlier_rate_null_covers_a_control_with_the_chains_outliers():
+    # a control of a chain that makes outliers (here on plate 7 x), and a calibration clip of the
+    # same chain: the twin calibrated on the clip renders them, so the control's outlier_rate is
+    # inside its null band; the uncalibrated twin (none) puts it outside
+    from jaxdefl.reconcile.engine import compare
+    from jaxdefl.reconcile.sensor import _outliers
+
+    traj, _, truth = make_case(5, [], minutes=1.5, sensor="tof")
+    f0 = truth["recording"]["f0_hz"]
+    rec = _with_outliers(validate_trajectory(traj), f0, seed=1)
+    clip_traj, _, _ = make_case(6, [], minutes=1.0, sensor="tof")
+    clip = _with_outliers(validate_trajectory(clip_traj), f0, seed=2)
+    found = _outliers(clip, f0)
+    n, sizes = found[(7, "x")]
+    assert len(sizes) >= 2 and all(abs(u) > 4.5 for u in sizes)
+    assert sum(len(v[1]) for k, v in found.items() if k != (7, "x")) <= 2  # Gaussian elsewhere
+    cal = SensorCalibration({}, {}, 0.0, 0.0, {}, found)
+
+    def outlier_row(calibration):
+        levels, _ = compare(Twin(rec, f0, calibration), rec, n_sims=3, n_null=12, seed=3)
+        return next(r for r in levels if r["metric"] == "outlier_rate")
+
+    with_chain, without = outlier_row(cal), outlier_row(None)
+    assert with_chain["before"] <= with_chain["null_95"], with_chain
+    assert without["before"] > without["null_95"], without
+    # the outliers are the twin's own: the same seed renders them the same with or without an effect
+    twin = Twin(rec, f0, cal)
+    a = twin.simulate((), 4)
+    b = twin.simulate((make_spec("level_jump", {"t_jump_s": 30.0, "size_mm": 0.5}),), 4)
+    np.testing.assert_array_equal(a["x"].to_numpy(), b["x"].to_numpy())
+
+
+def test_a_line_reported_on_x_alone_is_injected_once_as_the_beams_motion():
+    # the twin renders a line as the beam's motion on every series, in the way the series carries
+    # the load; a diagnosis that reports it on x and y only (z left out) gives one injection, whose
+    # mid-span amplitude and phase are refitted to the recording and reproduce it
+    from jaxdefl.reconcile.engine import refine_motion_lines
+
+    traj, _, truth = make_case(5, [], minutes=2.0, sensor="tof")
+    df, f0 = validate_trajectory(traj), truth["recording"]["f0_hz"]
+    twin = Twin(df, f0)
+    line = make_spec("extra_periodic", {"freq_hz": 2.3, "amplitude_mm": 0.4, "phase_rad": 0.7})
+    rec, base = twin.simulate((line,), 4), twin.simulate((), 4)
+    t = df["t"].to_numpy() - df["t"].min()
+    for key in ((7, "x"), (3, "z")):
+        rows = (df["plate"] == key[0]).to_numpy()
+        k = twin.transfer[key]
+        assert abs(k) > 0.1
+        want = k * 0.4 * np.cos(2 * math.pi * 2.3 * t[rows] + 0.7)
+        np.testing.assert_allclose((rec[key[1]] - base[key[1]]).to_numpy()[rows], want, atol=1e-9)
+
+    def report(axis, amp):
+        return {
+            "id": "extra_periodic",
+            "plates": [1, 2, 3],
+            "axes": [axis],
+            "parameters": {"freq_hz": {"value": 2.3, "sigma": 1e-4}, "amplitude_mm": {"value": amp}},
+        }
+
+    mapped = specs_from_diagnosis([report("x", 0.09), report("y", 0.01)], duration_s=120.0, n_plates=13)
+    specs = tuple(s for s, _ in mapped if s is not None)
+    assert len(specs) == 1 and "simulated once" in mapped[1][1]
+    (fitted,) = refine_motion_lines(twin, rec, specs)
+    assert fitted.p("amplitude_mm") == pytest.approx(0.4, rel=0.05)  # z's fit: 0.6-mm noise
+    assert math.cos(fitted.p("phase_rad") - 0.7) > 0.998
+    # x carries the line as the transfer at f0 says: its gain against z's is 1
+    assert twin.line_gain[("extra_periodic", 2.3)]["x"] == pytest.approx(1.0, abs=0.1)
+    again = twin.simulate((fitted,), 4)
+    assert np.nanmax(np.abs(again[["x", "y", "z"]].to_numpy() - rec[["x", "y", "z"]].to_numpy())) < 0.02
+
+
+def test_the_twins_noise_leaves_out_a_named_line_it_renders():
+    # a line well above f0 moves the series a lot from frame to frame: left in the noise level,
+    # it would be rendered twice (once as noise, once as the line)
+    from jaxdefl.reconcile.metrics import series_residuals
+
+    traj, _, truth = make_case(5, [], minutes=1.0, sensor="tof")
+    df, f0 = validate_trajectory(traj), truth["recording"]["f0_hz"]
+    noise = {k: v[2] for k, v in series_residuals(df, f0).items()}
+    lined = df.copy()
+    t = lined["t"].to_numpy() - lined["t"].min()
+    lined["z"] = lined["z"] + 3.0 * np.cos(2 * math.pi * 5.5 * t)
+    twin = Twin(lined, f0)
+    before = {(s.plate, s.axis): s.sigma for s in twin.series if s.axis == "z"}
+    twin.noise_without_lines([5.5])
+    after = {(s.plate, s.axis): s.sigma for s in twin.series if s.axis == "z"}
+    for key, sigma in after.items():
+        assert before[key] > 2 * noise[key]  # the line in the noise
+        assert sigma == pytest.approx(noise[key], rel=0.1)  # the line left out
+
+
+def test_the_twin_shares_a_plates_noise_across_axes_as_the_recording_does():
+    # a ToF camera's range noise moves a centroid along its line of sight: a plate's x and z noise
+    # are nearly one variable; the twin renders that correlation, measured on the recording
+    from jaxdefl.reconcile.metrics import series_residuals
+
+    traj, _, truth = make_case(5, [], minutes=1.0, sensor="tof")
+    df, f0 = validate_trajectory(traj), truth["recording"]["f0_hz"]
+    rng = np.random.default_rng(3)
+    los = 1.5 * rng.standard_normal(len(df))  # along the line of sight
+    df["z"] = df["z"] + los
+    df["x"] = df["x"] - 0.5 * los
+    twin = Twin(df, f0)
+
+    def corr(table, plate):
+        res = series_residuals(table, f0)
+        return np.corrcoef(res[(plate, "z")][1], res[(plate, "x")][1])[0, 1]
+
+    sim = twin.simulate((), 2)
+    for plate in (2, 7):
+        want = corr(df, plate)
+        assert want < -0.3
+        assert twin.axis_corr[plate][0, 1] == pytest.approx(want, abs=0.05)
+        assert corr(sim, plate) == pytest.approx(want, abs=0.08)

@@ -568,6 +568,15 @@ def _chain_null(d: dict, config: Path, settings, twins: int, duration_s: float, 
     return apply_chain_null(d, null, duration_s)
 
 
+def _usable_reference(ref: pd.DataFrame | None, config: Path | None, source: Path | None):
+    """(the reference without the plate the config marks defective, a note or None)."""
+    if ref is None or config is None:
+        return ref, None
+    from .simulate import load_config, usable_reference
+
+    return usable_reference(ref, load_config(config), str(source))
+
+
 def diagnose_file(
     traj: Path,
     out: Path,
@@ -597,6 +606,7 @@ def diagnose_file(
     with status(f"jaxdefl diagnose: reading {traj}"):
         df = load_table(traj)
         ref = load_table(reference) if reference is not None else None
+    ref, ref_note = _usable_reference(ref, config, reference)
     _check_diagnosis_memory(df, traj, settings)
 
     def on_round(r: int, eid: str | None) -> None:
@@ -606,6 +616,8 @@ def diagnose_file(
         diag = run_diagnosis(
             df, ref, settings, source=str(traj), reference_source=str(reference), on_round=on_round
         )
+    if ref_note:
+        diag.notes.insert(0, ref_note)
     if sensor_note:
         diag.notes.insert(0, sensor_note)
     for note in diag.notes:
@@ -614,7 +626,7 @@ def diagnose_file(
     d = diag.to_json()
     if config is not None and twins > 0:
         named = d["effects"]
-        d = _chain_null(d, config, settings, twins, diag.ctx.duration_s, reference is not None)
+        d = _chain_null(d, config, settings, twins, diag.ctx.duration_s, ref is not None)
         kept = {id(e) for e in d["effects"]}  # the report lists what DIAG.json keeps
         diag.accepted = [a for a, e in zip(diag.accepted, named, strict=True) if id(e) in kept]
     d["settings"] = {
@@ -778,6 +790,7 @@ def reconcile_file(
         outs.reserve(out / name, f"--out {out}: {name}")
     df = _reconcile_input(recording, settings.segment, timestamps)
     ref = read_reference(reference, timestamps=timestamps) if reference is not None else None
+    ref, ref_note = _usable_reference(ref, config, reference)
     settings = replace(settings, diagnosis=settings.diagnosis.with_camera(_camera_facts(config)))
     with status("jaxdefl reconcile: simulating and extracting a calibration clip ...") as step:
         calibration = calibrate(cfg, seconds=10.0, seed=seed)
@@ -824,12 +837,16 @@ def reconcile_file(
         + effect_tables_toml(rec.specs)
     )
     config_from_dict(tomllib.loads(toml), str(out / "reconciled.toml"), session)  # simulate accepts it
+    notes = list(rec.diagnosis.get("notes") or [])
+    if ref_note:
+        notes.insert(0, ref_note)
     d = {
         "levels": rec.levels,
         "effects": rec.effects,
         "config": "reconciled.toml",
         "unexplained": rec.diagnosis.get("unexplained", []),
         "nominal_physics": rec.diagnosis.get("nominal_physics", []),
+        "notes": notes,
         "f0_hz": rec.f0_hz,
         "settings": {
             "jaxdefl_version": __version__,

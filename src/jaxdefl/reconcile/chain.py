@@ -73,12 +73,14 @@ def _twin(args) -> dict[str, float]:
     from ..frames import extract_recording
     from ..io import read_reference
     from ..io.recording import open_recording
-    from ..simulate import simulate_to_dir
+    from ..simulate import load_config, simulate_to_dir, usable_reference
 
     with tempfile.TemporaryDirectory(prefix="jaxdefl_twin_") as tmp:
         out = simulate_to_dir(config, Path(tmp) / "sim", clip_s, seed, progress=False, session=session)
         traj = extract_recording(open_recording(out / "recording.zarr"), progress=False)
-        ref = read_reference(out / "lds.csv") if with_reference else None
+        ref = None
+        if with_reference:  # as the recording's: without the plate whose LDS is defective
+            ref = usable_reference(read_reference(out / "lds.csv"), load_config(config, session))[0]
         diag = run_diagnosis(traj, ref, settings).to_json()
     best: dict[str, float] = {}
     for e in diag["effects"]:

@@ -4,12 +4,14 @@ simulation with the named physics comes back inside the null band.
 1. The recording is diagnosed (`jaxdefl.diagnose.run_diagnosis`, with the camera facts of the
    simulation config): its f0, and the effects it names with their fitted parameters.
 2. The simulation a user would set up (`Twin`: the recording's frame times, plates and fitted
-   harmonics, white noise at each series' level) is rendered ``n_sims`` times and compared with
-   the recording on every metric (`jaxdefl.reconcile.metrics`): *before*.
+   harmonics, white noise at each series' level and, with a calibration, the extraction's own
+   outliers) is rendered ``n_sims`` times and compared with the recording on every metric
+   (`jaxdefl.reconcile.metrics`, `compare`): *before*.
 3. The null band: ``n_null`` further simulations of the same model, each compared as if it were
    the recording; ``null_95`` is the 95th percentile of those distances.
-4. The named effects that the simulator can inject become ``[[effect]]`` specs; the simulation is
-   rendered again with them and compared again: *after*.
+4. The named effects that the simulator can inject become ``[[effect]]`` specs (range effects'
+   sizes, lines' and harmonics' mid-span amplitudes and phases refitted to the recording as the
+   twin renders them); the simulation is rendered again with them and compared again: *after*.
 
 A metric is reconciled when *before* lies outside the null band and *after* inside it.
 """
@@ -29,9 +31,17 @@ from ..settings import ReconcileSettings
 from ..simulate.injection import INJECTABLE, EffectSpec, make_spec
 from .chain import apply_chain_null
 from .metrics import METRICS, TableStats, distance, null_95, table_stats
-from .twin import Twin
+from .twin import Twin, line_key
 
-__all__ = ["Reconciliation", "effect_tables_toml", "keep_shown", "reconcile", "specs_from_diagnosis"]
+__all__ = [
+    "Reconciliation",
+    "compare",
+    "effect_tables_toml",
+    "keep_shown",
+    "reconcile",
+    "refine_motion_lines",
+    "specs_from_diagnosis",
+]
 
 
 @dataclass
@@ -212,7 +222,7 @@ def _range_columns(spec: EffectSpec, t: np.ndarray, tau: float | None = None) ->
 
 def _nuisance_free(twin: Twin, df: pd.DataFrame, gain_of) -> list:
     """Per series the range effects reach (its calibrated gain ≥ 0.05): (plate, t, its residual
-    and the projector of its offset and harmonic, the gain), all in units of its noise."""
+    and the projector of its offset and harmonic, the gain, all in units of its noise, axis)."""
     out = []
     for s in twin.series:
         g = gain_of(s.plate, s.axis)
@@ -221,7 +231,7 @@ def _nuisance_free(twin: Twin, df: pd.DataFrame, gain_of) -> list:
         y = df[s.axis].to_numpy()[s.rows]
         a = np.stack([np.ones_like(s.t), np.cos(twin.omega * s.t), np.sin(twin.omega * s.t)], 1)
         q = np.linalg.qr(a)[0]
-        out.append((s.plate, s.t, (y - q @ (q.T @ y)) / s.sigma, q, g / s.sigma))
+        out.append((s.plate, s.t, (y - q @ (q.T @ y)) / s.sigma, q, g / s.sigma, s.axis))
     return out
 
 
@@ -248,7 +258,7 @@ def refine_range_effects(twin: Twin, df: pd.DataFrame, specs: tuple[EffectSpec, 
 
         def fit(tau, spec=spec, parts=parts):
             num = den = 0.0
-            for _, t, r, q, g in parts:
+            for _, t, r, q, g, _ in parts:
                 u = g * _range_columns(spec, t, tau)
                 u = u - q @ (q.T @ u)
                 num += float(u @ r)
@@ -277,7 +287,7 @@ def _joint_range_sizes(series: list, specs: tuple[EffectSpec, ...]):
         return specs
     ata = np.zeros((len(idx), len(idx)))
     atb = np.zeros(len(idx))
-    for plate, t, r, q, g in series:
+    for plate, t, r, q, g, _ in series:
         cols = [k for k, j in enumerate(idx) if not specs[j].plates or plate in specs[j].plates]
         if not cols:
             continue
@@ -292,6 +302,67 @@ def _joint_range_sizes(series: list, specs: tuple[EffectSpec, ...]):
     for k, j in enumerate(idx):
         name = "amplitude_mm" if specs[j].id == "drift" else "size_mm"
         out[j] = make_spec(specs[j].id, {**dict(specs[j].parameters), name: float(size[k])}, specs[j].plates)
+    return tuple(out)
+
+
+_LINES = ("extra_periodic", "harmonic_distortion")
+
+
+def _line_columns(twin: Twin, spec: EffectSpec, t: np.ndarray) -> np.ndarray:
+    """(t, 2) the cos and sin whose combination p cos + q sin is the spec's motion term as the
+    twin renders it (`Twin.simulate`): an extra line at its frequency, a harmonic at its order
+    of the simulator's phase θ."""
+    if spec.id == "extra_periodic":
+        arg = 2 * math.pi * spec.p("freq_hz") * t
+    else:
+        arg = spec.p("order") * (twin.omega * t - twin.phi_ref + math.pi / 2)
+    return np.stack([np.cos(arg), np.sin(arg)], axis=1)
+
+
+def refine_motion_lines(twin: Twin, df: pd.DataFrame, specs: tuple[EffectSpec, ...]):
+    """Fit an extra line's or a harmonic's mid-span amplitude and phase (its frequency or order
+    kept) to the recording as the twin renders it: one motion of the beam seen on every series
+    through its transfer (`Twin.transfer`), the series' offsets and harmonics as nuisances,
+    weighted by their noise. The diagnosis reports a line's median amplitude on the axis that
+    carries it, and no phase the twin can use; this is the motion the simulator injects.
+
+    The amplitude is fitted per axis: z's (else the axis with most evidence) sizes the spec, and
+    the others' sizes against it become the twin's gains for it (`Twin.line_gain`): a ToF
+    camera's range channel (z) passes a motion faster than the load less than the image's x and
+    y do (measured at 5.5 Hz on SR4000 frames: z 0.75-0.9 of x and y, relative to f0), which the
+    transfer at f0 cannot say. ``twin.line_gain`` is set in place."""
+    series = _nuisance_free(twin, df, lambda plate, axis: twin.transfer.get((plate, axis), 0.0))
+    axes = {a: [x for x in series if x[5] == a] for a in ("z", "x", "y")}
+    out = []
+    for spec in specs:
+        if spec.id not in _LINES or not series:
+            out.append(spec)
+            continue
+        fits = {}
+        for axis, parts in axes.items():
+            ata, atb = np.zeros((2, 2)), np.zeros(2)
+            for _, t, r, q, g, _ in parts:
+                u = g * _line_columns(twin, spec, t)
+                u = u - q @ (q.T @ u)
+                ata += u.T @ u
+                atb += u.T @ r
+            if parts and np.linalg.cond(ata) < 1e8:
+                coef = np.linalg.solve(ata, atb)
+                fits[axis] = (coef, float(coef @ ata @ coef))  # its amplitudes and their evidence
+        if not fits:
+            out.append(spec)
+            continue
+        main = "z" if "z" in fits else max(fits, key=lambda a: fits[a][1])
+        p, qs = fits[main][0]
+        size = math.hypot(p, qs)
+        twin.line_gain[line_key(spec)] = {
+            a: (float(np.hypot(*c)) / size if size > 0 else 1.0) for a, (c, _) in fits.items()
+        }
+        params = dict(spec.parameters)
+        params["amplitude_mm"] = float(math.hypot(p, qs))
+        # a cos(2πft + ψ) = a cos ψ cos − a sin ψ sin; a cos(kθ − ψ) = a cos ψ cos + a sin ψ sin
+        params["phase_rad"] = float(math.atan2(-qs if spec.id == "extra_periodic" else qs, p))
+        out.append(make_spec(spec.id, params, spec.plates))
     return tuple(out)
 
 
@@ -316,6 +387,50 @@ def _median_distance(r: TableStats, sims: list[TableStats], metric: str) -> floa
     d = [distance(r, s, metric) for s in sims]
     d = [x for x in d if np.isfinite(x)]
     return float(np.median(d)) if d else float("nan")
+
+
+def compare(
+    twin: Twin,
+    df: pd.DataFrame,
+    specs: tuple[EffectSpec, ...] = (),
+    n_sims: int = 4,
+    n_null: int = 20,
+    seed: int = 0,
+    calibration=None,
+    say: Callable[[str], None] = lambda _msg: None,
+) -> tuple[list[dict], dict[str, TableStats]]:
+    """The trajectories' and estimates' rows of reconcile.json: each metric's distance of the
+    recording ``df`` from ``n_sims`` renders of ``twin`` without (*before*) and with ``specs``
+    (*after*), and its null band from ``n_null`` further renders (`null_95`); and the statistics
+    of the recording, the first nominal render and the first reconciled one."""
+    f0 = twin.f0_hz
+    rec = table_stats(df, f0)
+    nominal, fixed, null = [], [], []
+    for m in range(n_sims):
+        check_interrupt()
+        nominal.append(table_stats(twin.simulate((), seed=seed + 1 + m), f0))
+        fixed.append(table_stats(twin.simulate(specs, seed=seed + 1 + m), f0) if specs else nominal[-1])
+    say("null band from repeated simulation")
+    for j in range(n_null):
+        check_interrupt()
+        null.append(table_stats(twin.simulate((), seed=seed + 1000 + j), f0))
+    levels = []
+    for metric, level in METRICS.items():
+        band, how = null_95([_median_distance(p, nominal, metric) for p in null])
+        if metric == "frame_common" and calibration is not None:
+            # the simulator's share was measured on a short clip: its error widens the band
+            band = math.hypot(band, 1.96 * calibration.frame_common_se)
+        levels.append(
+            dict(
+                level=level,
+                metric=metric,
+                before=_median_distance(rec, nominal, metric),
+                after=_median_distance(rec, fixed, metric),
+                null_95=band,
+                null_method=how,
+            )
+        )
+    return levels, {"recording": rec, "nominal": nominal[0], "reconciled": fixed[0]}
 
 
 def reconcile(
@@ -351,38 +466,15 @@ def reconcile(
 
     say("simulating the experiment")
     twin = Twin(df, f0, calibration)
-    specs = refine_range_effects(twin, df, specs, calibration)
+    specs = refine_motion_lines(twin, df, refine_range_effects(twin, df, specs, calibration))
+    twin.noise_without_lines(
+        [s.p("freq_hz") if s.id == "extra_periodic" else s.p("order") * f0 for s in specs if s.id in _LINES]
+    )
     refined = iter(specs)
     mapped = [(next(refined) if spec is not None else None, why) for spec, why in mapped]
     mapped = keep_shown(twin, mapped, seed)
     specs = tuple(spec for spec, _ in mapped if spec is not None)
-    rec = table_stats(df, f0)
-    nominal, fixed, null = [], [], []
-    for m in range(n_sims):
-        check_interrupt()
-        nominal.append(table_stats(twin.simulate((), seed=seed + 1 + m), f0))
-        fixed.append(table_stats(twin.simulate(specs, seed=seed + 1 + m), f0) if specs else nominal[-1])
-    say("null band from repeated simulation")
-    for j in range(n_null):
-        check_interrupt()
-        null.append(table_stats(twin.simulate((), seed=seed + 1000 + j), f0))
-
-    levels = []
-    for metric, level in METRICS.items():
-        band, how = null_95([_median_distance(p, nominal, metric) for p in null])
-        if metric == "frame_common" and calibration is not None:
-            # the simulator's share was measured on a short clip: its error widens the band
-            band = math.hypot(band, 1.96 * calibration.frame_common_se)
-        levels.append(
-            dict(
-                level=level,
-                metric=metric,
-                before=_median_distance(rec, nominal, metric),
-                after=_median_distance(rec, fixed, metric),
-                null_95=band,
-                null_method=how,
-            )
-        )
+    levels, stats = compare(twin, df, specs, n_sims, n_null, seed, calibration, say)
     effects = []
     for e, (spec, why) in zip(diag["effects"], mapped, strict=True):
         effects.append(
@@ -400,7 +492,6 @@ def reconcile(
                 explanation=e.get("explanation", ""),
             )
         )
-    stats = {"recording": rec, "nominal": nominal[0], "reconciled": fixed[0]}
     return Reconciliation(levels, effects, specs, diag, f0, stats)
 
 

@@ -36,6 +36,8 @@ __all__ = [
     "distance",
     "frame_correlation",
     "null_95",
+    "outlier_sizes",
+    "series_residuals",
     "short_term_noise",
     "table_stats",
 ]
@@ -55,6 +57,7 @@ METRICS = {
 BIN_S = 10.0
 N_WINDOWS = 10
 MIN_SAMPLES = 40
+OUTLIER_SIGMAS = 4.5  # `outlier_rate`: samples this many noise σ's from the residual's median
 
 
 @dataclass
@@ -94,6 +97,35 @@ def _design(t: np.ndarray, omega: float) -> np.ndarray:
     u = (t - 0.5 * (t[0] + t[-1])) / 100.0
     c, s = np.cos(omega * t), np.sin(omega * t)
     return np.stack([np.ones_like(t), c, s, u * c, u * s], axis=1)
+
+
+def outlier_sizes(r: np.ndarray, noise: float) -> np.ndarray:
+    """The residual's samples beyond `OUTLIER_SIGMAS` noise σ's from its median, in σ's (signed)."""
+    u = (r - np.median(r)) / noise if noise > 0 else np.zeros_like(r)
+    return u[np.abs(u) > OUTLIER_SIGMAS]
+
+
+def series_residuals(df: pd.DataFrame, f0_hz: float, axes: tuple[str, ...] = ("z", "x", "y")):
+    """{(plate, axis): (t since the table's first stamp, residual, its short-term noise)} of the
+    series `table_stats` measures (at least `MIN_SAMPLES` finite values), about the harmonic at
+    ``f0_hz`` (`_design`)."""
+    omega = 2 * math.pi * f0_hz
+    t_first = float(df["t"].min())
+    out = {}
+    for plate, g in df.groupby("plate", sort=True):
+        t_all = g["t"].to_numpy() - t_first
+        for axis in axes:
+            if axis not in g:
+                continue
+            y = g[axis].to_numpy()
+            ok = np.isfinite(y)
+            if ok.sum() < MIN_SAMPLES:
+                continue
+            t = t_all[ok]
+            a = _design(t, omega)
+            r = y[ok] - a @ np.linalg.lstsq(a, y[ok], rcond=None)[0]
+            out[(int(plate), axis)] = (t, r, short_term_noise(r))
+    return out
 
 
 def _periodogram_ratio(t: np.ndarray, r: np.ndarray, dt: float) -> float:
@@ -149,7 +181,7 @@ def table_stats(df: pd.DataFrame, f0_hz: float, axes: tuple[str, ...] = ("z", "x
                         zw.append(complex(bj[1], -bj[2]))
                 if len(zw) >= 3:
                     env = float(np.sqrt(np.mean(np.abs(np.array(zw) - z) ** 2)) / abs(z))
-            far = int(np.sum(np.abs(r - np.median(r)) > 4.5 * noise))
+            far = int(outlier_sizes(r, noise).size)
             rows.append(
                 dict(
                     key=f"{plate}/{axis}",

@@ -11,6 +11,13 @@ of the configured experiment (same seed, so the noise cancels in differences):
   reads 1 mm farther (the transfer of a range effect such as a warm-up into trajectories; the
   extraction's depth classification and 3D geometry set it, not 1).
 
+and, on a longer clip of the configured experiment as it is (``outlier_seconds``):
+
+- ``outliers``: per plate and axis, the samples the extraction puts far from the motion (beyond
+  `metrics.OUTLIER_SIGMAS` noise σ's of the residual, as `outlier_rate` counts them: a ToF
+  camera's mixed-pixel frames on the plate under it) — their sizes in σ's and the samples
+  searched, so that the twin renders them at the rate and size the chain makes them.
+
 and one of the config: each plate's position along the span (``plate_xi``, x / L), where the
 beam's other bending modes (`mode_shape`) move it.
 """
@@ -27,7 +34,7 @@ import pandas as pd
 
 from ..simulate.config import SimConfig
 from ..simulate.injection import make_spec
-from .metrics import frame_correlation
+from .metrics import frame_correlation, outlier_sizes, series_residuals
 
 __all__ = ["SensorCalibration", "calibrate"]
 
@@ -39,6 +46,8 @@ class SensorCalibration:
     seconds: float
     frame_common_se: float = 0.0  # its standard error from the clip's length (Fisher z)
     plate_xi: dict[int, float] = dataclasses.field(default_factory=dict)  # plate -> x / span
+    # (plate, axis) -> (samples searched, the outliers' signed sizes in noise σ's)
+    outliers: dict[tuple[int, str], tuple[int, tuple[float, ...]]] = dataclasses.field(default_factory=dict)
 
     def gain_of(self, plate: int, axis: str) -> float:
         return self.gain.get((int(plate), axis), 1.0 if axis == "z" else 0.0)
@@ -88,8 +97,19 @@ def _frame_common(df: pd.DataFrame, f0_hz: float) -> dict[str, tuple[float, int]
     return out
 
 
-def calibrate(cfg: SimConfig, seconds: float = 10.0, seed: int = 0) -> SensorCalibration:
-    """Simulate and extract a ``seconds`` clip twice (ranges as configured, and 1 mm farther)."""
+def _outliers(df: pd.DataFrame, f0_hz: float) -> dict[tuple[int, str], tuple[int, tuple[float, ...]]]:
+    """Per series of an extracted clip: (samples, the outliers' sizes in σ's, `outlier_sizes`)."""
+    return {
+        key: (int(r.size), tuple(float(u) for u in outlier_sizes(r, noise)))
+        for key, (_, r, noise) in series_residuals(df, f0_hz).items()
+    }
+
+
+def calibrate(
+    cfg: SimConfig, seconds: float = 10.0, seed: int = 0, outlier_seconds: float = 60.0
+) -> SensorCalibration:
+    """Simulate and extract a ``seconds`` clip twice (ranges as configured, and 1 mm farther),
+    and an ``outlier_seconds`` clip of the configured experiment (0: none) for its outliers."""
     clean = dataclasses.replace(cfg, effects=())
     shifted = dataclasses.replace(cfg, effects=(make_spec("level_jump", {"t_jump_s": 0.0, "size_mm": 1.0}),))
     a = _extract(clean, seconds, seed)
@@ -105,10 +125,15 @@ def calibrate(cfg: SimConfig, seconds: float = 10.0, seed: int = 0) -> SensorCal
     fc = _frame_common(a, cfg.loading.frequency_hz)
     # the clip is short: its correlations carry an error the null band must allow for
     se = [(1 - r * r) / math.sqrt(max(n - 4, 1)) for r, n in fc.values()]
+    outliers = {}
+    if outlier_seconds > 0:
+        long = a if outlier_seconds <= seconds else _extract(clean, outlier_seconds, seed + 1)
+        outliers = _outliers(long, cfg.loading.frequency_hz)
     return SensorCalibration(
         {k: r for k, (r, _) in fc.items()},
         gain,
         seconds,
         float(np.sqrt(np.mean(np.square(se)))) if se else 0.0,
         {i + 1: float(x) / cfg.beam.span_mm for i, x in enumerate(cfg.plate_x_mm())},
+        outliers,
     )

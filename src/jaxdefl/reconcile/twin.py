@@ -7,11 +7,17 @@ shared by the plates of a frame as the frame simulator shares it (`SensorCalibra
 ``[[effect]]`` specs (`jaxdefl.simulate.injection`) are injected as the frame simulator injects
 them: range effects through the calibrated range-to-centroid gains of each plate and axis (z
 alone, gain 1, without a calibration), timing errors on the written stamps, motion effects on the
-harmonic (AM, FM) and on z in the beam's shape (extra lines, harmonics; the shape is the plates'
-z amplitudes over the largest), other bending modes on z in their own shape at each plate's place
-along the span (known from the config's calibration only). What the twin cannot render (a mode
-without a calibration, one plate's clipping) leaves its output unchanged: `reconcile` checks
-each effect and says so.
+harmonic (AM, FM) and, on every series, in the way the series carries the beam's motion (extra
+lines, harmonics: the series' harmonic over the largest z harmonic, signed by their phases — a
+plate's x and y see the beam's motion through the camera's geometry as they see the load), other
+bending modes on z in their own shape at each plate's place along the span (known from the
+config's calibration only). A plate's axes share their noise as the recording's do (their
+correlation from the residuals' frame-to-frame changes: a ToF camera's range noise moves a
+centroid along its line of sight). With a calibration, each series also has the extraction's outliers
+at the rate and size the calibration clip shows them (`SensorCalibration.outliers`; the rate drawn
+per simulation from its posterior, Gamma(k + ½) / n, so that the null band carries the clip's
+uncertainty). What the twin cannot render (a mode without a calibration, one plate's clipping)
+leaves its output unchanged: `reconcile` checks each effect and says so.
 """
 
 from __future__ import annotations
@@ -31,7 +37,9 @@ from ..simulate.injection import (
 )
 from .metrics import short_term_noise
 
-__all__ = ["Twin"]
+__all__ = ["AXES", "Twin", "line_key"]
+
+AXES = ("z", "x", "y")
 
 
 @dataclass
@@ -42,6 +50,15 @@ class _Series:
     t: np.ndarray  # s since the table's first stamp
     coef: np.ndarray  # offset, cos, sin at ω
     sigma: float
+
+
+def line_key(spec: EffectSpec) -> tuple:
+    """What tells an additive motion term apart: its id and its frequency (or order)."""
+    if spec.id == "extra_periodic":
+        return (spec.id, round(spec.p("freq_hz"), 9))
+    if spec.id == "harmonic_distortion":
+        return (spec.id, int(spec.p("order")))
+    return (spec.id,)
 
 
 class Twin:
@@ -72,9 +89,78 @@ class Twin:
                 coef = np.linalg.lstsq(a, y[ok], rcond=None)[0]
                 sigma = short_term_noise(y[ok] - a @ coef)
                 self.series.append(_Series(int(plate), axis, rows, t, coef, sigma))
-        amps = {s.plate: math.hypot(s.coef[1], s.coef[2]) for s in self.series if s.axis == "z"}
-        top = max(amps.values(), default=0.0)
-        self.shape = {p: (a / top if top > 0 else 0.0) for p, a in amps.items()}
+        self.axis_corr = self._axis_correlations(axes)
+        # the beam's motion as each series carries it: its harmonic over the largest z harmonic's
+        # (the mid-span's, as the simulator sizes motion effects), signed by their phases
+        polar = {
+            (s.plate, s.axis): (math.hypot(s.coef[1], s.coef[2]), math.atan2(s.coef[2], s.coef[1]))
+            for s in self.series
+        }
+        zs = [k for k in polar if k[1] == "z"] or list(polar)
+        top_key = max(zs, key=lambda k: polar[k][0], default=None)
+        top, self.phi_ref = polar[top_key] if top_key is not None else (0.0, 0.0)
+        # a line's or a harmonic's size on each axis against the axis that sizes it, where the
+        # recording shows it otherwise than the transfer at f0 says (a ToF camera's range channel
+        # passes a faster motion less than the image's x and y): {line_key: {axis: gain}}
+        self.line_gain: dict[tuple, dict[str, float]] = {}
+        self.transfer = {
+            k: (a / top * math.copysign(1.0, math.cos(phi - self.phi_ref)) if top > 0 else 0.0)
+            for k, (a, phi) in polar.items()
+        }
+
+    def _axis_correlations(self, axes: tuple[str, ...]) -> dict[int, np.ndarray]:
+        """Per plate, the correlation of its axes' noise (axes in ``AXES`` order; identity where
+        an axis is missing), from the residuals' frame-to-frame changes (blind to slow
+        structure), each clipped at 6 σ (outliers): a ToF camera's range noise moves a centroid
+        along its line of sight, so a plate's x, y and z noise are nearly one variable, and a
+        twin with independent axes has a null band too narrow for every per-series metric."""
+        out = {}
+        by_plate: dict[int, dict[str, _Series]] = {}
+        for s in self.series:
+            by_plate.setdefault(s.plate, {})[s.axis] = s
+        for plate, series in by_plate.items():
+            c = np.eye(len(AXES))
+            cols, keys = [], []
+            rows = None
+            for axis in AXES:
+                if axis in series and axis in axes:
+                    rows = series[axis].rows if rows is None else np.intersect1d(rows, series[axis].rows)
+                    keys.append(axis)
+            if rows is not None and len(keys) > 1 and rows.size > 20:
+                for axis in keys:
+                    ser = series[axis]
+                    r = self.df[axis].to_numpy()[rows] - self._harmonic(ser, rows)
+                    d = np.diff(r) / (math.sqrt(2.0) * max(ser.sigma, 1e-12))
+                    cols.append(np.clip(d, -6.0, 6.0))
+                m = np.corrcoef(np.stack(cols))
+                if np.all(np.isfinite(m)):
+                    w, v = np.linalg.eigh(m)  # nearest positive definite, unit diagonal
+                    m = (v * np.maximum(w, 1e-6)) @ v.T
+                    m = m / np.sqrt(np.outer(np.diag(m), np.diag(m)))
+                    idx = [AXES.index(a) for a in keys]
+                    c[np.ix_(idx, idx)] = m
+            out[plate] = c
+        return out
+
+    def _harmonic(self, s: _Series, rows: np.ndarray) -> np.ndarray:
+        """The series' offset and harmonic at table rows ``rows``."""
+        t = self.df["t"].to_numpy()[rows] - self.t_first
+        return s.coef[0] + s.coef[1] * np.cos(self.omega * t) + s.coef[2] * np.sin(self.omega * t)
+
+    def noise_without_lines(self, freqs_hz) -> None:
+        """Each series' noise level again, from its residual about the harmonic *and* lines at
+        ``freqs_hz``: the level comes from first differences, which a line well above the load's
+        frequency inflates (a 5.5-Hz line at 20 Hz moves 1.5× its amplitude a frame), so a
+        named line would otherwise be rendered twice, once as noise."""
+        freqs = [float(f) for f in freqs_hz if f > 0]
+        if not freqs:
+            return
+        y_all = {axis: self.df[axis].to_numpy() for axis in ("z", "x", "y") if axis in self.df}
+        for s in self.series:
+            w = [self.omega, *(2 * math.pi * f for f in freqs)]
+            a = np.stack([np.ones_like(s.t)] + [g(x * s.t) for x in w for g in (np.cos, np.sin)], 1)
+            y = y_all[s.axis][s.rows]
+            s.sigma = short_term_noise(y - a @ np.linalg.lstsq(a, y, rcond=None)[0])
 
     def shows(self, effect: EffectSpec, seed: int = 0) -> bool:
         """Whether ``effect`` changes the simulated table (same seed, with and without it)."""
@@ -88,11 +174,25 @@ class Twin:
         """A table like the recording (same rows), rendered with ``effects``."""
         out = self.df.copy()
         rng = np.random.default_rng([int(seed), 9301])
-        gain, shift, extra = motion_modulations(effects, 0.0, self.f0_hz)
+        rng_far = np.random.default_rng([int(seed), 9302])  # the outliers: apart from the noise
+        gain, shift, _ = motion_modulations(effects, 0.0, self.f0_hz)
+        # each additive motion term with its axes' gains (`line_gain`, set by the refit)
+        extra = [
+            (f, self.line_gain.get(line_key(e), {}))
+            for e in effects
+            for f in motion_modulations((e,), 0.0, self.f0_hz)[2]
+        ]
         stamps = stamp_times(effects, self.df["t"].to_numpy(), self.t_first)
         cal = self.calibration
         n_frames = int(self.frame.max()) + 1
-        common = {a: rng.standard_normal(n_frames) for a in ("z", "x", "y")}
+        # unit noise per frame and axis: each plate's own (its axes correlated as the recording's
+        # are), and the part every plate of a frame shares (the plates' mean correlation)
+        mean_corr = np.mean(list(self.axis_corr.values()), axis=0) if self.axis_corr else np.eye(3)
+        common = rng.standard_normal((n_frames, len(AXES))) @ np.linalg.cholesky(mean_corr).T
+        own = {
+            p: rng.standard_normal((n_frames, len(AXES))) @ np.linalg.cholesky(c).T
+            for p, c in self.axis_corr.items()
+        }
         off = None
         if any(e.level == "range" for e in effects):  # once per frame, indexed per series below
             frame_t = np.unique(self.df["t"].to_numpy()) - self.t_first
@@ -105,10 +205,10 @@ class Twin:
             g = gain(t) if gain is not None else 1.0
             dphi = shift(t) if shift is not None else 0.0
             y = c + amp * g * np.cos(theta + dphi)
+            k = self.transfer.get((s.plate, s.axis), 0.0)
+            for f, by_axis in extra:  # the simulator's phase θ is the twin's + π/2 (sin against cos)
+                y = y + k * by_axis.get(s.axis, 1.0) * f(t, self.omega * t - self.phi_ref + math.pi / 2)
             if s.axis == "z":
-                shape = self.shape.get(s.plate, 0.0)
-                for f in extra:
-                    y = y + shape * f(t, theta + math.pi / 2)
                 xi = cal.plate_xi.get(s.plate) if cal is not None else None
                 modal = mode_displacement(effects, t, np.array([xi])) if xi is not None else None
                 if modal is not None:  # another bending mode, in its own shape at the plate
@@ -117,10 +217,14 @@ class Twin:
                 g_range = cal.gain_of(s.plate, s.axis) if cal is not None else float(s.axis == "z")
                 y = y + g_range * off[self.frame[s.rows], s.plate]
             rho = cal.frame_common.get(s.axis, 0.0) if cal is not None else 0.0
-            eps = (
-                math.sqrt(1 - rho) * rng.standard_normal(t.size)
-                + math.sqrt(rho) * common[s.axis][self.frame[s.rows]]
-            )
+            j, frames = AXES.index(s.axis), self.frame[s.rows]
+            eps = math.sqrt(1 - rho) * own[s.plate][frames, j] + math.sqrt(rho) * common[frames, j]
+            far = cal.outliers.get((s.plate, s.axis)) if cal is not None else None
+            if far is not None and far[1]:  # the extraction's outliers, as the clip has them
+                n_clip, sizes = far
+                rate = rng_far.gamma(len(sizes) + 0.5) / n_clip
+                hit = rng_far.random(t.size) < rate
+                eps[hit] = rng_far.choice(np.asarray(sizes), int(hit.sum()))
             y = y + s.sigma * eps
             out.loc[s.rows, s.axis] = y
         out["t"] = stamps

@@ -253,7 +253,9 @@ def reconcile_markdown(rec, d: dict, figures: list[str], recording: str, config:
         found.summary(),
         "",
         f"Recording `{recording}` against the simulation of `{config}` (the same frame times, plates "
-        f"and fitted harmonics, f0 = {rec.f0_hz:.6f} Hz, white noise at each series' level). Each "
+        f"and fitted harmonics, f0 = {rec.f0_hz:.6f} Hz, white noise at each series' level shared by "
+        "a plate's axes as the recording's, and the extraction's own outliers when a config "
+        "calibrates them). Each "
         "distance is the recording's against the simulation's statistics; the null band is the "
         "95th percentile of the same distance between repeated simulations. The effects are those "
         "the diagnosis names (`jaxdefl diagnose`). " + selection_rule(),
@@ -288,6 +290,8 @@ def reconcile_markdown(rec, d: dict, figures: list[str], recording: str, config:
             lines.append(f"- unnamed `{u['kind']}`: {u.get('explanation', '')}")
         for u in found.unexplained:
             lines.append(f"- unexplained: {_unexplained_text(u)}")
+    if d.get("notes"):
+        lines += ["", "## Notes", ""] + [f"- {n}" for n in d["notes"]]
     lines += ["", "## What to do next", ""]
     lines += [f"- {a}" for a in found.advice()] or [
         "- Nothing: the simulation with the named physics reproduces the recording."

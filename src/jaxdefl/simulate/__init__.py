@@ -20,7 +20,7 @@ Public surface:
 from .centroids import measured_centroids
 from .config import SimConfig, config_from_dict, load_config
 from .injection import REGISTRY, EffectSpec
-from .lds import frame_clock, lds_block, truth_table
+from .lds import frame_clock, lds_block, truth_table, usable_reference
 from .live import camera_blocks, centroid_noise_mm, write_live
 from .scene import beam_shape, intrinsics, kinematics, midspan_amplitude_mm, pixel_model
 from .tof import TABLE_6_1_MM, integration_time_ms, non_ambiguity_range_m, range_noise_mm
@@ -37,6 +37,7 @@ __all__ = [
     "frame_clock",
     "truth_table",
     "lds_block",
+    "usable_reference",
     "beam_shape",
     "intrinsics",
     "kinematics",

@@ -16,7 +16,7 @@ from .config import SimConfig
 from .injection import mode_displacement, plate_motion
 from .scene import beam_shape, camera_origin, camera_rotation, kinematics, plate_centres_world
 
-__all__ = ["frame_clock", "truth_table", "lds_block", "LDS_BLOCK_S"]
+__all__ = ["frame_clock", "truth_table", "lds_block", "usable_reference", "LDS_BLOCK_S"]
 
 LDS_BLOCK_S = 60.0  # LDS noise is drawn per block of this length, whatever the chunking
 
@@ -97,3 +97,23 @@ def lds_block(cfg: SimConfig, seed: int, block: int, duration_s: float) -> pd.Da
             z = lds.defect_gain * z + lds.defect_noise_um * 1e-3 * rng.standard_normal(t.size)
         frames.append(pd.DataFrame({"segment": cfg.recording.segment, "t": t, "plate": p, "z": z}))
     return pd.concat(frames, ignore_index=True)
+
+
+def usable_reference(reference: pd.DataFrame, cfg: SimConfig, source: str = "--reference"):
+    """(``reference`` without the plate whose sensor ``cfg`` marks defective, a note or None).
+
+    A defective LDS (``lds.defective_plate``) reads the deflection with ``lds.defect_gain`` and
+    ``lds.defect_noise_um``: tied to it, that plate's camera z would show a line at f0 that is the
+    sensor's, not the camera's. Its rows are dropped and the note says so; None when no other
+    plate is left."""
+    bad = int(cfg.lds.defective_plate)
+    if not bad or "plate" not in reference or not (reference["plate"] == bad).any():
+        return reference, None
+    note = (
+        f"{source}: plate {bad} left out of the reference: the config marks its LDS defective "
+        f"(lds.defective_plate = {bad}, gain {cfg.lds.defect_gain:g}, noise {cfg.lds.defect_noise_um:g} µm)"
+    )
+    kept = reference[reference["plate"] != bad].reset_index(drop=True)
+    if kept.empty:
+        return None, note + "; no other plate is left: diagnosed without a reference"
+    return kept, note
