@@ -250,12 +250,7 @@ def attribute(
             f = _attribute_one(c, e, per, seen, shared, test, library)
             # one finding per effect and side: its axes, and the cameras that all show it
             same = next(
-                (
-                    g
-                    for g in findings
-                    if (g.id, g.attribution, g.side) == (f.id, f.attribution, f.side)
-                    and (f.attribution in ("structure", "measurement") or g.cameras == [c])
-                ),
+                (g for g in findings if (g.id, g.attribution, g.side) == (f.id, f.attribution, f.side)),
                 None,
             )
             if same is not None:
