@@ -57,6 +57,8 @@ __all__ = [
     "HARMONIC_LOCKED",
     "KINDS",
     "value_lattice",
+    "binary_steps",
+    "level_path",
 ]
 
 KINDS = ("forced_harmonic", "multi_tone", "free_decay", "broadband", "quasi_static")
@@ -271,10 +273,11 @@ def _coloured(g: np.ndarray, lines: list[float], dt: float, block: int = 16) -> 
     return float(top.sum() / max(b.sum(), 1e-300))
 
 
-def _steps(r: np.ndarray, max_steps: int = PATH_STEPS_MAX) -> tuple[np.ndarray, int]:
+def binary_steps(r: np.ndarray, max_steps: int = PATH_STEPS_MAX) -> tuple[np.ndarray, list[int]]:
     """Piecewise-constant levels of r by binary segmentation: the split that most reduces the
     sum of squares, while it removes more than STEP_PENALTY · log n noise variances (σ from the
-    first differences: 1.4826 MAD / √2). (levels, number of steps)."""
+    first differences: 1.4826 MAD / √2). (levels, the cuts: index of the first sample after
+    each step, increasing)."""
     n = r.size
     d = np.diff(r)
     sig = 1.4826 * float(np.median(np.abs(d - np.median(d)))) / math.sqrt(2) if d.size else 0.0
@@ -301,7 +304,7 @@ def _steps(r: np.ndarray, max_steps: int = PATH_STEPS_MAX) -> tuple[np.ndarray, 
     levels = np.empty(n)
     for a, b in zip(cuts[:-1], cuts[1:], strict=True):
         levels[a:b] = r[a:b].mean()
-    return levels, len(cuts) - 2
+    return levels, cuts[1:-1]
 
 
 def _slow_part(r: np.ndarray) -> np.ndarray:
@@ -323,7 +326,8 @@ def level_path(g: np.ndarray, dt: float, f_hz: float, iterations: int = 3) -> tu
     for _ in range(iterations):
         beta = np.linalg.lstsq(a, g - path, rcond=None)[0]
         r = g - a[:, :2] @ beta[:2]
-        levels, n_steps = _steps(r)
+        levels, cuts = binary_steps(r)
+        n_steps = len(cuts)
         path = levels + _slow_part(r - levels)
     return path, n_steps
 
@@ -332,12 +336,14 @@ def _motion_under_path(g: np.ndarray, dt: float, lines: list[float]):
     """A vibration under a dominant level path: (motion, path facts) when, with the path out,
     a line of at least FORCED_CYCLES cycles carries FORCED_SHARE of what is left; else None."""
     duration = g.size * dt
-    if not lines or lines[0] * duration < FORCED_CYCLES:
+    # the strongest line of many cycles (the path's own steps make lines of a few)
+    fast = [f for f in lines if f * duration >= FORCED_CYCLES]
+    if not fast:
         return None
-    path, n_steps = level_path(g, dt, lines[0])
+    f = fast[0]
+    path, n_steps = level_path(g, dt, f)
     motion = g - path
     motion = motion - motion.mean()
-    f = lines[0]
     t = np.arange(g.size) * dt
     a = np.stack([np.cos(2 * np.pi * f * t), np.sin(2 * np.pi * f * t)], axis=1)
     fit = a @ np.linalg.lstsq(a, motion, rcond=None)[0]
@@ -366,7 +372,9 @@ def recognise(series: list[tuple[np.ndarray, np.ndarray]], dt: float) -> RecordK
     lines, shares = _lines(g, dt)
     rk = RecordKind("forced_harmonic", lines_hz=lines, line_shares=shares, slow_share=slow)
     duration = g.size * dt
-    under = _motion_under_path(g, dt, lines) if slow >= SLOW_SHARE else None
+    # a path that holds most of the variance (quasi-static) or leaves the lines a minor share
+    # (its steps' spectrum reads as broadband) is taken out first when a clear line rides on it
+    under = _motion_under_path(g, dt, lines) if slow >= SLOW_SHARE or sum(shares) < LINES_SHARE_MIN else None
     if under is not None:
         # judged on the motion: the path's variance is the sensor's or the set-up's, not the kind's
         g, rk.level_path = under
