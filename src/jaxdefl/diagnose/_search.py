@@ -928,12 +928,17 @@ def run_diagnosis(
     configured = []
     for a in accepted:
         p = a.proposal
+        # a step's size on each depth series (its reported size is one over every axis)
+        steps = [
+            float(np.ptp(p.states[i].mean - a.before[i].mean)) for i in p.series if ctx.series[i].axis == "z"
+        ]
         why = within_configured(
             ctx,
             {
                 "id": p.effect,
                 "plates": sorted({ctx.series[i].plate for i in p.series}),
                 "parameters": p.parameters,
+                "depth_step_mm": max(steps) if steps else None,
             },
         )
         if why is not None:

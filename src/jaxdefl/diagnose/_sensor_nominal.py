@@ -71,20 +71,24 @@ def nominal_level_jumps(ctx: Context, states: list[State]) -> tuple[list[State],
         return states, []
     levels, cuts = binary_steps(common[frames])
     bound = JUMP_SIGMAS * float(ctx.jump_mm)
-    jumps = [(c, float(levels[c] - levels[c - 1])) for c in cuts]
-    jumps = [(c, d) for c, d in jumps if abs(d) <= bound]
+    steps = [(c, float(levels[c] - levels[c - 1])) for c in cuts]
+    jumps = [(c, d) for c, d in steps if abs(d) <= bound]
     expected = float(ctx.jumps_per_minute) * ctx.duration_s / 60.0
     n_max = int(stats.poisson.isf(POISSON_LEVEL, max(expected, 1e-9))) + 1
     jumps = sorted(sorted(jumps, key=lambda j: -abs(j[1]))[:n_max])
     if not jumps:
         return states, []
     k_cut = [int(frames[c]) for c, _ in jumps]  # the first frame after each jump
+    # the steps beyond the camera's are fitted alongside (so they bias no held jump's size) and
+    # left in the residual, for `level_jump` to name
+    k_other = [int(frames[c]) for c, _ in steps if int(frames[c]) not in k_cut]
     new = list(states)
     for i, s in enumerate(ctx.series):
         st = states[i]
-        cols = np.stack([np.ones(s.n)] + [(s.k >= k).astype(float) for k in k_cut], axis=1)
+        cols = np.stack([np.ones(s.n)] + [(s.k >= k).astype(float) for k in k_cut + k_other], axis=1)
         beta = lstsq(cols, s.y - st.mean)[0] if s.n > cols.shape[1] else np.zeros(cols.shape[1])
-        new[i] = st.with_(mean=st.mean + cols @ beta, n_params=st.n_params + len(k_cut))
+        held = cols[:, : 1 + len(k_cut)] @ beta[: 1 + len(k_cut)]
+        new[i] = st.with_(mean=st.mean + held, n_params=st.n_params + len(k_cut))
     out = [
         {"t_s": float(ctx.t0 + (k - 0.5) * ctx.dt_s), "size_mm": d}
         for k, (_, d) in zip(k_cut, jumps, strict=True)
@@ -101,8 +105,9 @@ def _depth_mm(ctx: Context, plates) -> float:
 
 
 def within_configured(ctx: Context, effect: dict) -> str | None:
-    """Why a named effect (a DIAG.json entry) is the configured structured-light camera's own
-    physics, or None when it is not (or nothing is configured)."""
+    """Why a named effect (a DIAG.json entry: ``id``, ``plates``, ``parameters``; for a jump
+    optionally ``depth_step_mm``, its largest size on a depth series) is the configured
+    structured-light camera's own physics, or None when it is not (or nothing is configured)."""
     eid = effect["id"]
     params = {
         k: (v.get("value") if isinstance(v, dict) else v) for k, v in effect.get("parameters", {}).items()
@@ -118,7 +123,10 @@ def within_configured(ctx: Context, effect: dict) -> str | None:
                 f"at 2 m, growing as z²; at most {LATTICE_FACTOR:g}× that is the camera's own)"
             )
     if eid == "level_jump" and _configured_jumps(ctx) and params.get("size_mm") is not None:
-        size = abs(float(params["size_mm"]))
+        # the step on the depth series where known (the reported size is one over every axis;
+        # a depth step moves x and y by x/z and y/z of it)
+        size = effect.get("depth_step_mm")
+        size = abs(float(params["size_mm"] if size is None else size))
         if size <= JUMP_SIGMAS * float(ctx.jump_mm):
             return (
                 f"a level jump of the configured structured-light camera: {size:.3g} mm against its "

@@ -345,6 +345,7 @@ def _motion_under_path(g: np.ndarray, dt: float, lines: list[float]):
     motion = g - path
     motion = motion - motion.mean()
     t = np.arange(g.size) * dt
+    f = _peak_near(t, motion, f)  # the screening's grid refined on the motion (the nominal's hint)
     a = np.stack([np.cos(2 * np.pi * f * t), np.sin(2 * np.pi * f * t)], axis=1)
     fit = a @ np.linalg.lstsq(a, motion, rcond=None)[0]
     var = float(np.mean(motion**2)) or 1e-300
