@@ -189,13 +189,7 @@ class Drift(Effect):
         amp = float(fit.beta[0])
         amp_sigma = math.sqrt(max(float(fit.cov[0, 0]), 0.0))
         return _exponential_proposal(
-            ctx,
-            fit.series,
-            fit.states,
-            2,
-            p_value,
-            (amp, amp_sigma),
-            (tau, sig_tau),
+            ctx, fit.series, fit.states, 2, p_value, (amp, amp_sigma), (tau, sig_tau),
             "all drift by {amp:+.3f} mm",
             "the camera warming up shifts its range for the whole image alike.",
             {"mode": "common"},
@@ -247,13 +241,7 @@ class Drift(Effect):
         amp = median_signed(a)
         amp_sigma = 1.2533 * math.sqrt(float(np.mean(sa**2)) / a.size)
         return _exponential_proposal(
-            ctx,
-            kept,
-            new,
-            1 + len(kept),
-            p_value,
-            (amp, amp_sigma),
-            (tau, sig_tau),
+            ctx, kept, new, 1 + len(kept), p_value, (amp, amp_sigma), (tau, sig_tau),
             "drift by {amp:+.3f} mm",
             "the camera warming up (or its mount settling) adds a slowly vanishing offset.",
             {"amplitudes_mm": {ctx.series[i].key: amps[i] for i in kept}},

@@ -215,15 +215,7 @@ class ExtraPeriodic(Effect):
         keys = [ctx.series[i].key for i in fit.series]
         where = f"{len(keys)} series" if len(keys) > 3 else ", ".join(keys)
         return _line_proposal(
-            ctx,
-            fit.series,
-            fit.states,
-            3,
-            p_value,
-            f_hat,
-            sigma_f,
-            half,
-            (amp, amp_sig),
+            ctx, fit.series, fit.states, 3, p_value, f_hat, sigma_f, half, (amp, amp_sig),
             f"moves {where} alike by about {amp:.3f} mm along {axis}",
             {"mode": "common", "amplitude_axis": axis},
             trials,
@@ -274,15 +266,8 @@ class ExtraPeriodic(Effect):
         amp_sig_med = float(np.median(np.asarray(amp_sig)[on_main]))
         half = max(3 * sigma_f, 0.5 / ctx.duration_s) if np.isfinite(sigma_f) else 1.0 / ctx.duration_s
         return _line_proposal(
-            ctx,
-            list(kept),
-            new_states,
-            1 + 2 * len(kept),
-            p_value,
-            f_hat,
-            sigma_f if np.isfinite(sigma_f) else None,
-            half,
-            (amp_med, amp_sig_med),
+            ctx, list(kept), new_states, 1 + 2 * len(kept), p_value, f_hat,
+            sigma_f if np.isfinite(sigma_f) else None, half, (amp_med, amp_sig_med),
             f"moves {len(plates)} plate(s) by about {amp_med:.3f} mm along {main}",
             {
                 "amplitudes_mm": {ctx.series[i].key: float(a) for i, a in zip(kept, amps, strict=True)},

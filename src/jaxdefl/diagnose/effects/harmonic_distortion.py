@@ -73,8 +73,6 @@ def _local_levels(ctx: Context, i: int, r: np.ndarray) -> np.ndarray:
         if int(near.sum()) >= MIN_LEVEL_BINS:
             out[j] = max(float(np.median(power[near])) / math.log(2.0), 1.0)
     return out
-
-
 SCREEN_MARGIN = 8.0  # exact fits for series whose screen comes within this of the BIC bar
 
 
