@@ -482,11 +482,20 @@ def _demo_into(out: Path, duration_s: float, seed: int) -> Path:
     return report
 
 
-_CAMERA_FACTS = ("sensor", "frame_rate_hz", "modulation_mhz", "tap_offsets")
+_CAMERA_FACTS = (
+    "sensor",
+    "frame_rate_hz",
+    "modulation_mhz",
+    "tap_offsets",
+    "depth_step_mm_at_2m",
+    "jumps_per_minute",
+    "jump_mm",
+)
 
 
 def _camera_facts(config: Path | None) -> dict:
-    """Sensor, frame rate, modulation and tap offsets from a simulation config (TOML)."""
+    """Sensor, frame rate, modulation and tap offsets from a simulation config (TOML); of a
+    structured-light camera, its depth lattice and level jumps (its nominal physics)."""
     if config is None:
         return {}
     from .simulate import load_config
@@ -499,6 +508,10 @@ def _camera_facts(config: Path | None) -> dict:
     if cam.sensor == "sr4000":
         facts["modulation_mhz"] = cam.modulation_mhz
         facts["tap_offsets"] = tuple(cam.tap_offsets)
+    else:
+        facts["depth_step_mm_at_2m"] = cam.depth_resolution_mm_at_2m
+        facts["jumps_per_minute"] = cam.jumps_per_minute
+        facts["jump_mm"] = cam.jump_mm
     return facts
 
 

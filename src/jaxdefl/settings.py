@@ -328,7 +328,10 @@ class DiagnoseSettings:
 
     ``sensor``, ``frame_rate_hz``, ``modulation_mhz``, ``tap_offsets`` (four fractions of the
     frame period): what the user knows of the camera (None: unknown; the frame rate then comes
-    from the timestamps). ``segment``: the segment to diagnose when the table has several.
+    from the timestamps). ``depth_step_mm_at_2m``, ``jumps_per_minute``, ``jump_mm``: a
+    structured-light camera's configured depth lattice (its step at 2 m; it grows as z²) and
+    level jumps (their rate and RMS size), its nominal physics (`jaxdefl.diagnose._sensor_nominal`).
+    ``segment``: the segment to diagnose when the table has several.
     ``effects``: restrict the library to these ids (a comma list or a tuple; None: all).
     ``axes``: the axes diagnosed (None: z, x, y as present). ``timestamps``: the policy the
     tables are read with (`jaxdefl.io.validate_trajectory`). ``open_world``: search what the
@@ -339,6 +342,9 @@ class DiagnoseSettings:
     frame_rate_hz: float | None = None
     modulation_mhz: float | None = None
     tap_offsets: tuple[float, ...] | None = None
+    depth_step_mm_at_2m: float | None = None
+    jumps_per_minute: float | None = None
+    jump_mm: float | None = None
     segment: str | None = None
     effects: tuple[str, ...] | str | None = None
     axes: tuple[str, ...] | str | None = None
@@ -352,6 +358,13 @@ class DiagnoseSettings:
             raise ParameterError("sensor", f"expected one of {', '.join(SENSORS)}, got {_got(self.sensor)}")
         _check_positive(self, ("frame_rate_hz",), "a positive rate in Hz")
         _check_positive(self, ("modulation_mhz",), "a positive frequency in MHz")
+        _check_positive(self, ("depth_step_mm_at_2m", "jump_mm"), "a positive size in mm")
+        if self.jumps_per_minute is not None and not (
+            math.isfinite(self.jumps_per_minute) and self.jumps_per_minute >= 0
+        ):
+            raise ParameterError(
+                "jumps_per_minute", f"expected a rate >= 0 per minute, got {_got(self.jumps_per_minute)}"
+            )
         if self.tap_offsets is not None:
             taps = tuple(float(o) for o in self.tap_offsets)
             if len(taps) != 4 or not all(0.0 <= o < 1.0 for o in taps):

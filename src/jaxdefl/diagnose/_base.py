@@ -283,6 +283,9 @@ class Context:
             taps (`_context.nominal_tap_spread`), so the reference effects find what remains.
         left_out: series not diagnosed, each ``{"plate", "axis", "status", "n"}`` (status
             ``too_few_samples`` or ``value_out_of_range``, as in the estimates table).
+        depth_step_mm_at_2m, jumps_per_minute, jump_mm: a configured structured-light camera's
+            depth lattice (its step at 2 m, growing as z²) and level jumps (rate, RMS size);
+            None when not known (`_sensor_nominal`).
     """
 
     series: list[Series]
@@ -301,6 +304,9 @@ class Context:
     tap_offsets: tuple[float, ...] = (0.0, 0.25, 0.5, 0.75)
     tap_spread_s: float = 0.0
     left_out: tuple[dict, ...] = ()
+    depth_step_mm_at_2m: float | None = None
+    jumps_per_minute: float | None = None
+    jump_mm: float | None = None
     _nuisance: dict = field(default_factory=dict, init=False, repr=False, compare=False)
     _noise: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 

@@ -98,6 +98,7 @@ def build_context(
     source: str = "<table>",
     reference_source: str = "--reference",
     allow_no_motion: bool = False,
+    f0_hint_hz: float | None = None,
 ) -> tuple[Context, list[State], list[str]]:
     """Validate the tables, fit the nominal model and return (context, nominal states, notes).
 
@@ -172,6 +173,22 @@ def build_context(
                 f"plate {key[0]} {key[1]}: the harmonic fit did not converge (a decaying motion?); "
                 f"harmonic at its periodogram peak {peaks.freq_hz[row]:.6g} Hz"
             )
+    if not free and f0_hint_hz:
+        # the record's line, found once its level path was out (`record_kind`): a level path
+        # that holds the variance hides the line from each series' own periodogram
+        for key, g in df.groupby("plate"):
+            t = g["t"].to_numpy() - t0
+            for axis in axes:
+                y = g[axis].to_numpy()
+                ok = np.isfinite(y)
+                if ok.sum() >= 8:
+                    free[(int(key), axis)] = _linear_harmonic(
+                        t[ok], y[ok], 2 * math.pi * f0_hint_hz, 0.5 * duration
+                    )
+        notes.append(
+            f"no series' own periodogram shows its line over the level path: harmonic at the record's "
+            f"{f0_hint_hz:.6g}-Hz line (record kind)"
+        )
     if not free and not allow_no_motion:
         raise InputError(f"{source}: no plate and axis shows a significant periodic motion to diagnose")
     if not free:  # a load path, not a vibration (`record_kind`): one cycle over the record
@@ -305,5 +322,10 @@ def build_context(
         tap_offsets=taps,
         tap_spread_s=tap_spread,
         left_out=tuple(left_out),
+        **(
+            {k: getattr(settings, k) for k in ("depth_step_mm_at_2m", "jumps_per_minute", "jump_mm")}
+            if settings.sensor == "structured_light"
+            else {}
+        ),
     )
     return ctx, states, notes

@@ -37,6 +37,7 @@ from ..settings import DiagnoseSettings
 from ._base import Context, Proposal, State, loglik, rms_equivalent
 from ._context import build_context
 from ._correlation import FrameCorrelation, frame_correlation, gls_gain
+from ._sensor_nominal import nominal_level_jumps, within_configured
 from ._whiteness import combined_p, residual_tests
 from .effects import load_effects
 from .record_kind import SEARCHED, RecordKind, kind_nominal, recognise, value_lattice
@@ -150,6 +151,10 @@ class Diagnosis:
     # what kind of record this is (`record_kind`) and the effects the backward step took out
     record: RecordKind | None = None
     dropped: list[Dropped] = field(default_factory=list)
+    # the configured sensor's own physics (`_sensor_nominal`): the level jumps the nominal model
+    # holds, and the named effects within the configured sizes (kept in the model, not missing)
+    sensor_jumps: list[dict] = field(default_factory=list)
+    configured: list[tuple[Accepted, str]] = field(default_factory=list)
 
     # --- summaries --------------------------------------------------------------------------
     def _summary(self, states: list[State], tests: list[dict]) -> dict:
@@ -324,6 +329,21 @@ class Diagnosis:
                     for d in self.dropped
                 ],
                 "unnamed": [_unnamed_json_of(ctx, u) for u in self.unnamed],
+                "nominal_physics": [
+                    {
+                        "id": a.proposal.effect,
+                        **{
+                            k: v
+                            for k, v in _where(ctx, a.proposal.series, 0.0, 0.0, None).items()
+                            if k in ("plates", "axes")
+                        },
+                        "lr": a.lr,
+                        "parameters": _jsonable(a.proposal.parameters),
+                        "reason": why,
+                    }
+                    for a, why in self.configured
+                ],
+                "sensor_nominal": {"level_jumps": self.sensor_jumps},
                 "unexplained": self.unexplained(),
                 "final": self._summary(
                     self.open_final if self.open_final is not None else self.final, self.tests_final
@@ -674,12 +694,30 @@ def run_diagnosis(
     # what kind of record this is, before anything is named (`record_kind`)
     record = recognise([(s.t, s.y) for s in ctx.series], ctx.dt_s)
     no_motion = "no plate and axis shows a significant periodic motion"
+    if no_motion in notes and record.level_path is not None:
+        # the series' own periodograms missed the line a level path hid: the nominal harmonic
+        # at the line the record kind found under the path
+        ctx, nominal, notes = build_context(
+            traj, reference, settings, source, reference_source, f0_hint_hz=record.level_path["line_hz"]
+        )
     if no_motion in notes:
         if record.kind not in ("quasi_static", "broadband"):
             raise InputError(f"{source}: {no_motion} to diagnose")
         notes.remove(no_motion)
     nominal, kind_notes = kind_nominal(ctx, nominal, record)
     notes[:0] = [f"record kind: {record.statement}", *kind_notes]
+    sensor_jumps: list[dict] = []
+    if record.kind in ("forced_harmonic", "multi_tone", "free_decay"):
+        # a configured structured-light camera's level jumps are its nominal physics
+        nominal, sensor_jumps = nominal_level_jumps(ctx, nominal)
+        if sensor_jumps:
+            notes.append(
+                "nominal model: the configured structured-light camera's level jumps "
+                f"({ctx.jumps_per_minute:g} a minute, RMS {ctx.jump_mm:g} mm): "
+                f"{len(sensor_jumps)} common steps of "
+                + ", ".join(f"{j['size_mm']:+.2f}" for j in sensor_jumps)
+                + " mm fitted on every series"
+            )
     record.resolution = _resolution(ctx, nominal)
     if record.resolution is not None and record.resolution["below_noise"]:
         notes.append(
@@ -904,6 +942,30 @@ def run_diagnosis(
             accepted = [x for x in accepted if x is not a]
             open_states = base
             states = _without(states, a)
+    # named effects within the configured sensor's sizes are its nominal physics: kept in the
+    # model, reported apart (`_sensor_nominal.within_configured`)
+    configured = []
+    for a in accepted:
+        p = a.proposal
+        # a step's size on each depth series (its reported size is one over every axis)
+        steps = [
+            float(np.ptp(p.states[i].mean - a.before[i].mean)) for i in p.series if ctx.series[i].axis == "z"
+        ]
+        why = within_configured(
+            ctx,
+            {
+                "id": p.effect,
+                "plates": sorted({ctx.series[i].plate for i in p.series}),
+                "parameters": p.parameters,
+                "depth_step_mm": max(steps) if steps else None,
+            },
+        )
+        if why is not None:
+            configured.append((a, why))
+    accepted = [a for a in accepted if all(a is not c for c, _ in configured)]
+    if any(a.proposal.effect == "quantization" for a, _ in configured) and record.resolution is not None:
+        record.resolution["below_noise"] = False
+        notes[:] = [n for n in notes if "the record's resolution" not in n]
     if any(a.proposal.effect == "quantization" for a in accepted) and record.resolution is not None:
         # the fine lattice is the staircase's own (a centroid of rounded pixels): not a resolution
         record.resolution["below_noise"] = False
@@ -933,6 +995,8 @@ def run_diagnosis(
         open_final=open_states,
         record=record,
         dropped=dropped,
+        sensor_jumps=sensor_jumps,
+        configured=configured,
     )
 
 

@@ -26,6 +26,17 @@ envelope of the record's strongest series, and the nominal model follows it:
   specimen, a staircase of positions): the load path itself is the motion; it is located (its
   steps and ramps), not named.
 
+The kind is judged on the motion, not on whatever holds the variance. A slow level path may
+dominate a vibration record without being its motion: a structured-light camera's level jumps
+(about one a minute, 3 mm, Fig. 6.64) and session wander outweigh a 2.5-mm loading harmonic over
+a few minutes. So when the slow part holds most of the variance, the level path is taken out
+first (`level_path`: its steps by binary segmentation, its slow wander below SLOW_CYCLES) and the
+record is a vibration record, judged on what remains, when a line many cycles over the record
+(FORCED_CYCLES) carries most of that remainder (FORCED_SHARE); otherwise the path is the motion
+and the record is quasi-static. A staircase of positions leaves noise (or the path's own shape,
+a line of a few cycles) once its steps are out; a loaded beam seen by a jumping camera leaves its
+loading line.
+
 Every threshold below is a share of the record's variance or a ratio of amplitudes, so a kind is
 recognised the same way in millimetres, volts or g.
 """
@@ -46,6 +57,8 @@ __all__ = [
     "HARMONIC_LOCKED",
     "KINDS",
     "value_lattice",
+    "binary_steps",
+    "level_path",
 ]
 
 KINDS = ("forced_harmonic", "multi_tone", "free_decay", "broadband", "quasi_static")
@@ -88,6 +101,14 @@ LINES_SHARE_MIN = 0.5  # broadband: the strongest lines hold less than this shar
 COLOURED_SHARE = 0.4
 DECAY_RATIO = 2.5  # free decay: the strongest line's amplitude falls this much over the record
 ONSET_RATIO = 1.2  # and its envelope's largest value is in the first fifth of the record
+# A vibration under a dominant level path: once the path is out, a line of at least this many
+# cycles over the record (a forcing, not the path's own shape) carries this share of what is left
+FORCED_CYCLES = 10.0
+FORCED_SHARE = 0.5
+# the level path's steps: a split pays when it removes this many log n noise variances (BIC with
+# a margin: a step has a time and a size), at most PATH_STEPS_MAX of them
+STEP_PENALTY = 3.0
+PATH_STEPS_MAX = 60
 
 
 @dataclass
@@ -102,6 +123,7 @@ class RecordKind:
     modes: list[dict] = field(default_factory=list)
     forcing_change: dict | None = None
     resolution: dict | None = None
+    level_path: dict | None = None
     statement: str = ""
 
     def to_json(self) -> dict:
@@ -114,6 +136,7 @@ class RecordKind:
             "modes": self.modes,
             "forcing_change": self.forcing_change,
             "resolution": self.resolution,
+            "level_path": self.level_path,
             "statement": self.statement,
         }
 
@@ -250,9 +273,99 @@ def _coloured(g: np.ndarray, lines: list[float], dt: float, block: int = 16) -> 
     return float(top.sum() / max(b.sum(), 1e-300))
 
 
+def binary_steps(r: np.ndarray, max_steps: int = PATH_STEPS_MAX) -> tuple[np.ndarray, list[int]]:
+    """Piecewise-constant levels of r by binary segmentation: the split that most reduces the
+    sum of squares, while it removes more than STEP_PENALTY · log n noise variances (σ from the
+    first differences: 1.4826 MAD / √2). (levels, the cuts: index of the first sample after
+    each step, increasing)."""
+    n = r.size
+    d = np.diff(r)
+    sig = 1.4826 * float(np.median(np.abs(d - np.median(d)))) / math.sqrt(2) if d.size else 0.0
+    if sig <= 0:  # values on a coarse lattice: the differences' RMS
+        sig = float(np.std(d)) / math.sqrt(2) if d.size else 0.0
+    pen = STEP_PENALTY * math.log(max(n, 2)) * max(sig, 1e-300) ** 2
+    cuts = [0, n]
+    while len(cuts) - 2 < max_steps:
+        best = (0.0, -1)
+        for a, b in zip(cuts[:-1], cuts[1:], strict=True):
+            if b - a < 4:
+                continue
+            c = np.cumsum(r[a:b])
+            m = b - a
+            k = np.arange(1, m)
+            left = c[:-1]
+            gain = left**2 / k + (c[-1] - left) ** 2 / (m - k) - c[-1] ** 2 / m
+            j = int(np.argmax(gain))
+            if gain[j] > best[0]:
+                best = (float(gain[j]), a + j + 1)
+        if best[0] < pen:
+            break
+        cuts = sorted([*cuts, best[1]])
+    levels = np.empty(n)
+    for a, b in zip(cuts[:-1], cuts[1:], strict=True):
+        levels[a:b] = r[a:b].mean()
+    return levels, cuts[1:-1]
+
+
+def _slow_part(r: np.ndarray) -> np.ndarray:
+    """The part of r below SLOW_CYCLES cycles over the record (its mean kept)."""
+    c = np.fft.rfft(r - r.mean())
+    c[int(math.floor(SLOW_CYCLES)) + 1 :] = 0.0
+    return np.fft.irfft(c, r.size) + r.mean()
+
+
+def level_path(g: np.ndarray, dt: float, f_hz: float, iterations: int = 3) -> tuple[np.ndarray, int]:
+    """The slow level path under a line at ``f_hz``: steps (`_steps`) plus the wander below
+    SLOW_CYCLES, fitted alternately with the line (the line out before the steps are found, the
+    steps out before the line is fitted). (path on the grid, its number of steps)."""
+    n = g.size
+    t = np.arange(n) * dt
+    a = np.stack([np.cos(2 * np.pi * f_hz * t), np.sin(2 * np.pi * f_hz * t), np.ones(n)], axis=1)
+    path = np.zeros(n)
+    n_steps = 0
+    for _ in range(iterations):
+        beta = np.linalg.lstsq(a, g - path, rcond=None)[0]
+        r = g - a[:, :2] @ beta[:2]
+        levels, cuts = binary_steps(r)
+        n_steps = len(cuts)
+        path = levels + _slow_part(r - levels)
+    return path, n_steps
+
+
+def _motion_under_path(g: np.ndarray, dt: float, lines: list[float]):
+    """A vibration under a dominant level path: (motion, path facts) when, with the path out,
+    a line of at least FORCED_CYCLES cycles carries FORCED_SHARE of what is left; else None."""
+    duration = g.size * dt
+    # the strongest line of many cycles (the path's own steps make lines of a few)
+    fast = [f for f in lines if f * duration >= FORCED_CYCLES]
+    if not fast:
+        return None
+    f = fast[0]
+    path, n_steps = level_path(g, dt, f)
+    motion = g - path
+    motion = motion - motion.mean()
+    t = np.arange(g.size) * dt
+    f = _peak_near(t, motion, f)  # the screening's grid refined on the motion (the nominal's hint)
+    a = np.stack([np.cos(2 * np.pi * f * t), np.sin(2 * np.pi * f * t)], axis=1)
+    fit = a @ np.linalg.lstsq(a, motion, rcond=None)[0]
+    var = float(np.mean(motion**2)) or 1e-300
+    share = 1.0 - float(np.mean((motion - fit) ** 2)) / var
+    if share < FORCED_SHARE:
+        return None
+    total = float(np.var(g)) or 1e-300
+    facts = {
+        "steps": int(n_steps),
+        "share": float(min(1.0, np.var(path) / total)),
+        "line_hz": f,
+        "line_share_after": share,
+    }
+    return motion, facts
+
+
 def recognise(series: list[tuple[np.ndarray, np.ndarray]], dt: float) -> RecordKind:
     """The record's kind from its series ((t, y) pairs; t in s), judged on the series with the
-    largest variance (the plate that moves most carries the record's kind)."""
+    largest variance (the plate that moves most carries the record's kind), on its motion: a
+    dominant level path under a clear line is taken out first (`_motion_under_path`)."""
     best = max(series, key=lambda s: float(np.var(s[1])))
     g = _grid(best[0], best[1], dt)
     fs = 1.0 / dt
@@ -260,7 +373,15 @@ def recognise(series: list[tuple[np.ndarray, np.ndarray]], dt: float) -> RecordK
     lines, shares = _lines(g, dt)
     rk = RecordKind("forced_harmonic", lines_hz=lines, line_shares=shares, slow_share=slow)
     duration = g.size * dt
-    if slow >= SLOW_SHARE:
+    # a path that holds most of the variance (quasi-static) or leaves the lines a minor share
+    # (its steps' spectrum reads as broadband) is taken out first when a clear line rides on it
+    under = _motion_under_path(g, dt, lines) if slow >= SLOW_SHARE or sum(shares) < LINES_SHARE_MIN else None
+    if under is not None:
+        # judged on the motion: the path's variance is the sensor's or the set-up's, not the kind's
+        g, rk.level_path = under
+        lines, shares = _lines(g, dt)
+        rk.lines_hz, rk.line_shares = lines, shares
+    elif slow >= SLOW_SHARE:
         rk.kind = "quasi_static"
         rk.statement = (
             f"a quasi-static record: {slow:.0%} of the variance is slower than {SLOW_CYCLES:g} cycles "
@@ -306,6 +427,13 @@ def recognise(series: list[tuple[np.ndarray, np.ndarray]], dt: float) -> RecordK
     rk.statement = (
         f"a forced harmonic record: the {lines[0]:.4g}-Hz line carries {shares[0]:.0%} of the variance"
     )
+    if rk.level_path is not None:
+        lp = rk.level_path
+        rk.statement += (
+            f" once a level path is taken out (its {lp['steps']} steps and slow wander held "
+            f"{lp['share']:.0%} of the record's variance, {slow:.0%} of it slower than "
+            f"{SLOW_CYCLES:g} cycles: judged on the motion, the record is a vibration, not a load path)"
+        )
     return rk
 
 

@@ -66,22 +66,45 @@ class ChainNull:
         return mean + z * math.sqrt(float(v.var(ddof=1)) * (1 + 1 / v.size) + 4 * mean + 2)
 
 
-def _twin(args) -> dict[str, float]:
-    """One twin: render, extract, diagnose; {id: largest lr} (a worker process's job)."""
-    config, session, clip_s, seed, settings, with_reference = args
-    from ..diagnose import run_diagnosis
+def _twin_clip(config: str, session, clip_s: float, seed: int, with_reference: bool, clips: Path | None):
+    """One twin's extracted trajectories and LDS (None without a reference): rendered and
+    extracted, or read from ``clips`` (the clip cache: a change of the diagnosis alone does not
+    render the clips again)."""
+    import pandas as pd
+
     from ..frames import extract_recording
     from ..io import read_reference
     from ..io.recording import open_recording
     from ..simulate import load_config, simulate_to_dir, usable_reference
 
+    if clips is not None and (clips / "traj.parquet").exists():
+        traj = pd.read_parquet(clips / "traj.parquet")
+        ref = pd.read_parquet(clips / "lds.parquet") if with_reference else None
+        return traj, ref
     with tempfile.TemporaryDirectory(prefix="jaxdefl_twin_") as tmp:
         out = simulate_to_dir(config, Path(tmp) / "sim", clip_s, seed, progress=False, session=session)
         traj = extract_recording(open_recording(out / "recording.zarr"), progress=False)
         ref = None
         if with_reference:  # as the recording's: without the plate whose LDS is defective
             ref = usable_reference(read_reference(out / "lds.csv"), load_config(config, session))[0]
-        diag = run_diagnosis(traj, ref, settings).to_json()
+    if clips is not None:
+        clips.mkdir(parents=True, exist_ok=True)
+        if ref is not None:
+            ref.to_parquet(clips / "lds.parquet")
+        tmp_path = clips / "traj.tmp.parquet"
+        traj.to_parquet(tmp_path)
+        tmp_path.replace(clips / "traj.parquet")  # written last: its presence means whole
+    return traj, ref
+
+
+def _twin(args) -> dict[str, float]:
+    """One twin: render, extract (or read the cached clip), diagnose; {id: largest lr} (a
+    worker process's job)."""
+    config, session, clip_s, seed, settings, with_reference, clips = args
+    from ..diagnose import run_diagnosis
+
+    traj, ref = _twin_clip(config, session, clip_s, seed, with_reference, clips)
+    diag = run_diagnosis(traj, ref, settings).to_json()
     best: dict[str, float] = {}
     for e in diag["effects"]:
         best[e["id"]] = max(best.get(e["id"], 0.0), float(e.get("lr") or 0.0))
@@ -90,14 +113,15 @@ def _twin(args) -> dict[str, float]:
 
 # the code a twin's findings depend on: the simulator, the extraction and the diagnosis
 _TWIN_CODE = ("simulate", "frames", "io", "series", "fit", "spectral", "diagnose")
+_CLIP_CODE = ("simulate", "frames", "io")  # what the clips (rendered, extracted) depend on
 _ORCHESTRATION = ("pipeline.py", "cli.py", "progress.py", "__main__.py")
 
 
-def _source_digest() -> str:
+def _source_digest(folders: tuple[str, ...] = _TWIN_CODE) -> str:
     """A digest of the code that makes the twins (a cached null is stale when it changes)."""
     h = hashlib.sha256()
     top = [p for p in sorted(TWIN_ROOT.glob("*.py")) if p.name not in _ORCHESTRATION]
-    files = top + [p for d in _TWIN_CODE for p in sorted((TWIN_ROOT / d).rglob("*.py"))]
+    files = top + [p for d in folders for p in sorted((TWIN_ROOT / d).rglob("*.py"))]
     for p in files:
         h.update(p.read_bytes())
     return h.hexdigest()[:16]
@@ -116,7 +140,9 @@ def chain_null(
     """The null of ``k`` twins of ``clip_s`` seconds of ``config`` (in ``workers`` processes).
 
     Twins depend on the config, the settings and the code only, so they are kept in ``cache``
-    (default ``$JAXDEFL_CACHE`` or ``~/.cache/jaxdefl``, ``chain_null/``) and reused."""
+    (default ``$JAXDEFL_CACHE`` or ``~/.cache/jaxdefl``: ``chain_null/`` the findings,
+    ``chain_clips/`` the rendered and extracted clips, which depend on the simulator and the
+    extraction alone) and reused."""
     config = Path(config)
     key = json.dumps(
         [config.read_text(), session, clip_s, k, asdict(settings), with_reference, _source_digest()],
@@ -128,7 +154,12 @@ def chain_null(
     if path.exists():
         d = json.loads(path.read_text())
         return ChainNull(d["per_second"], d["clip_s"], d["k"])
-    jobs = [(str(config), session, clip_s, TWIN_SEED + j, settings, with_reference) for j in range(k)]
+    clip_key = json.dumps([config.read_text(), session, clip_s, with_reference, _source_digest(_CLIP_CODE)])
+    clips = root / "chain_clips" / hashlib.sha256(clip_key.encode()).hexdigest()[:24]
+    jobs = [
+        (str(config), session, clip_s, TWIN_SEED + j, settings, with_reference, clips / str(j))
+        for j in range(k)
+    ]
     if workers > 1 and k > 1:
         # spawn: jax and torch do not survive a fork
         with ProcessPoolExecutor(min(workers, k), mp_context=get_context("spawn")) as pool:
@@ -170,7 +201,7 @@ def apply_chain_null(diag: dict, null: ChainNull, duration_s: float) -> dict:
             )
     out = dict(diag)
     out["effects"] = kept
-    out["nominal_physics"] = nominal
+    out["nominal_physics"] = [*diag.get("nominal_physics", []), *nominal]
     out["chain_null"] = {
         "twins": null.k,
         "clip_s": null.clip_s,
