@@ -105,13 +105,11 @@ def outlier_sizes(r: np.ndarray, noise: float) -> np.ndarray:
     return u[np.abs(u) > OUTLIER_SIGMAS]
 
 
-def series_residuals(df: pd.DataFrame, f0_hz: float, axes: tuple[str, ...] = ("z", "x", "y")):
-    """{(plate, axis): (t since the table's first stamp, residual, its short-term noise)} of the
-    series `table_stats` measures (at least `MIN_SAMPLES` finite values), about the harmonic at
-    ``f0_hz`` (`_design`)."""
+def _harmonic_fits(df: pd.DataFrame, f0_hz: float, axes: tuple[str, ...]):
+    """(plate, axis, t since the table's first stamp, y, design, β, residual) of every series with
+    at least `MIN_SAMPLES` finite values, fitted with the harmonic at ``f0_hz`` (`_design`)."""
     omega = 2 * math.pi * f0_hz
     t_first = float(df["t"].min())
-    out = {}
     for plate, g in df.groupby("plate", sort=True):
         t_all = g["t"].to_numpy() - t_first
         for axis in axes:
@@ -121,11 +119,20 @@ def series_residuals(df: pd.DataFrame, f0_hz: float, axes: tuple[str, ...] = ("z
             ok = np.isfinite(y)
             if ok.sum() < MIN_SAMPLES:
                 continue
-            t = t_all[ok]
+            t, y = t_all[ok], y[ok]
             a = _design(t, omega)
-            r = y[ok] - a @ np.linalg.lstsq(a, y[ok], rcond=None)[0]
-            out[(int(plate), axis)] = (t, r, short_term_noise(r))
-    return out
+            beta = np.linalg.lstsq(a, y, rcond=None)[0]
+            yield int(plate), axis, t, y, a, beta, y - a @ beta
+
+
+def series_residuals(df: pd.DataFrame, f0_hz: float, axes: tuple[str, ...] = ("z", "x", "y")):
+    """{(plate, axis): (t since the table's first stamp, residual, its short-term noise)} of the
+    series `table_stats` measures (at least `MIN_SAMPLES` finite values), about the harmonic at
+    ``f0_hz`` (`_design`)."""
+    return {
+        (plate, axis): (t, r, short_term_noise(r))
+        for plate, axis, t, _, _, _, r in _harmonic_fits(df, f0_hz, axes)
+    }
 
 
 def _periodogram_ratio(t: np.ndarray, r: np.ndarray, dt: float) -> float:
@@ -143,58 +150,44 @@ def _periodogram_ratio(t: np.ndarray, r: np.ndarray, dt: float) -> float:
 
 def table_stats(df: pd.DataFrame, f0_hz: float, axes: tuple[str, ...] = ("z", "x", "y")) -> TableStats:
     """Statistics of a validated trajectory table (one segment) about the harmonic at ``f0_hz``."""
-    omega = 2 * math.pi * f0_hz
-    t_first = float(df["t"].min())
     rows, resid = [], {}
-    for plate, g in df.groupby("plate", sort=True):
-        t_all = g["t"].to_numpy() - t_first
-        for axis in axes:
-            if axis not in g:
-                continue
-            y = g[axis].to_numpy()
-            ok = np.isfinite(y)
-            if ok.sum() < MIN_SAMPLES:
-                continue
-            t, y = t_all[ok], y[ok]
-            a = _design(t, omega)
-            beta = np.linalg.lstsq(a, y, rcond=None)[0]
-            r = y - a @ beta
-            noise = short_term_noise(r)
-            bins = np.floor(t / BIN_S).astype(np.int64)
-            counts = np.bincount(bins)
-            means = np.bincount(bins, r)[counts > 0] / counts[counts > 0]
-            slow = float(np.sqrt(np.mean(means**2)))
-            dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
-            line = _periodogram_ratio(t, r, dt)
-            z = complex(beta[1], -beta[2])
-            env = float("nan")
-            edges = np.linspace(t[0], t[-1], N_WINDOWS + 1)
-            w = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, N_WINDOWS - 1)
-            # only harmonics well above each window's noise (|Z| > 10 σ_Z): the statistic then
-            # measures the envelope, not the noise
-            if abs(z) > 10 * noise * math.sqrt(2.0 * N_WINDOWS / t.size):
-                zw = []
-                for j in range(N_WINDOWS):
-                    m = w == j
-                    if m.sum() >= 10:
-                        bj = np.linalg.lstsq(a[m, :3], y[m], rcond=None)[0]
-                        zw.append(complex(bj[1], -bj[2]))
-                if len(zw) >= 3:
-                    env = float(np.sqrt(np.mean(np.abs(np.array(zw) - z) ** 2)) / abs(z))
-            far = int(outlier_sizes(r, noise).size)
-            rows.append(
-                dict(
-                    key=f"{plate}/{axis}",
-                    plate=int(plate),
-                    axis=axis,
-                    noise_mm=noise,
-                    slow_mm=slow,
-                    line_ratio=line,
-                    outlier_rate=(far + 1) / (r.size + 1),
-                    envelope=env,
-                )
+    for plate, axis, t, y, a, beta, r in _harmonic_fits(df, f0_hz, axes):
+        noise = short_term_noise(r)
+        bins = np.floor(t / BIN_S).astype(np.int64)
+        counts = np.bincount(bins)
+        means = np.bincount(bins, r)[counts > 0] / counts[counts > 0]
+        slow = float(np.sqrt(np.mean(means**2)))
+        dt = float(np.median(np.diff(t))) if t.size > 1 else 1.0
+        line = _periodogram_ratio(t, r, dt)
+        z = complex(beta[1], -beta[2])
+        env = float("nan")
+        edges = np.linspace(t[0], t[-1], N_WINDOWS + 1)
+        w = np.clip(np.searchsorted(edges, t, side="right") - 1, 0, N_WINDOWS - 1)
+        # only harmonics well above each window's noise (|Z| > 10 σ_Z): the statistic then
+        # measures the envelope, not the noise
+        if abs(z) > 10 * noise * math.sqrt(2.0 * N_WINDOWS / t.size):
+            zw = []
+            for j in range(N_WINDOWS):
+                m = w == j
+                if m.sum() >= 10:
+                    bj = np.linalg.lstsq(a[m, :3], y[m], rcond=None)[0]
+                    zw.append(complex(bj[1], -bj[2]))
+            if len(zw) >= 3:
+                env = float(np.sqrt(np.mean(np.abs(np.array(zw) - z) ** 2)) / abs(z))
+        far = int(outlier_sizes(r, noise).size)
+        rows.append(
+            dict(
+                key=f"{plate}/{axis}",
+                plate=int(plate),
+                axis=axis,
+                noise_mm=noise,
+                slow_mm=slow,
+                line_ratio=line,
+                outlier_rate=(far + 1) / (r.size + 1),
+                envelope=env,
             )
-            resid[(int(plate), axis)] = pd.Series(r, index=np.round(t * 1e6).astype(np.int64))
+        )
+        resid[(int(plate), axis)] = pd.Series(r, index=np.round(t * 1e6).astype(np.int64))
     common = []
     for axis in axes:
         cols = {p: s for (p, a), s in resid.items() if a == axis}
