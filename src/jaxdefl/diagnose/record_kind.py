@@ -362,6 +362,16 @@ def _motion_under_path(g: np.ndarray, dt: float, lines: list[float]):
     return motion, facts
 
 
+def _decays(g: np.ndarray, dt: float, lines) -> tuple[float, bool]:
+    """(start-to-end ratio of the strongest line's envelope, whether it is a free decay: the
+    envelope falls DECAY_RATIO-fold from its start, without rising again)."""
+    env = _envelope(g, dt, lines[0]) if lines else np.ones(2)
+    ratio = float(env[0] / max(env[-1], 1e-300))
+    first = int(np.argmax(env))
+    falls = bool(np.all(np.diff(env[first:]) < 0.25 * env[first:-1] + 0.02 * env[first]))
+    return ratio, bool(lines) and ratio >= DECAY_RATIO and first <= 1 and falls
+
+
 def recognise(series: list[tuple[np.ndarray, np.ndarray]], dt: float) -> RecordKind:
     """The record's kind from its series ((t, y) pairs; t in s), judged on the series with the
     largest variance (the plate that moves most carries the record's kind), on its motion: a
@@ -375,7 +385,11 @@ def recognise(series: list[tuple[np.ndarray, np.ndarray]], dt: float) -> RecordK
     duration = g.size * dt
     # a path that holds most of the variance (quasi-static) or leaves the lines a minor share
     # (its steps' spectrum reads as broadband) is taken out first when a clear line rides on it
-    under = _motion_under_path(g, dt, lines) if slow >= SLOW_SHARE or sum(shares) < LINES_SHARE_MIN else None
+    # (a free decay's spread lines leave them a minor share too: a decay of the record as it is
+    # comes first, and nothing is taken out of it)
+    decays = _decays(g, dt, lines)[1]
+    path_first = not decays and (slow >= SLOW_SHARE or sum(shares) < LINES_SHARE_MIN)
+    under = _motion_under_path(g, dt, lines) if path_first else None
     if under is not None:
         # judged on the motion: the path's variance is the sensor's or the set-up's, not the kind's
         g, rk.level_path = under
@@ -389,11 +403,8 @@ def recognise(series: list[tuple[np.ndarray, np.ndarray]], dt: float) -> RecordK
             "located, nothing defined against a loading harmonic is named"
         )
         return rk
-    env = _envelope(g, dt, lines[0]) if lines else np.ones(2)
-    rk.decay_ratio = float(env[0] / max(env[-1], 1e-300))
-    first = int(np.argmax(env))
-    falls = np.all(np.diff(env[first:]) < 0.25 * env[first:-1] + 0.02 * env[first])
-    if lines and rk.decay_ratio >= DECAY_RATIO and first <= 1 and falls:
+    rk.decay_ratio, decays = _decays(g, dt, lines)
+    if decays:
         rk.kind = "free_decay"
         rk.statement = (
             f"a free decay: the {lines[0]:.4g}-Hz motion falls {rk.decay_ratio:.3g}-fold over the "
