@@ -47,7 +47,7 @@ def main():
             rec = reconcile(validate_trajectory(traj), lds, settings)
             if eid is None:
                 for r in rec.levels:
-                    if r["before"] > r["null_95"]:
+                    if r["before"] > r["null_family"]:
                         key = r["metric"] + (
                             " (shared noise)" if truth["recording"]["frame_common"] > 0 else ""
                         )
@@ -56,11 +56,11 @@ def main():
             row = next(r for r in rec.levels if r["metric"] == CARRIER[eid])
             hit = eid in [e["id"] for e in rec.effects]
             named += hit
-            moved += row["before"] > row["null_95"]
+            moved += row["before"] > row["null_family"]
             fixed += hit and rec.verdict(row) == "reconciled"
         n = len(args.seeds)
         if eid is None:
-            print(f"controls: metrics outside the null band (count over {n} recordings): {flagged or 'none'}")
+            print(f"controls: metrics outside the family band (over {n} recordings): {flagged or 'none'}")
         else:
             print(
                 f"{eid:22s} named {named}/{n}, {CARRIER[eid]} outside before {moved}/{n}, "

@@ -15,7 +15,7 @@ from jaxdefl.io import validate_trajectory
 from jaxdefl.reconcile import SensorCalibration, Twin, specs_from_diagnosis
 from jaxdefl.reconcile.engine import keep_shown
 from jaxdefl.reconcile.frames import pooled_null_95
-from jaxdefl.reconcile.metrics import null_95
+from jaxdefl.reconcile.metrics import FAMILY, FAMILY_Q, null_95, null_family
 from jaxdefl.simulate.effects import make_case
 from jaxdefl.simulate.injection import make_spec
 
@@ -127,6 +127,35 @@ def test_lognormal_null_band_is_a_95th_percentile_of_the_next_draw():
     assert abs(np.mean(exceed) - 0.05) < 0.015
     band, how = null_95(rng.random(40))
     assert how == "empirical" and 0.8 < band < 1.0
+
+
+def test_a_recording_of_the_model_is_outside_some_family_band_at_most_5_percent_of_the_time():
+    """8 metrics judged at once: at each one's 95 % band a recording of the simulated model lies
+    outside one of them about 1 − 0.95⁸ = 34 % of the time; at the family band, about 5 %."""
+    rng = np.random.default_rng(2)
+    any95, anyfam = [], []
+    for _ in range(1500):
+        out95 = outfam = False
+        for _metric in range(FAMILY):  # independent metrics, 20 null renders each (reconcile's)
+            d = np.exp(rng.normal(-1.0, 0.5, 21))
+            out95 |= d[20] > null_95(d[:20])[0]
+            outfam |= d[20] > null_family(d[:20])
+        any95.append(out95)
+        anyfam.append(outfam)
+    # (the empirical 95th percentile of 20 renders is exceeded by a next one ~9 % of the time)
+    assert np.mean(any95) > 1 - 0.95**FAMILY - 0.05
+    assert abs(np.mean(anyfam) - 0.05) < 0.02  # binomial σ 0.6 %; the bound's own error
+
+
+def test_the_family_band_of_pooled_frames_clips_is_its_percentile():
+    rng = np.random.default_rng(3)
+    m, s = 10, 0.05
+    dist = lambda r: math.sqrt(np.mean(r**2))  # noqa: E731
+    out = []
+    for _ in range(6000):
+        clips = [rng.normal(0, s, m) for _ in range(5)]
+        out.append(dist(clips[4]) > pooled_null_95(clips[:4], FAMILY_Q))
+    assert abs(np.mean(out) - (1 - FAMILY_Q)) < 0.004  # 0.00625 expected, binomial σ 0.001
 
 
 def test_pooled_frames_band_is_a_95th_percentile_where_four_clips_give_an_80th():

@@ -34,6 +34,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .metrics import FAMILY_Q
+
 __all__ = [
     "CLIP_S",
     "FRAME_METRICS",
@@ -129,13 +131,13 @@ def log_ratios(a: FrameStats, b: FrameStats, metric: str) -> np.ndarray:
     return np.where(ok, np.log(np.where(ok, x, 1.0) / np.where(ok, y, 1.0)), np.nan)
 
 
-def pooled_null_95(null_ratios: list[np.ndarray]) -> float:
+def pooled_null_95(null_ratios: list[np.ndarray], q: float = 0.95) -> float:
     """The 95th percentile of `distance` under the null from a few clips: the clips' log ratios
     pooled over clips and bins give their variance s² from k = n·m values (each bin's log ratio
     ≈ N(0, σ²), the bins alike: deciles of pixels), and a new clip's distance² over m bins is
     σ² χ²_m / m, so distance² / s² is F(m, k) and the band s·√F₀.₉₅(m, k) — a 95th percentile
-    of the next distance, where the empirical one of 4 clips is about an 80th. NaN without two
-    finite ratios."""
+    of the next distance, where the empirical one of 4 clips is about an 80th (``q``: another
+    percentile, s·√F_q(m, k)). NaN without two finite ratios."""
     from scipy import stats
 
     r = np.concatenate([np.asarray(x, float).ravel() for x in null_ratios]) if null_ratios else np.zeros(0)
@@ -144,7 +146,7 @@ def pooled_null_95(null_ratios: list[np.ndarray]) -> float:
         return float("nan")
     m = max(1, round(r.size / max(len(null_ratios), 1)))  # bins a distance averages over
     s2 = float(np.mean(r * r))
-    return float(math.sqrt(s2 * stats.f.ppf(0.95, m, r.size)))
+    return float(math.sqrt(s2 * stats.f.ppf(q, m, r.size)))
 
 
 def clip_stats(cfg, seed: int, f0_hz: float, edges: np.ndarray | None, specs=(), seconds: float = CLIP_S):
@@ -173,7 +175,8 @@ def read_clip(recording, seconds: float = CLIP_S):
 
 
 def frame_levels(recording, cfg, f0_hz: float, specs=(), seed: int = 0, n_null: int = 4) -> list[dict]:
-    """The frames level's rows of ``reconcile.json``: {level, metric, before, after, null_95}."""
+    """The frames level's rows of ``reconcile.json``: {level, metric, before, after, null_95,
+    null_family}."""
     t, fr, amp = read_clip(recording)
     seconds = float(min(CLIP_S, t[-1] - t[0]))
     nominal = clip_stats(cfg, seed + 1, f0_hz, None, seconds=seconds)
@@ -182,7 +185,8 @@ def frame_levels(recording, cfg, f0_hz: float, specs=(), seed: int = 0, n_null: 
     null = [clip_stats(cfg, seed + 2000 + j, f0_hz, nominal.edges, seconds=seconds) for j in range(n_null)]
     rows = []
     for metric in FRAME_METRICS:
-        band = pooled_null_95([log_ratios(s, nominal, metric) for s in null])
+        ratios = [log_ratios(s, nominal, metric) for s in null]
+        band = pooled_null_95(ratios)
         rows.append(
             dict(
                 level="frames",
@@ -190,6 +194,7 @@ def frame_levels(recording, cfg, f0_hz: float, specs=(), seed: int = 0, n_null: 
                 before=distance(rec, nominal, metric),
                 after=distance(rec, fixed, metric),
                 null_95=band,
+                null_family=pooled_null_95(ratios, FAMILY_Q),
                 null_method="pooled_chi2",
                 recording=[None if not np.isfinite(v) else float(v) for v in getattr(rec, metric)],
                 simulation=[None if not np.isfinite(v) else float(v) for v in getattr(nominal, metric)],
