@@ -228,8 +228,10 @@ def distance(a: TableStats, b: TableStats, metric: str) -> float:
 def null_95(distances, method: str = "auto", q: float = 0.95) -> tuple[float, str]:
     """The ``q`` percentile (default the 95th) of a distance under the null, and how it was had.
 
-    ``empirical``: the ``q`` percentile of the distances (at least `EMPIRICAL_MIN` of them, and
-    only for q ≤ 0.95: 20 distances do not reach further into the tail);
+    ``empirical``: the order statistic d₍ₖ₎, k = ⌈q (n + 1)⌉, of n ≥ `EMPIRICAL_MIN` distances
+    (only for q ≤ 0.95: 20 distances do not reach further into the tail): a next draw exceeds it
+    with probability (n + 1 − k)/(n + 1) ≤ 1 − q whatever their distribution (of 20, the largest:
+    1/21), where the sample's own 95th percentile is exceeded about 9 % of the time;
     ``lognormal``: the one-sided ``q`` prediction bound of a log-normal fitted to them,
     exp(m + t_q,ₙ₋₁ · s · √(1 + 1/n)) (m, s: mean and deviation of their logs), which is a
     ``q`` percentile of the next draw whatever n ≥ 3; ``auto`` picks the first when there are
@@ -241,7 +243,10 @@ def null_95(distances, method: str = "auto", q: float = 0.95) -> tuple[float, st
     if method == "auto":
         method = "empirical" if d.size >= EMPIRICAL_MIN and q <= 0.95 else "lognormal"
     if method == "empirical":
-        return (float(np.quantile(d, q)) if d.size else float("nan")), method
+        if not d.size:
+            return float("nan"), method
+        k = min(math.ceil(q * (d.size + 1)), d.size)
+        return float(np.sort(d)[k - 1]), method
     d = d[d > 0]
     if d.size < 3:
         return float("nan"), method
