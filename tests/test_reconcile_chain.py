@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pandas as pd
@@ -354,3 +355,41 @@ def test_the_twin_shares_a_plates_noise_across_axes_as_the_recording_does():
         assert want < -0.3
         assert twin.axis_corr[plate][0, 1] == pytest.approx(want, abs=0.05)
         assert corr(sim, plate) == pytest.approx(want, abs=0.08)
+
+
+def test_a_structured_light_cameras_configured_jumps_are_the_twins_not_missing_physics():
+    # a control of a camera whose whole depth image steps (the configured Kinect: 1 a minute,
+    # N(0, 3 mm)): the twin that draws the configured jumps has the recording's slow_mm,
+    # line_ratio and outlier_rate inside their family bands; without them, slow_mm lies far outside
+    from jaxdefl.reconcile.engine import Reconciliation, compare
+    from jaxdefl.simulate.structured_light import session_offsets_mm
+
+    traj, _, truth = make_case(7, [], minutes=3.0, sensor="tof")
+    f0 = truth["recording"]["f0_hz"]
+    rec = validate_trajectory(traj)
+    gains = {(p, a): g for p in rec["plate"].unique() for a, g in (("z", 1.0), ("x", 0.3), ("y", -0.14))}
+    cam = SimpleNamespace(jumps_per_minute=1.0, jump_mm=3.0, session_shift_mm=0.0)
+    cfg = SimpleNamespace(camera=cam, t0_s=0.0)
+    t = rec["t"].to_numpy() - rec["t"].min()
+    step = session_offsets_mm(cfg, t, seed=11, duration_s=float(t.max()))
+    assert np.unique(step).size >= 2  # the record has at least one jump
+    for axis in ("z", "x", "y"):
+        rec[axis] = rec[axis] + gains[(1, axis)] * step
+    jumps = SensorCalibration({}, gains, 0.0, 0.0, {}, {}, jumps_per_minute=1.0, jump_mm=3.0)
+    plain = SensorCalibration({}, gains, 0.0, 0.0, {}, {})
+    judge = Reconciliation([], [], (), {}, f0)
+
+    def rows(calibration):
+        levels, _ = compare(Twin(rec, f0, calibration), rec, n_sims=3, n_null=20, seed=3)
+        return {r["metric"]: r for r in levels}
+
+    with_jumps, without = rows(jumps), rows(plain)
+    for metric in ("slow_mm", "line_ratio", "outlier_rate", "noise_mm"):
+        assert judge.verdict(with_jumps[metric]) == "agreed already", with_jumps[metric]
+    assert without["slow_mm"]["before"] > 5 * without["slow_mm"]["null_family"], without["slow_mm"]
+    # drawn anew per simulation, the same with or without an effect for one seed
+    twin = Twin(rec, f0, jumps)
+    a, b = twin.simulate((), 4), twin.simulate((), 5)
+    assert not np.allclose(a["z"].to_numpy(), b["z"].to_numpy())
+    c = twin.simulate((make_spec("extra_periodic", {"freq_hz": 2.3, "amplitude_mm": 0.01}),), 4)
+    np.testing.assert_allclose(c["z"].to_numpy(), a["z"].to_numpy(), atol=0.02)

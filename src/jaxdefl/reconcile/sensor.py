@@ -18,8 +18,12 @@ and, on a longer clip of the configured experiment as it is (``outlier_seconds``
   camera's mixed-pixel frames on the plate under it) — their sizes in σ's and the samples
   searched, so that the twin renders them at the rate and size the chain makes them.
 
-and one of the config: each plate's position along the span (``plate_xi``, x / L), where the
-beam's other bending modes (`mode_shape`) move it.
+and two of the config: each plate's position along the span (``plate_xi``, x / L), where the
+beam's other bending modes (`mode_shape`) move it; and a structured-light camera's level jumps
+(``jumps_per_minute``, ``jump_mm``: the whole depth image steps, Poisson in time, each size
+N(0, jump_mm)), which the twin renders as the frame simulator does, through the range gains.
+The clips are rendered without those jumps (they are the twin's to draw, not noise or outliers
+of the extraction: a 3-mm step would make every later sample of a clip an "outlier").
 """
 
 from __future__ import annotations
@@ -48,6 +52,9 @@ class SensorCalibration:
     plate_xi: dict[int, float] = dataclasses.field(default_factory=dict)  # plate -> x / span
     # (plate, axis) -> (samples searched, the outliers' signed sizes in noise σ's)
     outliers: dict[tuple[int, str], tuple[int, tuple[float, ...]]] = dataclasses.field(default_factory=dict)
+    # a structured-light camera's level jumps (0: none): per minute, and their RMS size in mm
+    jumps_per_minute: float = 0.0
+    jump_mm: float = 0.0
 
     def gain_of(self, plate: int, axis: str) -> float:
         return self.gain.get((int(plate), axis), 1.0 if axis == "z" else 0.0)
@@ -110,6 +117,9 @@ def calibrate(
 ) -> SensorCalibration:
     """Simulate and extract a ``seconds`` clip twice (ranges as configured, and 1 mm farther),
     and an ``outlier_seconds`` clip of the configured experiment (0: none) for its outliers."""
+    jumps = (cfg.camera.jumps_per_minute, cfg.camera.jump_mm) if cfg.camera.sensor == "kinect" else (0.0, 0.0)
+    if jumps[0] > 0:  # the twin draws them itself (`Twin.simulate`)
+        cfg = dataclasses.replace(cfg, camera=dataclasses.replace(cfg.camera, jumps_per_minute=0.0))
     clean = dataclasses.replace(cfg, effects=())
     shifted = dataclasses.replace(cfg, effects=(make_spec("level_jump", {"t_jump_s": 0.0, "size_mm": 1.0}),))
     a = _extract(clean, seconds, seed)
@@ -136,4 +146,5 @@ def calibrate(
         float(np.sqrt(np.mean(np.square(se)))) if se else 0.0,
         {i + 1: float(x) / cfg.beam.span_mm for i, x in enumerate(cfg.plate_x_mm())},
         outliers,
+        *(jumps if jumps[0] > 0 and jumps[1] > 0 else (0.0, 0.0)),
     )

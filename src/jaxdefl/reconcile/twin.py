@@ -16,7 +16,10 @@ correlation from the residuals' frame-to-frame changes: a ToF camera's range noi
 centroid along its line of sight). With a calibration, each series also has the extraction's outliers
 at the rate and size the calibration clip shows them (`SensorCalibration.outliers`; the rate drawn
 per simulation from its posterior, Gamma(k + ½) / n, so that the null band carries the clip's
-uncertainty). What the twin cannot render (a mode without a calibration, one plate's clipping)
+uncertainty), and a structured-light camera's configured level jumps (`SensorCalibration`:
+Poisson in time at the configured rate over the record, each N(0, jump_mm), the whole depth image
+stepping, through each plate's and axis' range gain), drawn anew for every simulation as the
+frame simulator draws them. What the twin cannot render (a mode without a calibration, one plate's clipping)
 leaves its output unchanged: `reconcile` checks each effect and says so.
 """
 
@@ -162,6 +165,20 @@ class Twin:
             y = y_all[s.axis][s.rows]
             s.sigma = short_term_noise(y - a @ np.linalg.lstsq(a, y, rcond=None)[0])
 
+    def _configured_jumps(self, frame_t: np.ndarray, seed: int) -> np.ndarray | None:
+        """(frame,) mm: a structured-light camera's level jumps as the frame simulator draws
+        them (`simulate.structured_light.session_offsets_mm`: a Poisson count at the configured
+        rate, uniform times, N(0, jump_mm) sizes, cumulated), or None without configured jumps."""
+        cal = self.calibration
+        if cal is None or not (cal.jumps_per_minute > 0 and cal.jump_mm > 0) or not frame_t.size:
+            return None
+        rng = np.random.default_rng([int(seed), 9303])
+        duration = float(frame_t[-1] - frame_t[0])
+        n = rng.poisson(cal.jumps_per_minute * duration / 60.0)
+        t_j = frame_t[0] + np.sort(rng.uniform(0.0, max(duration, 1e-9), n))
+        cum = np.concatenate([[0.0], np.cumsum(rng.normal(0.0, cal.jump_mm, n))])
+        return cum[np.searchsorted(t_j, frame_t, side="right")]
+
     def shows(self, effect: EffectSpec, seed: int = 0) -> bool:
         """Whether ``effect`` changes the simulated table (same seed, with and without it)."""
         a, b = self.simulate((), seed), self.simulate((effect,), seed)
@@ -194,9 +211,12 @@ class Twin:
             for p, c in self.axis_corr.items()
         }
         off = None
+        frame_t = np.unique(self.df["t"].to_numpy()) - self.t_first
         if any(e.level == "range" for e in effects):  # once per frame, indexed per series below
-            frame_t = np.unique(self.df["t"].to_numpy()) - self.t_first
             off = range_offset(effects, frame_t, 0.0, max(self.plates), seed)
+        jumps = self._configured_jumps(frame_t, seed)
+        if jumps is not None:  # the whole depth image steps: every plate's range, column 0 off
+            off = (off if off is not None else 0.0) + jumps[:, None] * np.ones(max(self.plates) + 1)
         for s in self.series:
             t = s.t
             c, a, b = s.coef
