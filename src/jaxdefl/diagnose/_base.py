@@ -37,6 +37,7 @@ from functools import cached_property
 
 import numpy as np
 
+from .._numerics import DELTA_BIC_MAX, difference_sigma, harmonic_design, wls
 from ..settings import SENSORS as SENSOR_KINDS
 
 __all__ = [
@@ -49,7 +50,6 @@ __all__ = [
     "Effect",
     "loglik",
     "rms_equivalent",
-    "lstsq",
     "regress",
     "regress_offset",
     "keep_series",
@@ -57,11 +57,12 @@ __all__ = [
     "masked_periodogram",
     "peak_offset",
     "LOG_2PI",
+    "lstsq",
 ]
 
 LOG_2PI = math.log(2 * math.pi)
-# the information gate: an effect is tried when one of plausible size would reach this ΔBIC
-GATE_DELTA_BIC = -10.0
+# the one weighted least squares (`jaxdefl._numerics.wls`) under its old name, for `_sensor_nominal`
+lstsq = wls
 
 
 @dataclass(frozen=True)
@@ -342,21 +343,14 @@ class Context:
         harmonic (1.4826 MAD / √2: slow structure and outliers barely move it); cached."""
         if i not in self._noise:
             s = self.series[i]
-            r = s.y - self.nominal[i](s.t)
-            d = np.diff(r)[np.diff(s.k) == 1]
-            if d.size < 8:
-                d = np.diff(r)
-            sig = 1.4826 * float(np.median(np.abs(d - np.median(d)))) / math.sqrt(2) if d.size else 0.0
-            self._noise[i] = sig
+            self._noise[i] = difference_sigma(s.y - self.nominal[i](s.t), s.k)
         return self._noise[i]
 
     def _nuisance_at(self, i: int, t: np.ndarray) -> np.ndarray:
-        cols = [np.ones_like(t)]
-        if not self.series[i].tied:
-            h = self.nominal[i]
-            a = h.omega * (t - h.t_ref)
-            cols += [np.cos(a), np.sin(a)]
-        return np.stack(cols, axis=1)
+        if self.series[i].tied:
+            return np.ones((t.size, 1))
+        h = self.nominal[i]
+        return harmonic_design(h.omega * (t - h.t_ref))
 
 
 class Effect(abc.ABC):
@@ -456,36 +450,18 @@ class Effect(abc.ABC):
         if len(ctx.plates) < self.min_plates:
             return f"needs at least {self.min_plates} plates, the table has {len(ctx.plates)}"
         dbic = self.expected_delta_bic(ctx, 1.0 if corr is None else self.gate_design_effect(ctx, corr))
-        if not dbic < GATE_DELTA_BIC:
+        # the information gate: tried when an effect of plausible size would be strong evidence
+        if not dbic < DELTA_BIC_MAX:
             return (
                 f"not enough evidence: an effect of plausible size would reach ΔBIC {dbic:.0f} on "
                 f"this record ({sum(s.n for s in ctx.series)} samples, {ctx.duration_s:.3g} s, "
-                f"needs < {GATE_DELTA_BIC:.0f})"
+                f"needs < {DELTA_BIC_MAX:.0f})"
             )
         return None
 
     @abc.abstractmethod
     def propose(self, ctx: Context, states: list[State]) -> list[Proposal]:
         """Screen the current states; proposals for this effect, or [] when nothing is there."""
-
-
-def lstsq(cols: np.ndarray, r: np.ndarray, w: np.ndarray | None = None):
-    """Weighted linear least squares r ≈ cols @ beta.
-
-    Args:
-        cols: (sample, k); r: (sample,); w: (sample,) weights (1/scale², 0 to skip) or None.
-    Returns:
-        (beta (k,), cov (k, k) with σ̂² from the weighted residual, fitted (sample,)).
-    """
-    w = np.ones_like(r) if w is None else w
-    gw = cols * w[:, None]
-    gtg = gw.T @ cols
-    beta = np.linalg.lstsq(gtg, gw.T @ r, rcond=None)[0]
-    fitted = cols @ beta
-    dof = max(int((w > 0).sum()) - cols.shape[1], 1)
-    s2 = float(np.sum(w * (r - fitted) ** 2) / dof)
-    cov = s2 * np.linalg.pinv(gtg)
-    return beta, cov, fitted
 
 
 def regress(ctx: Context, i: int, st: State, y: np.ndarray, cols: np.ndarray):
@@ -497,7 +473,7 @@ def regress(ctx: Context, i: int, st: State, y: np.ndarray, cols: np.ndarray):
     nu = ctx.nuisance(i)
     g = np.concatenate([cols, nu], axis=1)
     w = np.where(st.inlier, 1.0 / st.scale**2, 0.0)
-    beta, cov, fitted = lstsq(g, r, w)
+    beta, cov, fitted = wls(g, r, w)
     k = cols.shape[1]
     return beta[:k], cov[:k, :k], st.mean + fitted
 
@@ -508,7 +484,7 @@ def regress_offset(ctx: Context, i: int, st: State, y: np.ndarray, cols: np.ndar
     r = y - st.mean
     g = np.concatenate([cols, np.ones((r.size, 1))], axis=1)
     w = np.where(st.inlier, 1.0 / st.scale**2, 0.0)
-    beta, cov, fitted = lstsq(g, r, w)
+    beta, cov, fitted = wls(g, r, w)
     k = cols.shape[1]
     return beta[:k], cov[:k, :k], st.mean + fitted
 

@@ -42,9 +42,11 @@ from scipy import stats
 from scipy.interpolate import BSpline
 from scipy.ndimage import median_filter
 
+from .._numerics import DELTA_BIC_MAX, harmonic_design, wls
 from ._base import LOG_2PI, Context, State, masked_periodogram, peak_offset
 from ._correlation import FrameCorrelation, ar1_rho
 from ._varpro import fit_shared
+from .effects.screening import weights
 
 __all__ = [
     "UnnamedTerm",
@@ -62,7 +64,6 @@ __all__ = [
 
 KINDS = ("line", "envelope", "trend")
 MAX_TERMS = 4
-DELTA_BIC_MAX = -10.0
 MAX_KNOTS = 12
 # a line's signature: its locally normalised power against a running median of ±LOCAL_BINS
 # bins, significant at LINE_ALPHA after the frequencies and axes scanned
@@ -195,16 +196,6 @@ class _Noise:
 # linear fits
 
 
-def _wls(cols: np.ndarray, r: np.ndarray, w: np.ndarray):
-    gw = cols * w[:, None]
-    beta = np.linalg.lstsq(gw.T @ cols, gw.T @ r, rcond=None)[0]
-    return beta, cols @ beta
-
-
-def _weights(st: State) -> np.ndarray:
-    return np.where(st.inlier, 1.0 / st.scale**2, 0.0)
-
-
 def _nuisance(ctx: Context, i: int, offset_only: bool = False) -> np.ndarray:
     nu = ctx.nuisance(i)
     return nu[:, :1] if offset_only else nu
@@ -237,7 +228,7 @@ def _varpro(ctx, states, idx, columns, theta0, scale, aux, offset_only, bounds=N
     """Refine shared nonlinear θ (optimistix, `_varpro.fit_shared`): {i: new mean} and θ, or None."""
     ts = [ctx.series[i].t for i in idx]
     rs = [ctx.series[i].y - states[i].mean for i in idx]
-    ws = [_weights(states[i]) for i in idx]
+    ws = [weights(states[i]) for i in idx]
     nus = [_nuisance(ctx, i, offset_only) for i in idx]
     q = max(nu.shape[1] for nu in nus)  # a tied series has the offset only: zero columns pad it
     nus = [np.pad(nu, ((0, 0), (0, q - nu.shape[1]))) for nu in nus]
@@ -314,11 +305,9 @@ def _line(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> lis
             for i in idx:
                 s, st = ctx.series[i], states[i]
                 tau = s.t - s.t[0]
-                env = np.exp(-lam * tau)
-                a = 2 * np.pi * f * s.t
-                cols = np.stack([env * np.cos(a), env * np.sin(a)], axis=1)
+                cols = np.exp(-lam * tau)[:, None] * harmonic_design(2 * np.pi * f * s.t, offset=False)
                 g = np.concatenate([cols, _nuisance(ctx, i, offset_only=True)], axis=1)
-                beta, fitted = _wls(g, s.y - st.mean, _weights(st))
+                beta, _, fitted = wls(g, s.y - st.mean, weights(st), cov=False)
                 means[i] = st.mean + fitted
                 fits[i] = beta[:2]
                 gains[i] = noise.loglik(i, means[i]) - noise.base(i)
@@ -341,8 +330,7 @@ def _line(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> lis
                 def cols_of(i, lam=lam, f=f):
                     s = ctx.series[i]
                     env = np.exp(-lam * (s.t - s.t[0]))
-                    a = 2 * np.pi * f * s.t
-                    return np.stack([env * np.cos(a), env * np.sin(a)], axis=1)
+                    return env[:, None] * harmonic_design(2 * np.pi * f * s.t, offset=False)
 
                 beta, m_ax, _ = _shared_fit(ctx, states, idx, cols_of, proj)
                 k_par = 1 + (1 if lam_u > 0 else 0) + 2
@@ -397,7 +385,7 @@ def _projections(ctx, states, idx) -> dict:
     out = {}
     for i in idx:
         s, st = ctx.series[i], states[i]
-        w = _weights(st) / max(ctx.noise_sigma(i), 1e-12) ** 2
+        w = weights(st) / max(ctx.noise_sigma(i), 1e-12) ** 2
         nu = _nuisance(ctx, i)
         r = s.y - st.mean
         nw = nu * w[:, None]
@@ -446,17 +434,20 @@ def _shared_fit(ctx, states, idx, cols_of, projections=None):
     return beta, means, gammas
 
 
+def _carrier(ctx: Context, i: int) -> tuple[np.ndarray, np.ndarray]:
+    """The nominal motion's in-phase and quadrature carriers on series i: (A cos φ, −A sin φ)."""
+    h = ctx.nominal[i]
+    _, c, s = harmonic_design(h.argument(ctx.series[i].t)).T
+    return h.amplitude * c, -h.amplitude * s
+
+
 def _envelope(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> list[_Candidate]:
     """A shared smooth complex envelope of the loading line (B-spline, K by BIC) or a decay."""
     idx = _carriers(ctx, states)
     if not idx:
         return []
     cycles = ctx.f0_hz * ctx.duration_s
-    carrier = {}
-    for i in idx:
-        h, t = ctx.nominal[i], ctx.series[i].t
-        arg = h.argument(t)
-        carrier[i] = (h.amplitude * np.cos(arg), -h.amplitude * np.sin(arg))
+    carrier = {i: _carrier(ctx, i) for i in idx}
     base = sum(noise.base(i) for i in idx)
 
     # the series the report's envelope is read on: the largest motion against its noise
@@ -526,9 +517,7 @@ def _envelope(ctx: Context, states: list[State], noise: _Noise, n_total: int) ->
         shift = 0j
         if not ctx.series[ref].tied:  # the re-estimated harmonic: what the term leaves of the fit
             term = _decay_columns(theta, ctx.series[ref].t, {k: v[j] for k, v in aux.items()}) @ coef
-            gam = np.linalg.lstsq(
-                _nuisance(ctx, ref), means[ref] - states[ref].mean - np.asarray(term), rcond=None
-            )[0]
+            gam = wls(_nuisance(ctx, ref), means[ref] - states[ref].mean - np.asarray(term), cov=False)[0]
             shift = (gam[1] - 1j * gam[2]) * np.exp(1j * h.phase) / h.amplitude
         info = {"form": "exponential", "decay_per_s": float(theta[0]), "coef": coef, "shift": shift}
         info["relative_envelope"] = _relative_envelope(ctx, info)
@@ -626,7 +615,7 @@ def _trend(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> li
                 b = np.concatenate([b, (s.t > t_c).astype(float)[:, None]], axis=1)
             cols[i] = b
             g = np.concatenate([b, _nuisance(ctx, i)], axis=1)
-            beta, fitted = _wls(g, s.y - st.mean, _weights(st))
+            beta, _, fitted = wls(g, s.y - st.mean, weights(st), cov=False)
             betas[i] = beta[: b.shape[1]] / max(ctx.noise_sigma(i), 1e-12)
             means[i] = st.mean + fitted
             gains[i] = noise.loglik(i, means[i]) - noise.base(i)
@@ -649,7 +638,7 @@ def _trend(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> li
         for i, s in enumerate(ctx.series):
             st = states[i]
             g = np.concatenate([(cols[i] @ v)[:, None], _nuisance(ctx, i)], axis=1)
-            _, fitted = _wls(g, s.y - st.mean, _weights(st))
+            fitted = wls(g, s.y - st.mean, weights(st), cov=False)[2]
             sh_means[i] = st.mean + fitted
             sh_gains[i] = noise.loglik(i, sh_means[i]) - noise.base(i)
         kept = [i for i in sh_gains if 2 * sh_gains[i] > logn + 6.0]
@@ -749,9 +738,9 @@ def _line_sigmas(ctx, states, c, corr) -> dict:
         s = ctx.series[i]
         tau = s.t - s.t[0]
         e = np.exp(-lam * tau)
-        ca, sa = np.cos(2 * np.pi * f * s.t), np.sin(2 * np.pi * f * s.t)
+        _, ca, sa = harmonic_design(2 * np.pi * f * s.t).T
         x = np.stack([e * ca, e * sa, np.ones_like(tau)], axis=1)
-        a, b = np.linalg.lstsq(x, c.means[i] - states[i].mean, rcond=None)[0][:2]
+        a, b = wls(x, c.means[i] - states[i].mean, cov=False)[0][:2]
         js = [e * 2 * np.pi * s.t * (-a * sa + b * ca)]
         if free_decay:
             js.append(-tau * e * (a * ca + b * sa))
@@ -782,7 +771,7 @@ def _common_line_sigmas(ctx, states, c, corr, f, lam) -> dict:
         s = ctx.series[i]
         tau = s.t - s.t[0]
         e = np.exp(-lam * tau)
-        ca, sa = np.cos(2 * np.pi * f * s.t), np.sin(2 * np.pi * f * s.t)
+        _, ca, sa = harmonic_design(2 * np.pi * f * s.t).T
         cols[i] = (tau, e, ca, sa)
         xs[i] = np.stack([e * ca, e * sa], axis=1)
     a, b = _shared_fit(ctx, states, c.series, lambda i: xs[i])[0]
@@ -812,11 +801,7 @@ def _envelope_sigmas(ctx, states, c, corr) -> dict:
     """σ of the envelope's extremes (spline) or of its decay rate and damping ratio."""
     info = c.info
     idx = c.series
-    carrier = {}
-    for i in idx:
-        h, t = ctx.nominal[i], ctx.series[i].t
-        arg = h.argument(t)
-        carrier[i] = (h.amplitude * np.cos(arg), -h.amplitude * np.sin(arg))
+    carrier = {i: _carrier(ctx, i) for i in idx}
     if info["form"] == "spline":
         knots = info["knots"]
         blocks = []
@@ -857,9 +842,7 @@ def _envelope_sigmas(ctx, states, c, corr) -> dict:
         cc, ss = carrier[i]
         x = np.stack([e * cc, e * ss], axis=1)
         nu = _nuisance(ctx, i)
-        a, b = np.linalg.lstsq(np.concatenate([x, nu], axis=1), c.means[i] - states[i].mean, rcond=None)[0][
-            :2
-        ]
+        a, b = wls(np.concatenate([x, nu], axis=1), c.means[i] - states[i].mean, cov=False)[0][:2]
         coefs.append((a, b))
         dl = (-(t - 0.5 * ctx.duration_s) * (a * x[:, 0] + b * x[:, 1]))[:, None]
         if per_series:
@@ -909,9 +892,7 @@ def _trend_sigmas(ctx, states, c, corr) -> dict:
         for i, js, xo in blocks:
             d = c.means[i] - states[i].mean
             x = js if form == "common" else xo[:, : cols(i).shape[1] if form != "shared" else 1]
-            beta = np.linalg.lstsq(np.concatenate([x, _nuisance(ctx, i)], axis=1), d, rcond=None)[0][
-                : x.shape[1]
-            ]
+            beta = wls(np.concatenate([x, _nuisance(ctx, i)], axis=1), d, cov=False)[0][: x.shape[1]]
             term = x @ beta
             g_rows = x[int(np.argmax(term))] - x[int(np.argmin(term))]
             g = np.zeros(cov.shape[0])

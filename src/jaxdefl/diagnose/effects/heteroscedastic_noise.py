@@ -30,7 +30,8 @@ import math
 
 import numpy as np
 
-from .._base import Context, Effect, Proposal, State, keep_series, lstsq
+from ..._numerics import wls
+from .._base import Context, Effect, Proposal, State, keep_series
 from .screening import (
     combined_p,
     gain,
@@ -186,7 +187,7 @@ class HeteroscedasticNoise(Effect):
             theta, cov, x = fits[i]
             scale = st.scale * (1.0 + x @ theta)
             w = np.where(st.inlier, 1.0 / scale**2, 0.0)
-            _, _, fitted = lstsq(ctx.nuisance(i), residual(ctx, i, st), w)
+            _, _, fitted = wls(ctx.nuisance(i), residual(ctx, i, st), w)
             cand = updated(st, self.id, k, mean=st.mean + fitted, scale=scale)
             if keep_series(gain(ctx, i, st, cand) / infl[j], k, ctx.series[i].n):
                 new[i], thetas[i], covs[i] = cand, theta, cov

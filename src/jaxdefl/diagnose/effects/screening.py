@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
+from ..._numerics import wls
 from .._base import Context, State, loglik
 
 __all__ = [
@@ -32,15 +33,10 @@ __all__ = [
     "median_signed",
     "SharedAmplitude",
     "shared_amplitude",
-    "P_SCREEN",
     "subset_trials",
     "changepoint_trials",
     "scanned",
 ]
-
-# A signature weaker than this cannot pass the search's calibrated test (α = 0.05 over ~10
-# effects, `_search.Calibration`): screens propose up to it, the search decides.
-P_SCREEN = 5e-3
 
 
 def subset_trials(n_kept: int, n_candidates: int) -> float:
@@ -351,9 +347,7 @@ def shared_amplitude(
         _, _, _, c, nu, w = parts[i]
         term = c @ beta
         r = ctx.series[i].y - st.mean - term
-        nw = nu * w[:, None]
-        gamma = np.linalg.lstsq(nw.T @ nu, nw.T @ r, rcond=None)[0]
-        cand = updated(st, effect, k_own, mean=st.mean + term + nu @ gamma)
+        cand = updated(st, effect, k_own, mean=st.mean + term + wls(nu, r, w, cov=False)[2])
         d = gain(ctx, i, st, cand)
         if d > 0:
             new[i], gains[i] = cand, d

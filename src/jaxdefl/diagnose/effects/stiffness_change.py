@@ -52,7 +52,8 @@ __all__ = ["StiffnessChange", "EFFECT"]
 
 EDGE = 0.05
 WIDTH_S = 0.05  # width of the smooth step (s): sharp on the loading period, smooth for the solver
-P_MAX = 1e-3
+# stricter than the screens' `jaxdefl._numerics.P_MAX`: a step scanned over time, variants and bands
+P_STEP = 1e-3
 VARIANTS = ("amplitude", "stiffness", "free")
 N_PARAMS = {"amplitude": 2, "stiffness": 2, "free": 3}
 
@@ -201,7 +202,7 @@ class StiffnessChange(Effect):
         dof = 2 if variant == "free" else 1
         j = int(np.argmax(stat))
         p_value = bonferroni(float(chi2_sf(stat[j], dof)), scan["n_scan"] * len(VARIANTS))
-        if p_value >= P_MAX:
+        if p_value >= P_STEP:
             return None
         tc = float(scan["tc"][j])
         a0 = float(na[j] / da[j])  # the amplitude step's relative size (columns carry a)
