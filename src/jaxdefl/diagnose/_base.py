@@ -1,5 +1,7 @@
 """The diagnosis' data model: series, their nominal harmonics, the current model of each series,
-and the contract between the search (`_search.py`) and the candidate effects (`effects/`).
+and the contract between the search (`_search.py`) and the detectors of the candidate effects
+(`effects/`). Its names are public as ``jaxdefl.diagnose.Context``, ``State``, ``Proposal``,
+``Detector`` (and the helpers below); a new effect's detector is a `Detector` subclass.
 
 Vocabulary
 ----------
@@ -13,7 +15,8 @@ Vocabulary
 - The *state* of a series is its current model: the mean (nominal harmonic plus the accepted
   effects' terms) and the noise model (relative scale per sample, inlier mask and the outlier
   component). Its log-likelihood is computed by `loglik` alone, for every effect alike.
-- An *effect* (`Effect`) looks at the states, runs its signature test and returns
+- A *detector* (`Detector`, one per effect id) looks at the states, runs its effect's
+  signature test and returns
   `Proposal`s: new means / noise models for some series, the number of parameters added, the
   signature's p-value (already corrected for the effect's own scan, e.g. over frequencies), the
   located span and band, the fitted parameters with σ's, and a plain-language explanation. The
@@ -47,7 +50,7 @@ __all__ = [
     "State",
     "Context",
     "Proposal",
-    "Effect",
+    "Detector",
     "loglik",
     "rms_equivalent",
     "regress",
@@ -353,8 +356,9 @@ class Context:
         return harmonic_design(h.omega * (t - h.t_ref))
 
 
-class Effect(abc.ABC):
-    """A candidate effect: subclasses set the class attributes and implement `propose`.
+class Detector(abc.ABC):
+    """The detector of one candidate effect: subclasses set the class attributes and implement
+    `propose`; each module of `effects/` exports one instance as ``EFFECT``.
 
     Attributes:
         id: the DESIGN.md effect id.

@@ -17,7 +17,7 @@ import math
 import numpy as np
 
 from ..._numerics import P_MAX
-from .._base import Context, Effect, Proposal, State
+from .._base import Context, Detector, Proposal, State
 from .shared_fits import Carriers, chi2_p_value, one_sided, param, scan_p_value
 
 __all__ = ["ModulationEffect", "modulation_band", "KINDS"]
@@ -31,7 +31,7 @@ def modulation_band(ctx: Context) -> tuple[float, float]:
     return 2.0 / ctx.duration_s, min(F_MAX_HZ, ctx.f0_hz / 4)
 
 
-class ModulationEffect(Effect):
+class ModulationEffect(Detector):
     """A shared slow modulation of the loading motion, linear or sinusoidal in time.
 
     Class attributes: ``demodulation`` ("in_phase" or "quadrature": the one that sees it; the

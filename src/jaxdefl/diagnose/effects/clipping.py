@@ -27,7 +27,7 @@ import math
 import numpy as np
 
 from ..._numerics import wls
-from .._base import Context, Effect, Proposal, State, keep_series
+from .._base import Context, Detector, Proposal, State, keep_series
 from .screening import chi2_sf, combined_p, gain, param, residual, screen_columns, updated, weights
 
 __all__ = ["Clipping", "EFFECT", "LEVELS", "clip_column"]
@@ -40,7 +40,7 @@ def clip_column(theta: np.ndarray, side: int, c: float) -> np.ndarray:
     return np.maximum(side * np.cos(theta) - c, 0.0)
 
 
-class Clipping(Effect):
+class Clipping(Detector):
     id = "clipping"
     structural = False  # a depth band's or a converter's bound
     meaning = "a plate's reading saturating at the peaks of its motion (the depth band's bound)"

@@ -37,7 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..._numerics import P_MAX, wls
-from .._base import Context, Effect, Proposal, State, keep_series, peak_offset
+from .._base import Context, Detector, Proposal, State, keep_series, peak_offset
 from .._varpro import fit_shared
 from .screening import (
     bonferroni,
@@ -83,7 +83,7 @@ def _legendre(u: np.ndarray, degree: int) -> np.ndarray:
     return np.stack(cols, axis=1)
 
 
-class Drift(Effect):
+class Drift(Detector):
     id = "drift"
     meaning = "slow drift of the measured position (camera warm-up, settling): exponential or polynomial"
     plausible, plausible_unit, gate_params = 1.0 / 600, "mm_per_s", 2  # 1 mm in 10 minutes (warm-up)

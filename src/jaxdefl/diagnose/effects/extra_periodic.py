@@ -35,7 +35,7 @@ from scipy import stats
 
 from .._base import (
     Context,
-    Effect,
+    Detector,
     Proposal,
     State,
     keep_series,
@@ -93,7 +93,7 @@ def _columns(theta, t, aux):
     return jnp.stack([jnp.cos(a), jnp.sin(a)], axis=1)
 
 
-class ExtraPeriodic(Effect):
+class ExtraPeriodic(Detector):
     id = "extra_periodic"
     meaning = "a vibration at a frequency unrelated to the loading (pump, mount, floor), common to the plates"
     plausible, plausible_unit, gate_params = 0.05, "mm", 3  # a 0.05-mm vibration (pump, mount)

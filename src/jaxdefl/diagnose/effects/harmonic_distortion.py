@@ -38,7 +38,7 @@ import math
 import numpy as np
 
 from ..._numerics import P_MAX, wls
-from .._base import Context, Effect, Proposal, State, keep_series, masked_periodogram
+from .._base import Context, Detector, Proposal, State, keep_series, masked_periodogram
 from .screening import (
     bonferroni,
     chi2_sf,
@@ -94,7 +94,7 @@ def _columns(ctx: Context, i: int, omega: float | None = None, t_ref: float | No
     return cols
 
 
-class HarmonicDistortion(Effect):
+class HarmonicDistortion(Detector):
     id = "harmonic_distortion"
     meaning = "motion not purely sinusoidal: components at 2-5 x f0 (support contact, cyclic range error)"
     plausible, plausible_unit, gate_params = 0.1, "mm", 2  # a 0.1-mm 2nd harmonic (mixed pixels)

@@ -31,7 +31,7 @@ import math
 import numpy as np
 
 from ..._numerics import wls
-from .._base import Context, Effect, Proposal, State, keep_series
+from .._base import Context, Detector, Proposal, State, keep_series
 from .screening import (
     combined_p,
     gain,
@@ -128,7 +128,7 @@ def _binned(x: np.ndarray, v: np.ndarray, key: np.ndarray, n_bins: int):
     return xb[ok] / c[ok, None], vb[ok], c[ok]
 
 
-class HeteroscedasticNoise(Effect):
+class HeteroscedasticNoise(Detector):
     id = "heteroscedastic_noise"
     meaning = "noise level that depends on the motion's phase or changes over the record"
     plausible, plausible_unit, gate_params = 0.15, "noise", 2  # the variance ±30 % with the phase

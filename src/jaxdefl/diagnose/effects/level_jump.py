@@ -38,7 +38,7 @@ import math
 import numpy as np
 
 from ..._numerics import P_MAX, wls
-from .._base import Context, Effect, Proposal, State, keep_series
+from .._base import Context, Detector, Proposal, State, keep_series
 from .screening import (
     bonferroni,
     changepoint_trials,
@@ -86,7 +86,7 @@ def _cusum(ctx: Context, i: int, st: State):
     return stat, s2, b, den / s2
 
 
-class LevelJump(Effect):
+class LevelJump(Detector):
     id = "level_jump"
     meaning = "a step of the measured position (structured-light instability, integration-time change)"
     causes = {  # noqa: RUF012

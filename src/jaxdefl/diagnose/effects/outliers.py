@@ -27,7 +27,7 @@ import numpy as np
 from scipy import stats
 
 from ..._numerics import mad_sigma, wls
-from .._base import Context, Effect, Proposal, State, keep_series
+from .._base import Context, Detector, Proposal, State, keep_series
 from .screening import bonferroni, gain, param, residual, subset_trials, touched, updated
 
 __all__ = ["Outliers", "EFFECT"]
@@ -100,7 +100,7 @@ def _em(r: np.ndarray, scale: np.ndarray, sigma0: float, kind: str):
     return eps, sig, s, resp, ll
 
 
-class Outliers(Effect):
+class Outliers(Detector):
     id = "outliers"
     meaning = "heavy-tailed residuals: single frames far off (mixed pixels, segmentation failures)"
     plausible, plausible_unit, gate_params = 0.5, "noise", 2  # 1 % of the frames 5 σ off

@@ -62,7 +62,7 @@ import numpy as np
 from ..._lattice import dithered_round, dithered_round_var
 from ..._lattice import smoothed_staircase as staircase  # the mean reading (dither 0: hard steps)
 from ..._numerics import P_MAX, wls
-from .._base import Context, Effect, Proposal, State, keep_series
+from .._base import Context, Detector, Proposal, State, keep_series
 from ..record_kind import value_lattice
 from .screening import bonferroni, chi2_sf, gain, param, residual, touched, updated, weights
 
@@ -356,7 +356,7 @@ def _on_lattices(q: float, lattice: dict[int, float]) -> bool:
 MIN_STEPS_ONE_SERIES = 10.0  # steps a single series' motion must span for its lattice to be told
 
 
-class Quantization(Effect):
+class Quantization(Detector):
     id = "quantization"
     structural = False  # a converter's or a disparity's lattice
     meaning = "depth measured in steps (structured-light disparity quantisation, a logger's ADC)"

@@ -29,7 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 from scipy import stats
 
-from .._base import Context, Effect, Proposal, State, keep_series, loglik
+from .._base import Context, Detector, Proposal, State, keep_series, loglik
 from .._varpro import SharedFit, fit_shared
 from .screening import param, updated, weights
 
@@ -201,7 +201,7 @@ TIED_EFFECTS = ("motion_artefact", "timing_error")
 NAMES = ("tap_spread_s", "offset_s", "rate_ppm")
 
 
-class TiedEffect(Effect):
+class TiedEffect(Detector):
     """An effect of the camera against the reference (motion_artefact, timing_error): seen on the
     reference-tied z series only, through their `TiedModel`."""
 

@@ -44,7 +44,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._base import Context, Effect, Proposal, State
+from .._base import Context, Detector, Proposal, State
 from .screening import bonferroni, chi2_sf, scanned
 from .shared_fits import Carriers, param
 
@@ -98,7 +98,7 @@ def _long_run(g: np.ndarray) -> float:
     return (1.0 + rho) / (1.0 - rho)
 
 
-class StiffnessChange(Effect):
+class StiffnessChange(Detector):
     id = "stiffness_change"
     meaning = "a crack: the motion's amplitude steps (its frequency shifts) at one instant on every plate"
     plausible, plausible_unit, gate_params = 1e-3, "motion", 2  # 0.1 % of the stiffness at mid-record

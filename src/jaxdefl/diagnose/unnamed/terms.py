@@ -1,39 +1,17 @@
-"""The open world: residual structure that no named effect explains, located and modelled by
-generic terms, reported under ``"unnamed"`` and never given a vocabulary name.
-
-After the named search (`_search`) the residuals are searched again, greedily, with three
-generic terms, each chosen by BIC:
+"""The open world's generic terms, each chosen by BIC (`BUILDERS`: kind -> screening):
 
 - ``line``: a sinusoid at the peak of the residual periodograms summed over an axis' series,
-  each normalised by its running median (the local noise level, whatever its colour), when that
-  peak is significant after the frequencies scanned (α = 0.01); per-series amplitudes, shared
-  frequency, optionally decaying, e^{−λ(t − t_s)} from the
-  series' start (a free vibration: its damping ratio ζ = λ / 2πf is reported). Sparse: one line
-  per round, the next one from the new residual.
-- ``envelope``: a smooth complex envelope u(t) of the loading line, shared by the series that
-  carry the motion: y += a_s Re[u(t) e^{i arg_s(t)}], u a cubic B-spline with K interior knots
-  (K by BIC), or an exponential e^{−λ(t − t_ref)} (a free decay: ζ reported).
-- ``trend``: a slow additive cubic B-spline in time per series (K by BIC), its constant free;
-  or one common to an axis' series (a camera's sway), which may go finer (`COMMON_KNOTS`, down
-  to 4 loading periods a knot span): it pays its coefficients once for the axis.
+  optionally decaying (a free vibration), per-series amplitudes or one common to the axis;
+- ``envelope``: a smooth complex envelope of the loading line (B-spline or exponential);
+- ``trend``: a slow additive B-spline per series, shared, or common to an axis' series;
 
-Evidence. The noise of the residual is modelled as AR(1) on the frame clock, ρ estimated per
-series from the lag-1 autocorrelation of the residual's first differences (−(1 − ρ)/2 for
-AR(1); slow structure hardly moves it) and re-estimated after the term is added, σ profiled.
-So coloured noise is not taken for structure. Terms shared by the plates are discounted by the
-frame correlation's design effect (`_correlation`). A term is accepted when
-
-    ΔBIC = −2 Δlog L + k log N < −10
-
-(N all samples of the record, k every parameter added: frequencies, decay rates, amplitudes,
-spline coefficients). Reported: where (plates, axes, time span, band), the term's parameters,
-ΔBIC and the residual RMS of the series it touches before and after.
-"""
+and the σ's of an accepted term's parameters (`term_sigmas`, under the noise model of
+`jaxdefl.diagnose.unnamed.noise`)."""
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import jax.numpy as jnp
 import numpy as np
@@ -42,28 +20,16 @@ from scipy import stats
 from scipy.interpolate import BSpline
 from scipy.ndimage import median_filter
 
-from .._numerics import DELTA_BIC_MAX, harmonic_design, wls
-from ._base import LOG_2PI, Context, State, masked_periodogram, peak_offset
-from ._correlation import FrameCorrelation, ar1_rho
-from ._varpro import fit_shared
-from .effects.screening import weights
+from ..._numerics import harmonic_design, wls
+from .._base import Context, State, masked_periodogram, peak_offset
+from .._correlation import FrameCorrelation
+from .._varpro import fit_shared
+from ..effects.screening import weights
+from .noise import Noise, gls_covariance, linear_sd
 
-__all__ = [
-    "UnnamedTerm",
-    "search_unnamed",
-    "best_term",
-    "apply_term",
-    "colored_gain",
-    "ar1_loglik",
-    "ar1_rho",
-    "ar1_whiten",
-    "term_sigmas",
-    "MAX_TERMS",
-    "KINDS",
-]
+__all__ = ["BUILDERS", "Candidate", "KNOTS", "bspline", "shared_fit", "term_sigmas"]
 
-KINDS = ("line", "envelope", "trend")
-MAX_TERMS = 4
+
 MAX_KNOTS = 12
 # a line's signature: its locally normalised power against a running median of ±LOCAL_BINS
 # bins, significant at LINE_ALPHA after the frequencies and axes scanned
@@ -74,126 +40,8 @@ KNOTS = (0, 1, 2, 3, 5, 8, 12)
 # finer knots for the trend common to an axis' series (a camera's sway has power up to a few
 # loading periods): it pays its coefficients once for the axis, not once per series
 COMMON_KNOTS = (16, 24, 32, 48, 64, 96, 128)
-# the chosen term is refined only when its screening already shows evidence (a refit moves ΔBIC
-# by a few units, not from nothing to −10); a refit costs a compilation per shape
-REFINE_BELOW = 0.0
 # λ grid of the decays, in units of 1/duration (e-folds over the record)
 _DECAY_GRID = np.concatenate([[0.0], np.geomspace(0.05, 40.0, 12)])  # refined by optimistix
-
-
-@dataclass
-class UnnamedTerm:
-    """An accepted generic term.
-
-    Attributes:
-        kind: ``line``, ``envelope`` or ``trend``.
-        series: indices into `Context.series`; means: {series index: new mean}.
-        n_params: parameters added; parameters: {name: {"value", "sigma"}} (JSON-able).
-        t_start, t_end: located span (s since t0); band_hz: [lo, hi] or None.
-        delta_bic, rms_before_mm, rms_after_mm: evidence and the plain residual RMS of its series.
-        explanation: one or two sentences for a structural engineer.
-    """
-
-    kind: str
-    series: list[int]
-    means: dict[int, np.ndarray]
-    n_params: int
-    parameters: dict
-    t_start: float
-    t_end: float
-    band_hz: list[float] | None
-    explanation: str
-    delta_bic: float = math.nan
-    rms_before_mm: float = math.nan
-    rms_after_mm: float = math.nan
-    detail: dict = field(default_factory=dict)
-    # the fitted term itself (its mean change per series), for the search's backfitting
-    change: dict = field(default_factory=dict, repr=False)
-    candidate: object = field(default=None, repr=False)
-
-
-# ---------------------------------------------------------------------------------------------
-# AR(1) noise
-
-
-def ar1_loglik(r: np.ndarray, k: np.ndarray, rho: float) -> float:
-    """Exact Gaussian log-likelihood of r under AR(1) noise on the frame clock k (gaps allowed),
-    the innovation σ profiled: e_j = r_j − ρ^g r_{j−1}, var ∝ (1 − ρ^{2g})/(1 − ρ²), g the gap."""
-    n = r.size
-    if n == 0:
-        return -math.inf
-    if rho <= 0.0:
-        s2 = max(float(np.mean(r * r)), 1e-300)
-        return -0.5 * n * (math.log(s2) + LOG_2PI + 1.0)
-    g = np.diff(k).astype(np.float64)
-    rg = rho**g
-    # in units of the innovation variance σ²: the first sample at the stationary 1/(1 − ρ²), the
-    # others given the previous one g frames before at (1 − ρ^{2g})/(1 − ρ²) (1 when g = 1)
-    v = np.concatenate([[1.0], 1.0 - rg * rg]) / (1.0 - rho * rho)
-    e = np.concatenate([r[:1], r[1:] - rg * r[:-1]])
-    s2 = max(float(np.mean(e * e / v)), 1e-300)
-    return -0.5 * (n * (math.log(s2) + LOG_2PI + 1.0) + float(np.sum(np.log(v))))
-
-
-def _ar1_of(s, st: State, mean: np.ndarray) -> tuple[float, float]:
-    """(AR(1) log-likelihood, ρ̂) of a series' residual about ``mean`` under its state's scale."""
-    inl = st.inlier
-    z = ((s.y - mean) / st.scale)[inl]
-    k = s.k[inl]
-    z = z - z.mean()
-    rho = ar1_rho(z, k)
-    return ar1_loglik(z, k, rho) - (st.log_scale_sum if not st.unit_scale else 0.0), rho
-
-
-def colored_gain(s, st: State, mean: np.ndarray) -> float | None:
-    """Δlog L of a new ``mean`` (same noise model) under AR(1) noise, ρ profiled on each side;
-    None when the noise is white on both sides (then the white likelihood holds as it is)."""
-    a, ra = _ar1_of(s, st, st.mean)
-    b, rb = _ar1_of(s, st, mean)
-    if ra == 0.0 and rb == 0.0:
-        return None
-    return b - a
-
-
-class _Noise:
-    """Per series: the inlier times, frames, the scale, and the AR(1) log-likelihood of a mean."""
-
-    def __init__(self, ctx: Context, states: list[State], bases: dict | None = None, corr=None):
-        self.ctx = ctx
-        self.states = states
-        self.corr = corr
-        self._base: dict[int, float] = {}
-        self.bases = {} if bases is None else bases
-
-    def basis(self, i: int, knots: int) -> np.ndarray:
-        """Series i's cubic B-spline basis over the record (cached by the search)."""
-        key = (i, knots)
-        if key not in self.bases:
-            b = _bspline(self.ctx.series[i].t, 0.0, self.ctx.duration_s, knots)
-            b.setflags(write=False)
-            self.bases[key] = b
-        return self.bases[key]
-
-    def base(self, i: int) -> float:
-        """The log-likelihood of the current mean of series i (cached)."""
-        if i not in self._base:
-            self._base[i] = self.loglik(i, self.states[i].mean)
-        return self._base[i]
-
-    def loglik(self, i: int, mean: np.ndarray) -> float:
-        return _ar1_of(self.ctx.series[i], self.states[i], mean)[0]
-
-    def gain(self, means: dict[int, np.ndarray]) -> float:
-        """Δlog L of new means of a term over its series, divided by the frame
-        correlation's design effect (`_correlation`) when the search has one."""
-        dll = {i: self.loglik(i, m) - self.base(i) for i, m in means.items()}
-        if self.corr is None:
-            return sum(dll.values())
-        return self.corr.discount(dll)
-
-
-# ---------------------------------------------------------------------------------------------
-# linear fits
 
 
 def _nuisance(ctx: Context, i: int, offset_only: bool = False) -> np.ndarray:
@@ -201,7 +49,17 @@ def _nuisance(ctx: Context, i: int, offset_only: bool = False) -> np.ndarray:
     return nu[:, :1] if offset_only else nu
 
 
-def _bspline(t: np.ndarray, t_lo: float, t_hi: float, knots: int, sparse: bool = False):
+def _basis(noise: Noise, i: int, knots: int) -> np.ndarray:
+    """Series i's cubic B-spline basis over the record (cached in the search's ``noise.bases``)."""
+    key = (i, knots)
+    if key not in noise.bases:
+        b = bspline(noise.ctx.series[i].t, 0.0, noise.ctx.duration_s, knots)
+        b.setflags(write=False)
+        noise.bases[key] = b
+    return noise.bases[key]
+
+
+def bspline(t: np.ndarray, t_lo: float, t_hi: float, knots: int, sparse: bool = False):
     """(sample, knots + 4) cubic B-spline basis on [t_lo, t_hi] with ``knots`` interior knots
     (a CSR matrix with ``sparse``: 4 non-zeros a row)."""
     inner = np.linspace(t_lo, t_hi, knots + 2)
@@ -241,31 +99,16 @@ def _varpro(ctx, states, idx, columns, theta0, scale, aux, offset_only, bounds=N
 
 
 @dataclass
-class _Candidate:
+class Candidate:
     kind: str
     series: list[int]
     means: dict[int, np.ndarray]
     n_params: int
     info: dict
-    refine: object = None  # () -> _Candidate or None: the full fit, run only on the chosen term
+    refine: object = None  # () -> Candidate or None: the full fit, run only on the chosen term
 
 
-def _score(ctx, noise, states, corr, cand, n_total) -> float:
-    dll = {}
-    for i in cand.series:
-        dll[i] = noise.loglik(i, cand.means[i]) - noise.base(i)
-    if corr is not None:
-        gain = corr.discount(dll)
-    else:
-        gain = sum(dll.values())
-    return -2.0 * gain + cand.n_params * math.log(n_total)
-
-
-# ---------------------------------------------------------------------------------------------
-# the generic terms
-
-
-def _line(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> list[_Candidate]:
+def _line(ctx: Context, states: list[State], noise: Noise, n_total: int) -> list[Candidate]:
     """One sparse sinusoid per axis at the significant peak of the summed locally normalised
     periodograms."""
     out = []
@@ -332,7 +175,7 @@ def _line(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> lis
                     env = np.exp(-lam * (s.t - s.t[0]))
                     return env[:, None] * harmonic_design(2 * np.pi * f * s.t, offset=False)
 
-                beta, m_ax, _ = _shared_fit(ctx, states, idx, cols_of, proj)
+                beta, m_ax, _ = shared_fit(ctx, states, idx, cols_of, proj)
                 k_par = 1 + (1 if lam_u > 0 else 0) + 2
                 dbic = -2 * noise.gain(m_ax) + k_par * math.log(n_total)
                 if common is None or dbic < common[0]:
@@ -344,19 +187,19 @@ def _line(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> lis
             _, lam, means, beta, k_par = common
             amp = float(math.hypot(*beta))
             info = {"freq_hz": f, "decay_per_s": lam, "amplitudes_mm": {i: amp for i in idx}, "axis": axis}
-            out.append(_Candidate("line", idx, means, k_par, dict(info, common=True)))
+            out.append(Candidate("line", idx, means, k_par, dict(info, common=True)))
             continue
         if best is None:
             continue
         amps = {i: float(math.hypot(*fits[i])) for i in kept}
         info = {"freq_hz": f, "decay_per_s": lam, "amplitudes_mm": amps, "axis": axis}
-        cand = _Candidate("line", kept, means, k_par, info)
+        cand = Candidate("line", kept, means, k_par, info)
         cand.refine = lambda c=cand: _refine_line(ctx, states, c)
         out.append(cand)
     return out
 
 
-def _refine_line(ctx: Context, states: list[State], c: _Candidate) -> _Candidate | None:
+def _refine_line(ctx: Context, states: list[State], c: Candidate) -> Candidate | None:
     """The line's frequency and decay refined together (optimistix variable projection); a line
     screened without decay keeps none (its frequency alone refined, its parameters as counted)."""
     f, lam = c.info["freq_hz"], c.info["decay_per_s"]
@@ -369,7 +212,7 @@ def _refine_line(ctx: Context, states: list[State], c: _Candidate) -> _Candidate
     means, theta, fit = ref
     amps = {i: float(math.hypot(*fit.beta[j][:2])) for j, i in enumerate(c.series)}
     info = dict(c.info, freq_hz=float(theta[0]), decay_per_s=float(theta[1]), amplitudes_mm=amps)
-    return _Candidate("line", c.series, means, (2 if lam > 0 else 1) + 2 * len(c.series), info)
+    return Candidate("line", c.series, means, (2 if lam > 0 else 1) + 2 * len(c.series), info)
 
 
 def _carriers(ctx: Context, states: list[State]) -> list[int]:
@@ -394,7 +237,7 @@ def _projections(ctx, states, idx) -> dict:
     return out
 
 
-def _shared_fit(ctx, states, idx, cols_of, projections=None):
+def shared_fit(ctx, states, idx, cols_of, projections=None):
     """Coefficients shared by the series ``idx`` (each with its free nuisance profiled out, FWL),
     returning (coefficients, {i: new mean}, {i: nuisance coefficients}).
 
@@ -441,7 +284,7 @@ def _carrier(ctx: Context, i: int) -> tuple[np.ndarray, np.ndarray]:
     return h.amplitude * c, -h.amplitude * s
 
 
-def _envelope(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> list[_Candidate]:
+def _envelope(ctx: Context, states: list[State], noise: Noise, n_total: int) -> list[Candidate]:
     """A shared smooth complex envelope of the loading line (B-spline, K by BIC) or a decay."""
     idx = _carriers(ctx, states)
     if not idx:
@@ -456,7 +299,7 @@ def _envelope(ctx: Context, states: list[State], noise: _Noise, n_total: int) ->
     projections = _projections(ctx, states, idx)
 
     def evaluate(cols_of, k_par):
-        beta, means, gammas = _shared_fit(ctx, states, idx, cols_of, projections)
+        beta, means, gammas = shared_fit(ctx, states, idx, cols_of, projections)
         gain = sum(noise.loglik(i, means[i]) for i in idx) - base
         # the re-estimated harmonic (C, D) of the reference series as a relative complex factor
         h, g = ctx.nominal[ref], gammas[ref]
@@ -473,7 +316,7 @@ def _envelope(ctx: Context, states: list[State], noise: _Noise, n_total: int) ->
     for knots in (k for k in KNOTS if k <= k_max):
 
         def cols_of(i, knots=knots):
-            b = noise.basis(i, knots)
+            b = _basis(noise, i, knots)
             c, s = carrier[i]
             return np.concatenate([b * c[:, None], b * s[:, None]], axis=1)
 
@@ -498,7 +341,7 @@ def _envelope(ctx: Context, states: list[State], noise: _Noise, n_total: int) ->
         b[3]["coef"], b[3]["shift"] = b[3]["coef"]
     chosen = best_exp if best_exp[0] < best[0] else best
 
-    def refine() -> _Candidate | None:
+    def refine() -> Candidate | None:
         """The decay refined (optimistix): compared with the grid's best by the search."""
         lam = best_exp[3]["decay_per_s"]
         aux = {
@@ -521,18 +364,18 @@ def _envelope(ctx: Context, states: list[State], noise: _Noise, n_total: int) ->
             shift = (gam[1] - 1j * gam[2]) * np.exp(1j * h.phase) / h.amplitude
         info = {"form": "exponential", "decay_per_s": float(theta[0]), "coef": coef, "shift": shift}
         info["relative_envelope"] = _relative_envelope(ctx, info)
-        return _Candidate("envelope", idx, means, 1 + 2 * len(idx), info)
+        return Candidate("envelope", idx, means, 1 + 2 * len(idx), info)
 
     _, means, k_par, info = chosen
     info["relative_envelope"] = _relative_envelope(ctx, info)
-    return [_Candidate("envelope", idx, means, k_par, info, refine)]
+    return [Candidate("envelope", idx, means, k_par, info, refine)]
 
 
 def _relative_envelope(ctx: Context, info: dict) -> np.ndarray:
     """|1 + shift + u(t)| on 400 times over the record: the amplitude relative to the nominal."""
     t = np.linspace(0.0, ctx.duration_s, 400)
     if info["form"] == "spline":
-        b = _bspline(t, 0.0, ctx.duration_s, info["knots"])
+        b = bspline(t, 0.0, ctx.duration_s, info["knots"])
         nb = b.shape[1]
         u = b @ info["coef"][:nb] + 1j * (b @ info["coef"][nb:])
     else:
@@ -564,7 +407,7 @@ def _change_point(ctx: Context, states: list[State]) -> float | None:
     return (k + 0.5) * ctx.dt_s
 
 
-def _trend(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> list[_Candidate]:
+def _trend(ctx: Context, states: list[State], noise: Noise, n_total: int) -> list[Candidate]:
     """A slow additive B-spline (K knots by BIC), optionally with a step at the common change
     point, or that step alone: per series (series that pay for it), one shape shared by the
     series with a scale each (rank one: a support that settles), or one motion common to the
@@ -593,7 +436,7 @@ def _trend(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> li
         """Offers the motion common to each axis' series (the axes where it pays); its ΔBIC."""
         co_means, co_kept, k_co = {}, [], extra
         for idx in by_axis.values():
-            _, m_ax, _ = _shared_fit(ctx, states, idx, cols_of)
+            _, m_ax, _ = shared_fit(ctx, states, idx, cols_of)
             g_ax = noise.gain(m_ax)  # noise common to the plates is no evidence for it
             if 2 * g_ax > k_own * logn + 6.0:
                 co_kept += idx
@@ -610,7 +453,7 @@ def _trend(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> li
         for i, s in enumerate(ctx.series):
             st = states[i]
             # the spline's constant is the offset
-            b = noise.basis(i, knots)[:, 1:] if knots is not None else np.zeros((s.n, 0))
+            b = _basis(noise, i, knots)[:, 1:] if knots is not None else np.zeros((s.n, 0))
             if step:
                 b = np.concatenate([b, (s.t > t_c).astype(float)[:, None]], axis=1)
             cols[i] = b
@@ -654,7 +497,7 @@ def _trend(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> li
     for knots in (k for k in COMMON_KNOTS if k <= k_fine):
 
         def fine(i, knots=knots):
-            return _bspline(ctx.series[i].t, 0.0, ctx.duration_s, knots, sparse=True)[:, 1:]
+            return bspline(ctx.series[i].t, 0.0, ctx.duration_s, knots, sparse=True)[:, 1:]
 
         dbic = common(fine, knots + 3, 0, {"knots": knots, "step_s": None})
         worse = worse + 1 if dbic >= prev else 0
@@ -665,65 +508,7 @@ def _trend(ctx: Context, states: list[State], noise: _Noise, n_total: int) -> li
         return []
     _, kept, means, k_par, info = best
     info["swing_mm"] = {i: float(np.ptp(means[i] - states[i].mean)) for i in kept}
-    return [_Candidate("trend", kept, means, k_par, info)]
-
-
-# ---------------------------------------------------------------------------------------------
-# uncertainty of a term's parameters
-
-
-def ar1_whiten(x: np.ndarray, k: np.ndarray, rho: float) -> np.ndarray:
-    """Rows of x (sample[, column]) prewhitened for AR(1) noise on the frame clock k, in units
-    of the innovation σ (the transform whose squared sum is `ar1_loglik`'s quadratic form)."""
-    if rho <= 0.0:
-        return x
-    rg = rho ** np.diff(k).astype(np.float64)
-    v = np.concatenate([[1.0], 1.0 - rg * rg]) / (1.0 - rho * rho)
-    tail = (slice(None),) + (None,) * (x.ndim - 1)
-    out = np.concatenate([x[:1], x[1:] - rg[tail] * x[:-1]])
-    return out / np.sqrt(v)[tail]
-
-
-def _gls_covariance(ctx, states, c, blocks, n_shared, corr=None) -> np.ndarray:
-    """Covariance of a term's parameters: n_shared shared ones, then each block's own columns.
-
-    ``blocks``: per series (i, J_shared (sample, n_shared), X_own (sample, k)), the Jacobian of
-    the series' mean with respect to the parameters. The noise: per series AR(1) (ρ from the
-    residual after the term, `ar1_rho`) and its state's scale; the innovation σ² from the
-    whitened residual (degrees of freedom removed), so the covariance is the generalised least
-    squares one, (Jᵀ Σ⁻¹ J)⁻¹. With ``corr``, the shared block is inflated by the design effect
-    of the term's series (noise common to the plates of a frame carries no information twice).
-    """
-    sizes = [x.shape[1] for _, _, x in blocks]
-    p = n_shared + sum(sizes)
-    m = np.zeros((p, p))
-    off = n_shared
-    for (i, js, x), k in zip(blocks, sizes, strict=True):
-        s, st = ctx.series[i], states[i]
-        inl = st.inlier
-        sc = st.scale[inl] if np.ndim(st.scale) else st.scale
-        z = ((s.y - c.means[i])[inl]) / sc
-        kk = s.k[inl]
-        rho = ar1_rho(z - z.mean(), kk)
-        j = np.concatenate([js, x], axis=1)[inl] / np.reshape(sc, (-1, 1))
-        jw = ar1_whiten(j, kk, rho)
-        zw = ar1_whiten(z - z.mean(), kk, rho)
-        s2 = float(zw @ zw) / max(zw.size - n_shared / max(len(blocks), 1) - k, 1.0)
-        g = jw.T @ jw / s2
-        sel = np.r_[np.arange(n_shared), off + np.arange(k)]
-        m[np.ix_(sel, sel)] += g
-        off += k
-    cov = np.linalg.pinv(m, rcond=1e-12, hermitian=True)
-    if corr is not None and n_shared:
-        f = math.sqrt(corr.design_effect([b[0] for b in blocks]))
-        cov[:n_shared, :] *= f
-        cov[:, :n_shared] *= f
-    return cov
-
-
-def _sd(cov: np.ndarray, grad: np.ndarray) -> float:
-    v = float(grad @ cov @ grad)
-    return math.sqrt(v) if v > 0 else 0.0
+    return [Candidate("trend", kept, means, k_par, info)]
 
 
 def _line_sigmas(ctx, states, c, corr) -> dict:
@@ -746,18 +531,18 @@ def _line_sigmas(ctx, states, c, corr) -> dict:
             js.append(-tau * e * (a * ca + b * sa))
         blocks.append((i, np.stack(js, axis=1), x))
         ab.append((a, b))
-    cov = _gls_covariance(ctx, states, c, blocks, n_sh, corr)
+    cov = gls_covariance(ctx, states, c, blocks, n_sh, corr)
     out = {"freq_hz": math.sqrt(max(cov[0, 0], 0.0))}
     if free_decay:
         out["decay_per_s"] = math.sqrt(max(cov[1, 1], 0.0))
         zeta = lam / (2 * np.pi * f)
-        out["damping_ratio"] = _sd(cov[:2, :2], np.array([-zeta / f, 1.0 / (2 * np.pi * f)]))
+        out["damping_ratio"] = linear_sd(cov[:2, :2], np.array([-zeta / f, 1.0 / (2 * np.pi * f)]))
     amps = {}
     for j, (i, (a, b)) in enumerate(zip(c.series, ab, strict=True)):
         amp = math.hypot(a, b)
         g = np.zeros(cov.shape[0])
         g[n_sh + 3 * j : n_sh + 3 * j + 2] = (a / amp, b / amp) if amp > 0 else (1.0, 0.0)
-        amps[i] = _sd(cov, g)
+        amps[i] = linear_sd(cov, g)
     out["amplitudes_mm"] = amps
     return out
 
@@ -774,7 +559,7 @@ def _common_line_sigmas(ctx, states, c, corr, f, lam) -> dict:
         _, ca, sa = harmonic_design(2 * np.pi * f * s.t).T
         cols[i] = (tau, e, ca, sa)
         xs[i] = np.stack([e * ca, e * sa], axis=1)
-    a, b = _shared_fit(ctx, states, c.series, lambda i: xs[i])[0]
+    a, b = shared_fit(ctx, states, c.series, lambda i: xs[i])[0]
     blocks = []
     for i in c.series:
         tau, e, ca, sa = cols[i]
@@ -783,16 +568,16 @@ def _common_line_sigmas(ctx, states, c, corr, f, lam) -> dict:
             js.append(-tau * e * (a * ca + b * sa))
         blocks.append((i, np.concatenate([np.stack(js, axis=1), xs[i]], axis=1), _nuisance(ctx, i)))
     n_nl = 2 if free_decay else 1
-    cov = _gls_covariance(ctx, states, c, blocks, n_nl + 2, corr)
+    cov = gls_covariance(ctx, states, c, blocks, n_nl + 2, corr)
     out = {"freq_hz": math.sqrt(max(cov[0, 0], 0.0))}
     if free_decay:
         out["decay_per_s"] = math.sqrt(max(cov[1, 1], 0.0))
         zeta = lam / (2 * np.pi * f)
-        out["damping_ratio"] = _sd(cov[:2, :2], np.array([-zeta / f, 1.0 / (2 * np.pi * f)]))
+        out["damping_ratio"] = linear_sd(cov[:2, :2], np.array([-zeta / f, 1.0 / (2 * np.pi * f)]))
     amp = math.hypot(a, b)
     g = np.zeros(cov.shape[0])
     g[n_nl : n_nl + 2] = (a / amp, b / amp) if amp > 0 else (1.0, 0.0)
-    sd = _sd(cov, g)
+    sd = linear_sd(cov, g)
     out["amplitudes_mm"] = {i: sd for i in c.series}
     return out
 
@@ -806,15 +591,15 @@ def _envelope_sigmas(ctx, states, c, corr) -> dict:
         knots = info["knots"]
         blocks = []
         for i in idx:
-            b = _bspline(ctx.series[i].t, 0.0, ctx.duration_s, knots)
+            b = bspline(ctx.series[i].t, 0.0, ctx.duration_s, knots)
             cc, ss = carrier[i]
             blocks.append((i, np.concatenate([b * cc[:, None], b * ss[:, None]], axis=1), _nuisance(ctx, i)))
         nb = knots + 4
-        cov = _gls_covariance(ctx, states, c, blocks, 2 * nb, corr)
+        cov = gls_covariance(ctx, states, c, blocks, 2 * nb, corr)
         # |1 + shift + u(t)| at the extremes, shift from the reference series' harmonic (C, D)
         t = np.linspace(0.0, ctx.duration_s, 400)
         env = info["relative_envelope"]
-        bt = _bspline(t, 0.0, ctx.duration_s, knots)
+        bt = bspline(t, 0.0, ctx.duration_s, knots)
         co = info["coef"]
         w = 1.0 + info["shift"] + bt @ co[:nb] + 1j * (bt @ co[nb:])
         ref = max(idx, key=lambda i: ctx.nominal[i].amplitude / max(ctx.noise_sigma(i), 1e-12))
@@ -831,7 +616,7 @@ def _envelope_sigmas(ctx, states, c, corr) -> dict:
                 e = np.exp(1j * h.phase) / max(h.amplitude, 1e-300)
                 k0 = 2 * nb + q * j_ref
                 g[k0 + 1], g[k0 + 2] = np.real(u * e), np.real(u * (-1j) * e)
-            out[name] = _sd(cov, g)
+            out[name] = linear_sd(cov, g)
         return out
     lam = info["decay_per_s"]
     per_series = c.n_params == 1 + 2 * len(idx)
@@ -849,7 +634,7 @@ def _envelope_sigmas(ctx, states, c, corr) -> dict:
             blocks.append((i, dl, np.concatenate([x, nu], axis=1)))
         else:
             blocks.append((i, np.concatenate([dl, x], axis=1), nu))
-    cov = _gls_covariance(ctx, states, c, blocks, 1 if per_series else 3, corr)
+    cov = gls_covariance(ctx, states, c, blocks, 1 if per_series else 3, corr)
     sl = math.sqrt(max(cov[0, 0], 0.0))
     return {"decay_per_s": sl, "damping_ratio": sl / (2 * math.pi * ctx.f0_hz)}
 
@@ -862,7 +647,7 @@ def _trend_sigmas(ctx, states, c, corr) -> dict:
 
     def cols(i):
         s = ctx.series[i]
-        b = _bspline(s.t, 0.0, ctx.duration_s, knots)[:, 1:] if knots is not None else np.zeros((s.n, 0))
+        b = bspline(s.t, 0.0, ctx.duration_s, knots)[:, 1:] if knots is not None else np.zeros((s.n, 0))
         if step is not None:
             b = np.concatenate([b, (s.t > step).astype(float)[:, None]], axis=1)
         return b
@@ -887,7 +672,7 @@ def _trend_sigmas(ctx, states, c, corr) -> dict:
             else:
                 blocks.append((i, np.zeros((x.shape[0], 0)), np.concatenate([x, _nuisance(ctx, i)], axis=1)))
         n_sh = blocks[0][1].shape[1]
-        cov = _gls_covariance(ctx, states, c, blocks, n_sh, corr if form == "common" else None)
+        cov = gls_covariance(ctx, states, c, blocks, n_sh, corr if form == "common" else None)
         off = n_sh
         for i, js, xo in blocks:
             d = c.means[i] - states[i].mean
@@ -900,7 +685,7 @@ def _trend_sigmas(ctx, states, c, corr) -> dict:
                 g[:n_sh] = g_rows
             else:
                 g[off : off + x.shape[1]] = g_rows
-            out[i] = _sd(cov, g)
+            out[i] = linear_sd(cov, g)
             off += xo.shape[1]
     return {"swing_mm": out}
 
@@ -909,294 +694,11 @@ _SIGMAS = {"line": _line_sigmas, "envelope": _envelope_sigmas, "trend": _trend_s
 
 
 def term_sigmas(ctx: Context, states: list[State], c, corr: FrameCorrelation | None = None) -> dict:
-    """σ's of an accepted term's parameters (`_gls_covariance`); {} when they cannot be had."""
+    """σ's of an accepted term's parameters (`gls_covariance`); {} when they cannot be had."""
     try:
         return _SIGMAS[c.kind](ctx, states, c, corr)
     except (np.linalg.LinAlgError, ValueError, KeyError, ZeroDivisionError):
         return {}
 
 
-_BUILDERS = {"line": _line, "envelope": _envelope, "trend": _trend}
-
-
-# ---------------------------------------------------------------------------------------------
-# the search
-
-
-def _median_sigma(values: dict, sigmas: dict) -> float | None:
-    """σ of the series whose value is nearest the reported median (the typical series')."""
-    if not sigmas:
-        return None
-    med = float(np.median(list(values.values())))
-    i = min(values, key=lambda j: abs(values[j] - med))
-    return sigmas.get(i)
-
-
-def _report(
-    ctx: Context, c: _Candidate, states: list[State], corr: FrameCorrelation | None = None
-) -> UnnamedTerm:
-    sig = term_sigmas(ctx, states, c, corr)
-    plates = sorted({ctx.series[i].plate for i in c.series})
-    axes = sorted({ctx.series[i].axis for i in c.series})
-    where = f"plate(s) {', '.join(map(str, plates))} ({', '.join(axes)})"
-    # located span: where the term moves the model most (its mean change above 10 % of its peak)
-    t_lo, t_hi = math.inf, -math.inf
-    for i in c.series:
-        d = np.abs(c.means[i] - states[i].mean)
-        on = d >= 0.1 * d.max() if d.size and d.max() > 0 else np.ones(d.size, bool)
-        t = ctx.series[i].t[on]
-        if t.size:
-            t_lo, t_hi = min(t_lo, float(t.min())), max(t_hi, float(t.max()))
-    if not math.isfinite(t_lo):
-        t_lo, t_hi = 0.0, ctx.duration_s
-    info = c.info
-    if c.kind == "line":
-        f, lam = info["freq_hz"], info["decay_per_s"]
-        amps = info["amplitudes_mm"]
-        a_med = float(np.median(list(amps.values())))
-        amp_sig = sig.get("amplitudes_mm", {})
-        par = {
-            "freq_hz": {"value": f, "sigma": sig.get("freq_hz")},
-            "amplitude_mm": {"value": a_med, "sigma": _median_sigma(amps, amp_sig)},
-        }
-        half = max(1.0 / ctx.duration_s, lam / (2 * math.pi))
-        text = (
-            f"A periodic motion at {f:.4g} Hz ({f / ctx.f0_hz:.3f} × the loading frequency) of about "
-            f"{a_med:.3g} mm on {where}"
-        )
-        if lam > 0:
-            zeta = lam / (2 * math.pi * f)
-            par["damping_ratio"] = {"value": zeta, "sigma": sig.get("damping_ratio")}
-            par["decay_per_s"] = {"value": lam, "sigma": sig.get("decay_per_s")}
-            text += (
-                f", dying away with a damping ratio of {100 * zeta:.2g} % (a free vibration of a "
-                "mode the loading does not drive)"
-            )
-        if info.get("common"):
-            text += " (the same motion on every one of them: the camera or the whole scene vibrating)"
-        text += ": structure no named effect explains."
-        return UnnamedTerm(
-            "line",
-            c.series,
-            c.means,
-            c.n_params,
-            par,
-            t_lo,
-            t_hi,
-            [f - half, f + half],
-            text,
-            detail={
-                "amplitudes_mm": {
-                    ctx.series[i].key: {"value": a, "sigma": amp_sig.get(i)} for i, a in amps.items()
-                }
-            },
-        )
-    if c.kind == "envelope":
-        env = info["relative_envelope"]
-        lo, hi = float(env.min()), float(env.max())
-        par = {
-            "form": info["form"],
-            "envelope_min": {"value": lo, "sigma": sig.get("envelope_min")},
-            "envelope_max": {"value": hi, "sigma": sig.get("envelope_max")},
-        }
-        if info["form"] == "spline":
-            par["knots"] = int(info["knots"])
-            shape = f"a smooth envelope ({info['knots']} interior knots)"
-        else:
-            lam = info["decay_per_s"]
-            par["decay_per_s"] = {"value": lam, "sigma": sig.get("decay_per_s")}
-            par["damping_ratio"] = {
-                "value": lam / (2 * math.pi * ctx.f0_hz),
-                "sigma": sig.get("damping_ratio"),
-            }
-            shape = (
-                f"an exponential {'decay' if lam > 0 else 'growth'} (damping ratio "
-                f"{100 * lam / (2 * math.pi * ctx.f0_hz):.2g} %)"
-            )
-        text = (
-            f"The amplitude of the motion at {ctx.f0_hz:.4g} Hz changes during the record on {where}: "
-            f"{shape}, from {lo:.2f} to {hi:.2f} times the nominal amplitude: structure no named "
-            "effect explains (a load ramp, a free decay, a changing stiffness)."
-        )
-        df = 1.0 / ctx.duration_s
-        return UnnamedTerm(
-            "envelope",
-            c.series,
-            c.means,
-            c.n_params,
-            par,
-            t_lo,
-            t_hi,
-            [
-                ctx.f0_hz - 2 * df * (1 + info.get("knots", 0)),
-                ctx.f0_hz + 2 * df * (1 + info.get("knots", 0)),
-            ],
-            text,
-        )
-    swing = info["swing_mm"]
-    s_med = float(np.median(list(swing.values())))
-    par = {
-        "knots": None if info["knots"] is None else int(info["knots"]),
-        "form": info["form"],
-        "swing_mm": {"value": s_med, "sigma": _median_sigma(swing, sig.get("swing_mm", {}))},
-    }
-    shape = {
-        "own": "each plate its own way",
-        "shared": "one shape shared by the plates, a scale each",
-        "common": "the same motion on every plate: the camera or the whole scene moving",
-    }[info["form"]]
-    if info["knots"] is None:
-        shape += ", a step alone"
-    if info["step_s"] is not None:
-        par["step_at_s"] = {"value": float(info["step_s"]), "sigma": None}
-        shape += f", with a step at {info['step_s']:.1f} s"
-    text = (
-        f"The measured position wanders slowly by about {s_med:.3g} mm (peak to peak) on {where} "
-        f"({shape}): structure no named effect explains."
-    )
-    return UnnamedTerm(
-        "trend",
-        c.series,
-        c.means,
-        c.n_params,
-        par,
-        t_lo,
-        t_hi,
-        [0.0, ((info["knots"] or 0) + 1) / ctx.duration_s],
-        text,
-        detail={
-            "swing_mm": {
-                ctx.series[i].key: {"value": v, "sigma": sig.get("swing_mm", {}).get(i)}
-                for i, v in swing.items()
-            }
-        },
-    )
-
-
-def best_term(
-    ctx: Context,
-    states: list[State],
-    corr: FrameCorrelation | None = None,
-    bases: dict | None = None,
-    kinds: tuple[str, ...] = KINDS,
-):
-    """The best generic term on the residual of ``states``: (ΔBIC, candidate) or None. Every
-    kind of ``kinds`` screens (grids, linear fits); the best candidate alone is refined (its
-    ``refine``) when its ΔBIC is below `REFINE_BELOW`, and kept refined when that scores better.
-    ``bases``: the search's cache of spline bases."""
-    n_total = sum(s.n for s in ctx.series)
-    noise = _Noise(ctx, states, bases, corr)
-    best = None
-    for kind in kinds:
-        try:
-            cands = _BUILDERS[kind](ctx, states, noise, n_total)
-        except np.linalg.LinAlgError:  # one generic term that cannot be fitted never stops the rest
-            cands = []
-        for c in cands:
-            d = _score(ctx, noise, states, corr, c, n_total)
-            if best is None or d < best[0]:
-                best = (d, c)
-    if best is not None and best[1].refine is not None and best[0] < REFINE_BELOW:
-        q = best[1].refine()
-        if q is not None:
-            d = _score(ctx, noise, states, corr, q, n_total)
-            if d < best[0]:
-                best = (d, q)
-    return best
-
-
-def _term_states(ctx: Context, base: list[State], deltas: list[dict[int, np.ndarray]], cands) -> list[State]:
-    """``base`` with every accepted term's mean change added."""
-    states = list(base)
-    for d, c in zip(deltas, cands, strict=True):
-        for i, v in d.items():
-            st = states[i]
-            states[i] = st.with_(
-                mean=st.mean + v,
-                n_params=st.n_params + max(1, round(c.n_params / len(c.series))),
-                effects=st.effects + ("unnamed",),
-            )
-    return states
-
-
-def _as_term(ctx: Context, states: list[State], best, corr: FrameCorrelation | None = None) -> UnnamedTerm:
-    dbic, c = best
-    rms0 = float(np.sqrt(np.mean(np.concatenate([ctx.series[i].y - states[i].mean for i in c.series]) ** 2)))
-    rms1 = float(np.sqrt(np.mean(np.concatenate([ctx.series[i].y - c.means[i] for i in c.series]) ** 2)))
-    term = _report(ctx, c, states, corr)
-    term.delta_bic, term.rms_before_mm, term.rms_after_mm = float(dbic), rms0, rms1
-    term.change = {i: c.means[i] - states[i].mean for i in c.series}
-    term.candidate = c
-    return term
-
-
-def apply_term(
-    ctx: Context, states: list[State], best, corr: FrameCorrelation | None = None
-) -> tuple[UnnamedTerm, list[State]]:
-    """The accepted term's report and the states with it."""
-    c = best[1]
-    delta = {i: c.means[i] - states[i].mean for i in c.series}
-    return _as_term(ctx, states, best, corr), _term_states(ctx, states, [delta], [c])
-
-
-def search_unnamed(
-    ctx: Context,
-    states: list[State],
-    corr: FrameCorrelation | None = None,
-    max_terms: int = MAX_TERMS,
-    check=None,
-    bases: dict | None = None,
-    backfit: int = 2,
-    prior: list[UnnamedTerm] = (),
-) -> tuple[list[UnnamedTerm], list[State]]:
-    """Greedy generic terms on the residual of ``states``: (accepted terms, the states after).
-    ``prior``: terms already in ``states`` (accepted while competing with the named effects):
-    they are backfitted with the new ones and returned first.
-
-    Then ``backfit`` passes: each term, in turn, is fitted again (its kind's best) on the residual
-    of all the others, and dropped when, given them, it no longer reaches ΔBIC < −10 (a line
-    fitted while a larger decay was still in the residual leaves a spurious neighbour)."""
-    bases = {} if bases is None else bases
-    deltas: list[dict[int, np.ndarray]] = [dict(u.change) for u in prior]
-    cands: list = [u.candidate for u in prior]
-    base = list(states)
-    for d in deltas:
-        for i, v in d.items():
-            base[i] = base[i].with_(mean=base[i].mean - v)
-    for _ in range(max_terms - len(prior)):
-        cur = _term_states(ctx, base, deltas, cands)
-        best = best_term(ctx, cur, corr, bases)
-        if check is not None:
-            check()
-        if best is None or not best[0] < DELTA_BIC_MAX:
-            break
-        c = best[1]
-        deltas.append({i: c.means[i] - cur[i].mean for i in c.series})
-        cands.append(c)
-    scores = [None] * len(cands)
-    for _ in range(backfit if len(cands) > 1 else 0):
-        j = 0
-        while j < len(cands):
-            others = _term_states(ctx, base, deltas[:j] + deltas[j + 1 :], cands[:j] + cands[j + 1 :])
-            best = best_term(ctx, others, corr, bases, kinds=(cands[j].kind,))
-            if check is not None:
-                check()
-            if best is None or not best[0] < DELTA_BIC_MAX:
-                del deltas[j], cands[j], scores[j]
-                continue
-            c = best[1]
-            deltas[j] = {i: c.means[i] - others[i].mean for i in c.series}
-            cands[j] = c
-            scores[j] = (best[0], others)
-            j += 1
-    terms = []
-    for j, c in enumerate(cands):
-        others = _term_states(ctx, base, deltas[:j] + deltas[j + 1 :], cands[:j] + cands[j + 1 :])
-        if scores[j] is None:  # no backfit: the greedy's own evidence, on the terms before it
-            before = _term_states(ctx, base, deltas[:j], cands[:j])
-            n_total = sum(s.n for s in ctx.series)
-            d = _score(ctx, _Noise(ctx, before, bases), before, corr, c, n_total)
-            terms.append(_as_term(ctx, before, (d, c), corr))
-        else:
-            terms.append(_as_term(ctx, others, (scores[j][0], c), corr))
-    return terms, _term_states(ctx, base, deltas, cands)
+BUILDERS = {"line": _line, "envelope": _envelope, "trend": _trend}
