@@ -30,7 +30,7 @@ import math
 
 import numpy as np
 
-from ..._numerics import wls
+from ..._numerics import harmonic_design, wls
 from .._base import Context, Detector, Proposal, State, keep_series
 from .screening import (
     combined_p,
@@ -55,8 +55,7 @@ M_MAX = 0.95  # |1 + θ·x| stays >= 0.05
 def _features(ctx: Context, i: int, kind: str) -> np.ndarray:
     s = ctx.series[i]
     if kind == "phase":
-        a = ctx.nominal[i].argument(s.t)
-        return np.stack([np.cos(a), np.sin(a)], axis=1)
+        return harmonic_design(ctx.nominal[i].argument(s.t), offset=False)
     mid = 0.5 * ctx.duration_s
     return ((s.t - mid) / (0.5 * ctx.duration_s))[:, None]
 

@@ -41,6 +41,7 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
+from ..._numerics import harmonic_design
 from .._base import Context, Detector, Proposal, State, loglik, masked_fourier
 from .._correlation import floored_inverse
 from .._varpro import fit_shared
@@ -182,8 +183,7 @@ class ModeShape(Detector):
         nus = {i: ctx.nuisance(i)[:, :1] for i in idx}  # the offset only: the line is far from f0
 
         def cols(i):
-            a = 2 * np.pi * f_hat * ctx.series[i].t
-            return shape[i] * np.stack([np.cos(a), np.sin(a)], axis=1)
+            return shape[i] * harmonic_design(2 * np.pi * f_hat * ctx.series[i].t, offset=False)
 
         fit = shared_amplitude(ctx, states, idx, cols, nus, self.id, k_own=0)
         if fit is None:
