@@ -12,7 +12,7 @@ Public surface:
   table diagnosed camera by camera, each finding said to be a camera's or the structure's
   (``jaxdefl attribute``).
 
-The extension contract (a new effect's detector; docs/explanation/extending.md):
+The extension contract (a new effect's detector; the how-to "Write a detector" in the docs):
 
 - `Detector`: the base class of an effect's detector (its id, sensors, information gate and
   `Detector.propose`).

@@ -215,7 +215,11 @@ def rms_equivalent(total_loglik: float, n: int) -> float:
 
 @dataclass
 class Proposal:
-    """What an effect proposes to add to the model.
+    """What a detector proposes to add to the model.
+
+    The search accepts the proposal when its likelihood-ratio statistic 2 Δlog L exceeds the χ²
+    critical value at α / (effects screened × trials) with n_params − scan_params degrees of
+    freedom (`_search.Calibration`).
 
     Attributes:
         effect: the effect id (DESIGN.md list).
@@ -242,9 +246,6 @@ class Proposal:
         inflation: how many times more the statistic varies than under white noise where the
             search's likelihood does not model it (a noise-level term under AR(1) noise: its
             squared residuals are correlated); the search divides 2 Δlog L by it.
-        The search accepts the proposal when its likelihood-ratio statistic 2 Δlog L exceeds
-        the χ² critical value at α / (effects screened × trials) with n_params − scan_params
-        degrees of freedom (`_search.Calibration`).
     """
 
     effect: str
