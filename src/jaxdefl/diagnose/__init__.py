@@ -21,7 +21,7 @@ The extension contract (a new effect's detector; the how-to "Write a detector" i
 - `State`: the current model of one series (mean and noise model); `Proposal`: what a detector
   proposes to add to it; `Series`, `Harmonic`: a series and its nominal harmonic.
 - helpers every detector uses: `loglik` (the one likelihood), `rms_equivalent`, `keep_series`,
-  `regress`, `regress_offset`, `masked_fourier`, `masked_periodogram`, `peak_offset`.
+  `regress`, `regress_offset`, `weights`, `masked_fourier`, `masked_periodogram`, `peak_offset`.
 """
 
 from ._base import (
@@ -39,6 +39,7 @@ from ._base import (
     regress,
     regress_offset,
     rms_equivalent,
+    weights,
 )
 from ._context import build_context
 from ._search import ALPHA, ALPHA_NAMED, DELTA_BIC_MAX, Diagnosis, diagnose, run_diagnosis
@@ -71,4 +72,5 @@ __all__ = [
     "regress_offset",
     "rms_equivalent",
     "run_diagnosis",
+    "weights",
 ]

@@ -54,6 +54,7 @@ __all__ = [
     "loglik",
     "rms_equivalent",
     "regress",
+    "weights",
     "regress_offset",
     "keep_series",
     "masked_fourier",
@@ -469,16 +470,21 @@ class Detector(abc.ABC):
         """Screen the current states; proposals for this effect, or [] when nothing is there."""
 
 
-def regress(ctx: Context, i: int, st: State, y: np.ndarray, cols: np.ndarray):
-    """Fit effect columns plus the free nuisance of series i to its current residual.
+def weights(st: State) -> np.ndarray:
+    """(sample,) least-squares weights of a state: 1/scale² on inliers, 0 on outliers."""
+    return np.where(st.inlier, 1.0 / st.scale**2, 0.0)
+
+
+def regress(
+    ctx: Context, i: int, st: State, y: np.ndarray, cols: np.ndarray, nuisance: np.ndarray | None = None
+):
+    """Fit effect columns plus the free nuisance of series i (``nuisance``, default
+    `Context.nuisance`) to its current residual, by the package's one weighted least squares.
 
     Returns (beta of the effect columns, their covariance, the new mean of the series).
     """
-    r = y - st.mean
-    nu = ctx.nuisance(i)
-    g = np.concatenate([cols, nu], axis=1)
-    w = np.where(st.inlier, 1.0 / st.scale**2, 0.0)
-    beta, cov, fitted = wls(g, r, w)
+    nu = ctx.nuisance(i) if nuisance is None else nuisance
+    beta, cov, fitted = wls(np.concatenate([cols, nu], axis=1), y - st.mean, weights(st))
     k = cols.shape[1]
     return beta[:k], cov[:k, :k], st.mean + fitted
 
@@ -486,12 +492,7 @@ def regress(ctx: Context, i: int, st: State, y: np.ndarray, cols: np.ndarray):
 def regress_offset(ctx: Context, i: int, st: State, y: np.ndarray, cols: np.ndarray):
     """As `regress`, with the offset as the only nuisance (for terms far from the loading
     frequency, where re-estimating the harmonic would only cost time)."""
-    r = y - st.mean
-    g = np.concatenate([cols, np.ones((r.size, 1))], axis=1)
-    w = np.where(st.inlier, 1.0 / st.scale**2, 0.0)
-    beta, cov, fitted = wls(g, r, w)
-    k = cols.shape[1]
-    return beta[:k], cov[:k, :k], st.mean + fitted
+    return regress(ctx, i, st, y, cols, np.ones((y.size, 1)))
 
 
 def keep_series(delta_loglik: float, k_own: int, n: int, margin: float = 0.0) -> bool:

@@ -13,7 +13,7 @@ import numpy as np
 from scipy import stats
 
 from ..._numerics import wls
-from .._base import Context, State, loglik
+from .._base import Context, State, loglik, weights
 
 __all__ = [
     "residual",
@@ -79,11 +79,6 @@ def changepoint_trials(edge: float, n_splits: int, u: float = 25.0) -> float:
 def residual(ctx: Context, i: int, st: State) -> np.ndarray:
     """(sample,) y − mean of series i."""
     return ctx.series[i].y - st.mean
-
-
-def weights(st: State) -> np.ndarray:
-    """(sample,) least-squares weights of a state: 1/scale² on inliers, 0 on outliers."""
-    return np.where(st.inlier, 1.0 / st.scale**2, 0.0)
 
 
 def param(value, sigma=None) -> dict:

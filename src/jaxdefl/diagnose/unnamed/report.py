@@ -69,90 +69,80 @@ def describe_term(ctx: Context, c, states: list[State], sig: dict) -> UnnamedTer
             t_lo, t_hi = min(t_lo, float(t.min())), max(t_hi, float(t.max()))
     if not math.isfinite(t_lo):
         t_lo, t_hi = 0.0, ctx.duration_s
+    par, band, text, detail = _TEXTS[c.kind](ctx, c, sig, where)
+    return UnnamedTerm(c.kind, c.series, c.means, c.n_params, par, t_lo, t_hi, band, text, detail=detail)
+
+
+def _line_text(ctx: Context, c, sig: dict, where: str) -> tuple[dict, list[float], str, dict]:
+    """A line's parameters, band, explanation and per-series detail."""
     info = c.info
-    if c.kind == "line":
-        f, lam = info["freq_hz"], info["decay_per_s"]
-        amps = info["amplitudes_mm"]
-        a_med = float(np.median(list(amps.values())))
-        amp_sig = sig.get("amplitudes_mm", {})
-        par = {
-            "freq_hz": {"value": f, "sigma": sig.get("freq_hz")},
-            "amplitude_mm": {"value": a_med, "sigma": _median_sigma(amps, amp_sig)},
+    f, lam = info["freq_hz"], info["decay_per_s"]
+    amps = info["amplitudes_mm"]
+    a_med = float(np.median(list(amps.values())))
+    amp_sig = sig.get("amplitudes_mm", {})
+    par = {
+        "freq_hz": {"value": f, "sigma": sig.get("freq_hz")},
+        "amplitude_mm": {"value": a_med, "sigma": _median_sigma(amps, amp_sig)},
+    }
+    half = max(1.0 / ctx.duration_s, lam / (2 * math.pi))
+    text = (
+        f"A periodic motion at {f:.4g} Hz ({f / ctx.f0_hz:.3f} × the loading frequency) of about "
+        f"{a_med:.3g} mm on {where}"
+    )
+    if lam > 0:
+        zeta = lam / (2 * math.pi * f)
+        par["damping_ratio"] = {"value": zeta, "sigma": sig.get("damping_ratio")}
+        par["decay_per_s"] = {"value": lam, "sigma": sig.get("decay_per_s")}
+        text += (
+            f", dying away with a damping ratio of {100 * zeta:.2g} % (a free vibration of a "
+            "mode the loading does not drive)"
+        )
+    if info.get("common"):
+        text += " (the same motion on every one of them: the camera or the whole scene vibrating)"
+    text += ": structure no named effect explains."
+    detail = {
+        "amplitudes_mm": {ctx.series[i].key: {"value": a, "sigma": amp_sig.get(i)} for i, a in amps.items()}
+    }
+    return par, [f - half, f + half], text, detail
+
+
+def _envelope_text(ctx: Context, c, sig: dict, where: str) -> tuple[dict, list[float], str, dict]:
+    """An envelope's parameters, band and explanation."""
+    info = c.info
+    env = info["relative_envelope"]
+    lo, hi = float(env.min()), float(env.max())
+    par = {
+        "form": info["form"],
+        "envelope_min": {"value": lo, "sigma": sig.get("envelope_min")},
+        "envelope_max": {"value": hi, "sigma": sig.get("envelope_max")},
+    }
+    if info["form"] == "spline":
+        par["knots"] = int(info["knots"])
+        shape = f"a smooth envelope ({info['knots']} interior knots)"
+    else:
+        lam = info["decay_per_s"]
+        par["decay_per_s"] = {"value": lam, "sigma": sig.get("decay_per_s")}
+        par["damping_ratio"] = {
+            "value": lam / (2 * math.pi * ctx.f0_hz),
+            "sigma": sig.get("damping_ratio"),
         }
-        half = max(1.0 / ctx.duration_s, lam / (2 * math.pi))
-        text = (
-            f"A periodic motion at {f:.4g} Hz ({f / ctx.f0_hz:.3f} × the loading frequency) of about "
-            f"{a_med:.3g} mm on {where}"
+        shape = (
+            f"an exponential {'decay' if lam > 0 else 'growth'} (damping ratio "
+            f"{100 * lam / (2 * math.pi * ctx.f0_hz):.2g} %)"
         )
-        if lam > 0:
-            zeta = lam / (2 * math.pi * f)
-            par["damping_ratio"] = {"value": zeta, "sigma": sig.get("damping_ratio")}
-            par["decay_per_s"] = {"value": lam, "sigma": sig.get("decay_per_s")}
-            text += (
-                f", dying away with a damping ratio of {100 * zeta:.2g} % (a free vibration of a "
-                "mode the loading does not drive)"
-            )
-        if info.get("common"):
-            text += " (the same motion on every one of them: the camera or the whole scene vibrating)"
-        text += ": structure no named effect explains."
-        return UnnamedTerm(
-            "line",
-            c.series,
-            c.means,
-            c.n_params,
-            par,
-            t_lo,
-            t_hi,
-            [f - half, f + half],
-            text,
-            detail={
-                "amplitudes_mm": {
-                    ctx.series[i].key: {"value": a, "sigma": amp_sig.get(i)} for i, a in amps.items()
-                }
-            },
-        )
-    if c.kind == "envelope":
-        env = info["relative_envelope"]
-        lo, hi = float(env.min()), float(env.max())
-        par = {
-            "form": info["form"],
-            "envelope_min": {"value": lo, "sigma": sig.get("envelope_min")},
-            "envelope_max": {"value": hi, "sigma": sig.get("envelope_max")},
-        }
-        if info["form"] == "spline":
-            par["knots"] = int(info["knots"])
-            shape = f"a smooth envelope ({info['knots']} interior knots)"
-        else:
-            lam = info["decay_per_s"]
-            par["decay_per_s"] = {"value": lam, "sigma": sig.get("decay_per_s")}
-            par["damping_ratio"] = {
-                "value": lam / (2 * math.pi * ctx.f0_hz),
-                "sigma": sig.get("damping_ratio"),
-            }
-            shape = (
-                f"an exponential {'decay' if lam > 0 else 'growth'} (damping ratio "
-                f"{100 * lam / (2 * math.pi * ctx.f0_hz):.2g} %)"
-            )
-        text = (
-            f"The amplitude of the motion at {ctx.f0_hz:.4g} Hz changes during the record on {where}: "
-            f"{shape}, from {lo:.2f} to {hi:.2f} times the nominal amplitude: structure no named "
-            "effect explains (a load ramp, a free decay, a changing stiffness)."
-        )
-        df = 1.0 / ctx.duration_s
-        return UnnamedTerm(
-            "envelope",
-            c.series,
-            c.means,
-            c.n_params,
-            par,
-            t_lo,
-            t_hi,
-            [
-                ctx.f0_hz - 2 * df * (1 + info.get("knots", 0)),
-                ctx.f0_hz + 2 * df * (1 + info.get("knots", 0)),
-            ],
-            text,
-        )
+    text = (
+        f"The amplitude of the motion at {ctx.f0_hz:.4g} Hz changes during the record on {where}: "
+        f"{shape}, from {lo:.2f} to {hi:.2f} times the nominal amplitude: structure no named "
+        "effect explains (a load ramp, a free decay, a changing stiffness)."
+    )
+    df = 1.0 / ctx.duration_s
+    band = [ctx.f0_hz - 2 * df * (1 + info.get("knots", 0)), ctx.f0_hz + 2 * df * (1 + info.get("knots", 0))]
+    return par, band, text, {}
+
+
+def _trend_text(ctx: Context, c, sig: dict, where: str) -> tuple[dict, list[float], str, dict]:
+    """A trend's parameters, band, explanation and per-series detail."""
+    info = c.info
     swing = info["swing_mm"]
     s_med = float(np.median(list(swing.values())))
     par = {
@@ -174,20 +164,12 @@ def describe_term(ctx: Context, c, states: list[State], sig: dict) -> UnnamedTer
         f"The measured position wanders slowly by about {s_med:.3g} mm (peak to peak) on {where} "
         f"({shape}): structure no named effect explains."
     )
-    return UnnamedTerm(
-        "trend",
-        c.series,
-        c.means,
-        c.n_params,
-        par,
-        t_lo,
-        t_hi,
-        [0.0, ((info["knots"] or 0) + 1) / ctx.duration_s],
-        text,
-        detail={
-            "swing_mm": {
-                ctx.series[i].key: {"value": v, "sigma": sig.get("swing_mm", {}).get(i)}
-                for i, v in swing.items()
-            }
-        },
-    )
+    detail = {
+        "swing_mm": {
+            ctx.series[i].key: {"value": v, "sigma": sig.get("swing_mm", {}).get(i)} for i, v in swing.items()
+        }
+    }
+    return par, [0.0, ((info["knots"] or 0) + 1) / ctx.duration_s], text, detail
+
+
+_TEXTS = {"line": _line_text, "envelope": _envelope_text, "trend": _trend_text}

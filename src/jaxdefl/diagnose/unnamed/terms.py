@@ -21,10 +21,9 @@ from scipy.interpolate import BSpline
 from scipy.ndimage import median_filter
 
 from ..._numerics import harmonic_design, wls
-from .._base import Context, State, masked_periodogram, peak_offset
+from .._base import Context, State, masked_periodogram, peak_offset, weights
 from .._correlation import FrameCorrelation
 from .._varpro import fit_shared
-from ..effects.screening import weights
 from .noise import Noise, gls_covariance, linear_sd
 
 __all__ = ["BUILDERS", "Candidate", "KNOTS", "bspline", "shared_fit", "term_sigmas"]
@@ -511,6 +510,14 @@ def _trend(ctx: Context, states: list[State], noise: Noise, n_total: int) -> lis
     return [Candidate("trend", kept, means, k_par, info)]
 
 
+def _decaying_line(s, f: float, lam: float):
+    """(τ since the series' start, e^{−λτ}, cos 2πft, sin 2πft) of a line at f Hz decaying at
+    λ /s on series ``s``."""
+    tau = s.t - s.t[0]
+    _, ca, sa = harmonic_design(2 * np.pi * f * s.t).T
+    return tau, np.exp(-lam * tau), ca, sa
+
+
 def _line_sigmas(ctx, states, c, corr) -> dict:
     """σ of a line's frequency, decay, damping ratio and per-series amplitudes."""
     f, lam = c.info["freq_hz"], c.info["decay_per_s"]
@@ -521,9 +528,7 @@ def _line_sigmas(ctx, states, c, corr) -> dict:
     blocks, ab = [], []
     for i in c.series:
         s = ctx.series[i]
-        tau = s.t - s.t[0]
-        e = np.exp(-lam * tau)
-        _, ca, sa = harmonic_design(2 * np.pi * f * s.t).T
+        tau, e, ca, sa = _decaying_line(s, f, lam)
         x = np.stack([e * ca, e * sa, np.ones_like(tau)], axis=1)
         a, b = wls(x, c.means[i] - states[i].mean, cov=False)[0][:2]
         js = [e * 2 * np.pi * s.t * (-a * sa + b * ca)]
@@ -553,11 +558,7 @@ def _common_line_sigmas(ctx, states, c, corr, f, lam) -> dict:
     free_decay = lam > 0
     cols, xs = {}, {}
     for i in c.series:
-        s = ctx.series[i]
-        tau = s.t - s.t[0]
-        e = np.exp(-lam * tau)
-        _, ca, sa = harmonic_design(2 * np.pi * f * s.t).T
-        cols[i] = (tau, e, ca, sa)
+        cols[i] = tau, e, ca, sa = _decaying_line(ctx.series[i], f, lam)
         xs[i] = np.stack([e * ca, e * sa], axis=1)
     a, b = shared_fit(ctx, states, c.series, lambda i: xs[i])[0]
     blocks = []
