@@ -518,6 +518,17 @@ def _decaying_line(s, f: float, lam: float):
     return tau, np.exp(-lam * tau), ca, sa
 
 
+def _frequency_sigmas(cov: np.ndarray, f: float, lam: float) -> dict:
+    """σ of a line's frequency and, when it decays (λ > 0), of its decay rate and damping ratio
+    ζ = λ / 2πf, from the covariance whose first rows are (f, λ)."""
+    out = {"freq_hz": math.sqrt(max(cov[0, 0], 0.0))}
+    if lam > 0:
+        out["decay_per_s"] = math.sqrt(max(cov[1, 1], 0.0))
+        zeta = lam / (2 * np.pi * f)
+        out["damping_ratio"] = linear_sd(cov[:2, :2], np.array([-zeta / f, 1.0 / (2 * np.pi * f)]))
+    return out
+
+
 def _line_sigmas(ctx, states, c, corr) -> dict:
     """σ of a line's frequency, decay, damping ratio and per-series amplitudes."""
     f, lam = c.info["freq_hz"], c.info["decay_per_s"]
@@ -537,11 +548,7 @@ def _line_sigmas(ctx, states, c, corr) -> dict:
         blocks.append((i, np.stack(js, axis=1), x))
         ab.append((a, b))
     cov = gls_covariance(ctx, states, c, blocks, n_sh, corr)
-    out = {"freq_hz": math.sqrt(max(cov[0, 0], 0.0))}
-    if free_decay:
-        out["decay_per_s"] = math.sqrt(max(cov[1, 1], 0.0))
-        zeta = lam / (2 * np.pi * f)
-        out["damping_ratio"] = linear_sd(cov[:2, :2], np.array([-zeta / f, 1.0 / (2 * np.pi * f)]))
+    out = _frequency_sigmas(cov, f, lam)
     amps = {}
     for j, (i, (a, b)) in enumerate(zip(c.series, ab, strict=True)):
         amp = math.hypot(a, b)
@@ -570,11 +577,7 @@ def _common_line_sigmas(ctx, states, c, corr, f, lam) -> dict:
         blocks.append((i, np.concatenate([np.stack(js, axis=1), xs[i]], axis=1), _nuisance(ctx, i)))
     n_nl = 2 if free_decay else 1
     cov = gls_covariance(ctx, states, c, blocks, n_nl + 2, corr)
-    out = {"freq_hz": math.sqrt(max(cov[0, 0], 0.0))}
-    if free_decay:
-        out["decay_per_s"] = math.sqrt(max(cov[1, 1], 0.0))
-        zeta = lam / (2 * np.pi * f)
-        out["damping_ratio"] = linear_sd(cov[:2, :2], np.array([-zeta / f, 1.0 / (2 * np.pi * f)]))
+    out = _frequency_sigmas(cov, f, lam)
     amp = math.hypot(a, b)
     g = np.zeros(cov.shape[0])
     g[n_nl : n_nl + 2] = (a / amp, b / amp) if amp > 0 else (1.0, 0.0)
