@@ -26,7 +26,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._numerics import mad_sigma
+from .._numerics import MAD_TO_SIGMA, mad_sigma
 
 __all__ = ["Clock", "SNAP_MAX", "fit_clock", "robust_interval"]
 
@@ -146,7 +146,7 @@ def _assign(t: np.ndarray, a: float, b: float) -> np.ndarray:
         padded = None
         for end in (slice(0, h), slice(-h, None)):
             near = dev[:_MEDIAN_LEN] if end.start == 0 else dev[-_MEDIAN_LEN:]
-            if 1.4826 * float(np.median(near)) >= 0.25:
+            if MAD_TO_SIGMA * float(np.median(near)) >= 0.25:
                 padded = np.rint(_running_median(x, ends="median")) if padded is None else padded
                 g[end] = padded[end]
     return idx + np.maximum.accumulate(g)
