@@ -37,8 +37,7 @@ def main() -> None:
 
     from threadpoolctl import threadpool_limits
 
-    from jaxdefl.diagnose import load_effects, run_diagnosis
-    from jaxdefl.diagnose._context import build_context
+    from jaxdefl.diagnose import build_context, load_effects, run_diagnosis
     from jaxdefl.fit import estimate_windows
     from jaxdefl.io import validate_trajectory
     from jaxdefl.series import make_windows

@@ -44,9 +44,9 @@ def test_campaign_tables_follow_the_truth(tmp_path):
     day = pd.read_csv(tmp_path / "out" / "per_day.csv")
     assert day["cycles"].tolist() == CYCLES[:3]
     # plate 7 sits at 0.99 of the mid-span deflection on the demo beam
-    from jaxdefl.synthetic import PLATE_X_M, beam_shape
+    from jaxdefl.synthetic import LOAD_A_M, PLATE_X_M, SPAN_M, beam_shape
 
-    truth = np.array(AMPS[:3]) * beam_shape(PLATE_X_M[6])
+    truth = np.array(AMPS[:3]) * beam_shape(PLATE_X_M[6], SPAN_M, LOAD_A_M)
     assert np.all(np.abs(day["amplitude_mm"] - truth) < 4 * day["sigma_amplitude_mm"])
     assert np.all(
         np.abs(day["delta_amplitude_mm"])

@@ -12,8 +12,7 @@ from scipy import optimize, signal, stats
 
 from jaxdefl._errors import InputError, ParameterError
 from jaxdefl.cli import main
-from jaxdefl.diagnose import EFFECT_IDS, diagnose, run_diagnosis
-from jaxdefl.diagnose._base import State, loglik, rms_equivalent
+from jaxdefl.diagnose import EFFECT_IDS, State, diagnose, loglik, rms_equivalent, run_diagnosis
 from jaxdefl.diagnose._varpro import fit_shared
 from jaxdefl.diagnose.effects.extra_periodic import _columns as line_columns
 from jaxdefl.settings import DiagnoseSettings
@@ -139,7 +138,7 @@ def test_shared_frequency_fit_matches_scipy_least_squares():
 
 
 def test_residual_tests_are_calibrated_on_white_noise():
-    from jaxdefl.diagnose._base import Context, Harmonic, Series
+    from jaxdefl.diagnose import Context, Harmonic, Series
     from jaxdefl.diagnose._whiteness import TESTS, residual_tests
 
     rng = np.random.default_rng(3)

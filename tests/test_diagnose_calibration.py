@@ -7,7 +7,7 @@ import math
 import numpy as np
 from scipy import stats
 
-from jaxdefl.diagnose._base import Proposal
+from jaxdefl.diagnose import Proposal
 from jaxdefl.diagnose._search import ALPHA_NAMED, Calibration
 from jaxdefl.diagnose.effects.screening import changepoint_trials
 

@@ -9,7 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from jaxdefl.diagnose._base import Context, Harmonic, Series, State, loglik, lstsq
+from jaxdefl._numerics import wls
+from jaxdefl.diagnose import Context, Harmonic, Series, State, loglik
 from jaxdefl.diagnose._search import Calibration
 
 F0 = 3.0
@@ -56,7 +57,7 @@ def make_case(
             sig = sigma if axis == "z" else 0.4 * sigma
             y = clean + sig * eps if inject is None else inject(t, p, axis, clean, eps, sig)
             a = OMEGA * (t - t_ref)
-            beta, _, _ = lstsq(np.stack([np.ones_like(t), np.cos(a), np.sin(a)], axis=1), y)
+            beta, _, _ = wls(np.stack([np.ones_like(t), np.cos(a), np.sin(a)], axis=1), y)
             h = Harmonic(OMEGA, float(beta[1]), float(beta[2]), float(beta[0]), t_ref)
             series.append(Series(p, axis, t, y, k))
             nominal.append(h)

@@ -9,7 +9,7 @@ import math
 import numpy as np
 import pytest
 
-from jaxdefl.diagnose._base import Context, Harmonic, Series, State, loglik
+from jaxdefl.diagnose import Context, Harmonic, Series, State, loglik
 from jaxdefl.diagnose._search import Calibration
 from jaxdefl.diagnose.effects.shared_fits import tap_response
 from jaxdefl.fit.motion import motion_artefact_response

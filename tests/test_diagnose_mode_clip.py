@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from scipy.signal import lfilter
 
-from jaxdefl.diagnose._context import build_context
+from jaxdefl.diagnose import build_context
 from jaxdefl.diagnose._correlation import frame_correlation
 from jaxdefl.diagnose._search import ALPHA, DELTA_BIC_MAX, _score
 from jaxdefl.diagnose.effects import EFFECT_IDS, load_effects
@@ -258,7 +258,7 @@ def test_a_third_mode_in_frame_common_noise_is_scored_by_its_part_the_common_noi
     d, p = _best("mode_shape", ctx, states)
     assert _passes((d, p)) and p.parameters["mode"]["value"] == 3
     dll = {i: 0.0 for i in p.series}
-    from jaxdefl.diagnose._base import loglik
+    from jaxdefl.diagnose import loglik
 
     for i in p.series:
         dll[i] = loglik(ctx.series[i].y, p.states[i]) - loglik(ctx.series[i].y, states[i])

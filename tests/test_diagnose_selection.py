@@ -17,8 +17,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from jaxdefl.diagnose import diagnose
-from jaxdefl.diagnose._context import build_context
+from jaxdefl.diagnose import build_context, diagnose
 from jaxdefl.diagnose._correlation import frame_correlation
 from jaxdefl.diagnose._search import Accepted, Calibration, _backward, _flexible_alternative, _score
 from jaxdefl.diagnose.effects import load_effects

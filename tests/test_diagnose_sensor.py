@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from jaxdefl.diagnose import run_diagnosis
-from jaxdefl.diagnose._base import SENSOR_KINDS
 from jaxdefl.diagnose.effects import load_effects
 from jaxdefl.reconcile.chain import ChainNull, apply_chain_null
+from jaxdefl.settings import SENSORS as SENSOR_KINDS
 from jaxdefl.settings import DiagnoseSettings
 from jaxdefl.simulate.effects import make_case
 
@@ -96,7 +96,7 @@ def test_the_chain_null_band_is_a_prediction_bound_at_the_corrected_level():
 def test_a_configured_tof_cameras_tap_lag_is_nominal(tmp_path):
     # the full chain: frames rendered from a shipped config, extracted, diagnosed against its LDS
     from jaxdefl._configs import resolve_config
-    from jaxdefl.diagnose._context import build_context
+    from jaxdefl.diagnose import build_context
     from jaxdefl.frames import extract_recording
     from jaxdefl.io import read_reference
     from jaxdefl.io.recording import open_recording

@@ -8,8 +8,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from jaxdefl.diagnose import run_diagnosis
-from jaxdefl.diagnose._context import build_context
+from jaxdefl.diagnose import build_context, run_diagnosis
 from jaxdefl.diagnose._sensor_nominal import JUMP_SIGMAS, LATTICE_FACTOR, within_configured
 from jaxdefl.diagnose.record_kind import SLOW_SHARE, binary_steps, recognise
 from jaxdefl.settings import DiagnoseSettings

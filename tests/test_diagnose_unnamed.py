@@ -17,8 +17,7 @@ import pytest
 from scipy import stats
 from scipy.signal import lfilter
 
-from jaxdefl.diagnose import diagnose
-from jaxdefl.diagnose._context import build_context
+from jaxdefl.diagnose import build_context, diagnose
 from jaxdefl.diagnose.effects import load_effects
 from jaxdefl.diagnose.unnamed import ar1_loglik, ar1_rho
 
@@ -313,7 +312,7 @@ def test_a_held_out_camera_shake_is_one_common_trend_at_fine_knots_not_named_lin
 
 @pytest.mark.parametrize("sparse", [False, True])
 def test_shared_fit_equals_one_joint_weighted_least_squares(sparse):
-    """`unnamed._shared_fit` (shared columns with each series' nuisance profiled out) gives the
+    """`unnamed.terms.shared_fit` (shared columns with each series' nuisance profiled out) gives the
     coefficients and means of one weighted least squares over all series at once, with the
     shared columns and a block of nuisance columns per series (a slow dense reference); dense
     and sparse (B-spline) columns alike."""
@@ -321,7 +320,7 @@ def test_shared_fit_equals_one_joint_weighted_least_squares(sparse):
 
     from scipy import sparse as sps
 
-    from jaxdefl.diagnose.unnamed import _bspline, _shared_fit
+    from jaxdefl.diagnose.unnamed.terms import bspline, shared_fit
 
     rng = np.random.default_rng(4)
     series, states, nus = [], [], []
@@ -338,9 +337,9 @@ def test_shared_fit_equals_one_joint_weighted_least_squares(sparse):
     ctx = SimpleNamespace(series=series, nuisance=lambda i: nus[i], noise_sigma=lambda i: sigma[i])
 
     def cols_of(i):
-        return _bspline(series[i].t, 0.0, 60.0, 6, sparse=sparse)[:, 1:]
+        return bspline(series[i].t, 0.0, 60.0, 6, sparse=sparse)[:, 1:]
 
-    beta, means, gammas = _shared_fit(ctx, states, [0, 1, 2], cols_of)
+    beta, means, gammas = shared_fit(ctx, states, [0, 1, 2], cols_of)
 
     # the reference: one stacked design, shared columns then each series' own nuisance block
     k, p = cols_of(0).shape[1], 3
@@ -352,7 +351,7 @@ def test_shared_fit_equals_one_joint_weighted_least_squares(sparse):
         own[:, i * p : (i + 1) * p] = nus[i]
         rows.append(np.concatenate([x, own], axis=1))
         rhs.append(series[i].y - states[i].mean)
-        wts.append(np.where(states[i].inlier, 1.0 / states[i].scale**2, 0.0) / sigma[i] ** 2)
+        wts.append(np.where(states[i].inlier, 1.0 / states[i].scale ** 2, 0.0) / sigma[i] ** 2)
     a, r, w = np.concatenate(rows), np.concatenate(rhs), np.concatenate(wts)
     sw = np.sqrt(w)
     ref = np.linalg.lstsq(a * sw[:, None], r * sw, rcond=None)[0]

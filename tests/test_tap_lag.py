@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from jaxdefl.diagnose._context import build_context
+from jaxdefl.diagnose import build_context
 from jaxdefl.diagnose.effects.shared_fits import quadrature_weight, tap_response
 from jaxdefl.settings import DiagnoseSettings
 

@@ -242,7 +242,7 @@ def test_jitter_beyond_a_quarter_frame_takes_the_batched_non_uniform_path(monkey
 def test_diagnosis_grids_follow_the_recovered_clock_and_the_frame_rate():
     """5 ms of jitter at 20 Hz: the diagnosis' frame grid is the 20 Hz clock (the smallest
     spacing would be ~30 ms), every sample on its own frame; --frame-rate starts the fit."""
-    from jaxdefl.diagnose._context import build_context
+    from jaxdefl.diagnose import build_context
     from jaxdefl.settings import DiagnoseSettings
 
     df, _ = _jittered_table(seed=12, duration_s=40.0, n_plates=2)

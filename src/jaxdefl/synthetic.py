@@ -11,21 +11,13 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from ._beam import beam_shape
+
 __all__ = ["beam_shape", "harmonic_experiment"]
 
 SPAN_M = 3.4
 PLATE_X_M = 0.2 + 0.25 * np.arange(13)  # 13 plates at 250 mm along the beam
 LOAD_A_M = 1.2  # distance of each load point from its support
-
-
-def beam_shape(x_m, span_m: float = SPAN_M, a_m: float = LOAD_A_M):
-    """Elastic deflection of a simply supported beam under two symmetric point loads, peak 1."""
-    x = np.minimum(np.asarray(x_m, float), span_m - np.asarray(x_m, float))
-    outer = x * (3 * span_m * a_m - 3 * a_m**2 - x**2)
-    inner = a_m * (3 * span_m * x - 3 * x**2 - a_m**2)
-    d = np.where(x <= a_m, outer, inner)
-    mid = a_m * (3 * span_m * span_m / 2 - 3 * span_m**2 / 4 - a_m**2)
-    return d / mid
 
 
 def harmonic_experiment(
@@ -48,7 +40,7 @@ def harmonic_experiment(
     t = t[rng.random(n) >= dropout]  # a dropped frame is lost for every plate
     phase = rng.uniform(0, 2 * np.pi)
     wave = np.cos(2 * np.pi * f0_hz * (t - t0) + phase)
-    shape = beam_shape(PLATE_X_M)
+    shape = beam_shape(PLATE_X_M, SPAN_M, LOAD_A_M)
     rows = []
     for i, s in enumerate(shape):
         rows.append(

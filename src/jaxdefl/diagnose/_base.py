@@ -1,5 +1,7 @@
 """The diagnosis' data model: series, their nominal harmonics, the current model of each series,
-and the contract between the search (`_search.py`) and the candidate effects (`effects/`).
+and the contract between the search (`_search.py`) and the detectors of the candidate effects
+(`effects/`). Its names are public as ``jaxdefl.diagnose.Context``, ``State``, ``Proposal``,
+``Detector`` (and the helpers below); a new effect's detector is a `Detector` subclass.
 
 Vocabulary
 ----------
@@ -13,7 +15,8 @@ Vocabulary
 - The *state* of a series is its current model: the mean (nominal harmonic plus the accepted
   effects' terms) and the noise model (relative scale per sample, inlier mask and the outlier
   component). Its log-likelihood is computed by `loglik` alone, for every effect alike.
-- An *effect* (`Effect`) looks at the states, runs its signature test and returns
+- A *detector* (`Detector`, one per effect id) looks at the states, runs its effect's
+  signature test and returns
   `Proposal`s: new means / noise models for some series, the number of parameters added, the
   signature's p-value (already corrected for the effect's own scan, e.g. over frequencies), the
   located span and band, the fitted parameters with σ's, and a plain-language explanation. The
@@ -37,6 +40,7 @@ from functools import cached_property
 
 import numpy as np
 
+from .._numerics import DELTA_BIC_MAX, difference_sigma, harmonic_design, wls
 from ..settings import SENSORS as SENSOR_KINDS
 
 __all__ = [
@@ -46,22 +50,23 @@ __all__ = [
     "State",
     "Context",
     "Proposal",
-    "Effect",
+    "Detector",
     "loglik",
     "rms_equivalent",
-    "lstsq",
     "regress",
+    "weights",
     "regress_offset",
     "keep_series",
     "masked_fourier",
     "masked_periodogram",
     "peak_offset",
     "LOG_2PI",
+    "lstsq",
 ]
 
 LOG_2PI = math.log(2 * math.pi)
-# the information gate: an effect is tried when one of plausible size would reach this ΔBIC
-GATE_DELTA_BIC = -10.0
+# the one weighted least squares (`jaxdefl._numerics.wls`) under its old name, for `_sensor_nominal`
+lstsq = wls
 
 
 @dataclass(frozen=True)
@@ -211,7 +216,11 @@ def rms_equivalent(total_loglik: float, n: int) -> float:
 
 @dataclass
 class Proposal:
-    """What an effect proposes to add to the model.
+    """What a detector proposes to add to the model.
+
+    The search accepts the proposal when its likelihood-ratio statistic 2 Δlog L exceeds the χ²
+    critical value at α / (effects screened × trials) with n_params − scan_params degrees of
+    freedom (`_search.Calibration`).
 
     Attributes:
         effect: the effect id (DESIGN.md list).
@@ -238,9 +247,6 @@ class Proposal:
         inflation: how many times more the statistic varies than under white noise where the
             search's likelihood does not model it (a noise-level term under AR(1) noise: its
             squared residuals are correlated); the search divides 2 Δlog L by it.
-        The search accepts the proposal when its likelihood-ratio statistic 2 Δlog L exceeds
-        the χ² critical value at α / (effects screened × trials) with n_params − scan_params
-        degrees of freedom (`_search.Calibration`).
     """
 
     effect: str
@@ -342,25 +348,19 @@ class Context:
         harmonic (1.4826 MAD / √2: slow structure and outliers barely move it); cached."""
         if i not in self._noise:
             s = self.series[i]
-            r = s.y - self.nominal[i](s.t)
-            d = np.diff(r)[np.diff(s.k) == 1]
-            if d.size < 8:
-                d = np.diff(r)
-            sig = 1.4826 * float(np.median(np.abs(d - np.median(d)))) / math.sqrt(2) if d.size else 0.0
-            self._noise[i] = sig
+            self._noise[i] = difference_sigma(s.y - self.nominal[i](s.t), s.k)
         return self._noise[i]
 
     def _nuisance_at(self, i: int, t: np.ndarray) -> np.ndarray:
-        cols = [np.ones_like(t)]
-        if not self.series[i].tied:
-            h = self.nominal[i]
-            a = h.omega * (t - h.t_ref)
-            cols += [np.cos(a), np.sin(a)]
-        return np.stack(cols, axis=1)
+        if self.series[i].tied:
+            return np.ones((t.size, 1))
+        h = self.nominal[i]
+        return harmonic_design(h.omega * (t - h.t_ref))
 
 
-class Effect(abc.ABC):
-    """A candidate effect: subclasses set the class attributes and implement `propose`.
+class Detector(abc.ABC):
+    """The detector of one candidate effect: subclasses set the class attributes and implement
+    `propose`; each module of `effects/` exports one instance as ``EFFECT``.
 
     Attributes:
         id: the DESIGN.md effect id.
@@ -456,11 +456,12 @@ class Effect(abc.ABC):
         if len(ctx.plates) < self.min_plates:
             return f"needs at least {self.min_plates} plates, the table has {len(ctx.plates)}"
         dbic = self.expected_delta_bic(ctx, 1.0 if corr is None else self.gate_design_effect(ctx, corr))
-        if not dbic < GATE_DELTA_BIC:
+        # the information gate: tried when an effect of plausible size would be strong evidence
+        if not dbic < DELTA_BIC_MAX:
             return (
                 f"not enough evidence: an effect of plausible size would reach ΔBIC {dbic:.0f} on "
                 f"this record ({sum(s.n for s in ctx.series)} samples, {ctx.duration_s:.3g} s, "
-                f"needs < {GATE_DELTA_BIC:.0f})"
+                f"needs < {DELTA_BIC_MAX:.0f})"
             )
         return None
 
@@ -469,35 +470,21 @@ class Effect(abc.ABC):
         """Screen the current states; proposals for this effect, or [] when nothing is there."""
 
 
-def lstsq(cols: np.ndarray, r: np.ndarray, w: np.ndarray | None = None):
-    """Weighted linear least squares r ≈ cols @ beta.
-
-    Args:
-        cols: (sample, k); r: (sample,); w: (sample,) weights (1/scale², 0 to skip) or None.
-    Returns:
-        (beta (k,), cov (k, k) with σ̂² from the weighted residual, fitted (sample,)).
-    """
-    w = np.ones_like(r) if w is None else w
-    gw = cols * w[:, None]
-    gtg = gw.T @ cols
-    beta = np.linalg.lstsq(gtg, gw.T @ r, rcond=None)[0]
-    fitted = cols @ beta
-    dof = max(int((w > 0).sum()) - cols.shape[1], 1)
-    s2 = float(np.sum(w * (r - fitted) ** 2) / dof)
-    cov = s2 * np.linalg.pinv(gtg)
-    return beta, cov, fitted
+def weights(st: State) -> np.ndarray:
+    """(sample,) least-squares weights of a state: 1/scale² on inliers, 0 on outliers."""
+    return np.where(st.inlier, 1.0 / st.scale**2, 0.0)
 
 
-def regress(ctx: Context, i: int, st: State, y: np.ndarray, cols: np.ndarray):
-    """Fit effect columns plus the free nuisance of series i to its current residual.
+def regress(
+    ctx: Context, i: int, st: State, y: np.ndarray, cols: np.ndarray, nuisance: np.ndarray | None = None
+):
+    """Fit effect columns plus the free nuisance of series i (``nuisance``, default
+    `Context.nuisance`) to its current residual, by the package's one weighted least squares.
 
     Returns (beta of the effect columns, their covariance, the new mean of the series).
     """
-    r = y - st.mean
-    nu = ctx.nuisance(i)
-    g = np.concatenate([cols, nu], axis=1)
-    w = np.where(st.inlier, 1.0 / st.scale**2, 0.0)
-    beta, cov, fitted = lstsq(g, r, w)
+    nu = ctx.nuisance(i) if nuisance is None else nuisance
+    beta, cov, fitted = wls(np.concatenate([cols, nu], axis=1), y - st.mean, weights(st))
     k = cols.shape[1]
     return beta[:k], cov[:k, :k], st.mean + fitted
 
@@ -505,12 +492,7 @@ def regress(ctx: Context, i: int, st: State, y: np.ndarray, cols: np.ndarray):
 def regress_offset(ctx: Context, i: int, st: State, y: np.ndarray, cols: np.ndarray):
     """As `regress`, with the offset as the only nuisance (for terms far from the loading
     frequency, where re-estimating the harmonic would only cost time)."""
-    r = y - st.mean
-    g = np.concatenate([cols, np.ones((r.size, 1))], axis=1)
-    w = np.where(st.inlier, 1.0 / st.scale**2, 0.0)
-    beta, cov, fitted = lstsq(g, r, w)
-    k = cols.shape[1]
-    return beta[:k], cov[:k, :k], st.mean + fitted
+    return regress(ctx, i, st, y, cols, np.ones((y.size, 1)))
 
 
 def keep_series(delta_loglik: float, k_own: int, n: int, margin: float = 0.0) -> bool:

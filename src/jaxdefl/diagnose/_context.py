@@ -9,6 +9,7 @@ import numpy as np
 import pandas as pd
 
 from .._errors import ConfigError, InputError, ParameterError
+from .._numerics import harmonic_design, wls
 from ..fit import estimate_windows
 from ..fit.estimate import MAX_ABS_VALUE_MM
 from ..io import layout_note, timestamp_note, validate_trajectory
@@ -17,7 +18,7 @@ from ..series.windows import frame_clock, windows_like
 from ..settings import DiagnoseSettings
 from ..spectral import lomb_peaks
 from ..status import Status
-from ._base import Context, Harmonic, Series, State, lstsq
+from ._base import Context, Harmonic, Series, State
 from .effects.shared_fits import quadrature_weight, tap_response
 
 __all__ = ["build_context"]
@@ -45,9 +46,8 @@ def _harmonic_rows(est: pd.DataFrame, t0: float) -> dict[tuple[int, str], Harmon
 
 def _linear_harmonic(t: np.ndarray, y: np.ndarray, omega: float, t_ref: float) -> Harmonic:
     """Offset, C, D at a given frequency (a series whose own peak was not significant)."""
-    a = omega * (t - t_ref)
-    beta, cov, _ = lstsq(np.stack([np.cos(a), np.sin(a), np.ones_like(t)], axis=1), y)
-    return Harmonic(omega, float(beta[0]), float(beta[1]), float(beta[2]), t_ref)
+    offset, c, d = wls(harmonic_design(omega * (t - t_ref)), y, cov=False)[0]
+    return Harmonic(omega, float(c), float(d), float(offset), t_ref)
 
 
 def _tied_offset(s: Series, h: Harmonic) -> Harmonic:

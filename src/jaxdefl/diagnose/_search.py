@@ -32,13 +32,14 @@ from scipy import stats
 from threadpoolctl import threadpool_limits
 
 from .._errors import InputError
+from .._numerics import DELTA_BIC_MAX
 from .._signals import check_interrupt
 from ..settings import DiagnoseSettings
 from ._base import Context, Proposal, State, loglik, rms_equivalent
 from ._context import build_context
 from ._correlation import FrameCorrelation, frame_correlation, gls_gain
 from ._sensor_nominal import nominal_level_jumps, within_configured
-from ._whiteness import combined_p, residual_tests
+from ._whiteness import residual_tests, series_whiteness_p
 from .effects import load_effects
 from .record_kind import SEARCHED, RecordKind, kind_nominal, recognise, value_lattice
 from .unnamed import MAX_TERMS, UnnamedTerm, apply_term, best_term, colored_gain, search_unnamed
@@ -58,7 +59,6 @@ __all__ = [
     "MAX_EFFECTS",
 ]
 
-DELTA_BIC_MAX = -10.0  # very strong evidence (Kass & Raftery): the open world's bar
 ALPHA = 0.01  # the residual tests' level (`Diagnosis.unexplained`)
 ALPHA_NAMED = 0.05  # family-wise false-alarm rate of a record's named effects
 MAX_EFFECTS = 8
@@ -161,7 +161,7 @@ class Diagnosis:
         ll = [loglik(s.y, st) for s, st in zip(self.ctx.series, states, strict=True)]
         n_tot = sum(s.n for s in self.ctx.series)
         k_tot = sum(st.n_params for st in states)
-        p = [combined_p(t) for t in tests]
+        p = [series_whiteness_p(t) for t in tests]
         return {
             "rms_mm": rms_equivalent(float(np.sum(ll)), n_tot),
             "bic": float(-2 * np.sum(ll) + k_tot * math.log(n_tot)),

@@ -20,9 +20,10 @@ import math
 import numpy as np
 from scipy import special, stats
 
+from .._numerics import harmonic_design, wls
 from ._base import Context, State, masked_periodogram
 
-__all__ = ["TESTS", "residual_tests", "combined_p"]
+__all__ = ["TESTS", "residual_tests", "series_whiteness_p"]
 
 TESTS = ("spectrum", "mean_shift", "variance_shift", "tails", "variance_vs_phase")
 
@@ -59,15 +60,15 @@ def residual_tests(ctx: Context, i: int, st: State) -> dict[str, dict]:
     kurt = float(np.mean(z**4) - 3.0)
     out["tails"] = {"p": float(stats.norm.sf(kurt / math.sqrt(24.0 / n))), "t": None, "band_hz": None}
     arg = ctx.nominal[i].argument(t)
-    g = np.stack([np.cos(arg), np.sin(arg)], axis=1)
+    g = harmonic_design(arg, offset=False)
     u = z * z - 1.0
-    beta = np.linalg.lstsq(g, u, rcond=None)[0]
+    beta = wls(g, u, cov=False)[0]
     chi2 = float(np.sum((g @ beta) ** 2) / max(np.var(u), 1e-300))
     f0 = ctx.nominal[i].f0_hz
     out["variance_vs_phase"] = {"p": float(stats.chi2.sf(chi2, 2)), "t": None, "band_hz": [f0, f0]}
     return out
 
 
-def combined_p(tests: dict[str, dict]) -> float:
+def series_whiteness_p(tests: dict[str, dict]) -> float:
     """Bonferroni over the tests of one series."""
     return min(1.0, len(tests) * min(v["p"] for v in tests.values()))

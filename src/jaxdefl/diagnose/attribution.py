@@ -10,7 +10,7 @@ each camera's shared plates alone:
 
 - ``structure``: ``e`` is named on the shared plates by ``c`` and by every other camera there,
   with parameters that agree within `DISAGREE` combined σ's, and the beam can make it
-  (`Effect.can_be_structural`);
+  (`Detector.can_be_structural`);
 - ``measurement``: every camera there names it, but only a measurement makes it (outliers, a
   noise level, a clock, a lattice): the cameras' common physics, not the beam;
 - ``camera``: by ``c`` alone, while every other camera had the power to see it (its residual

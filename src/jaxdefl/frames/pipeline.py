@@ -35,6 +35,7 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from .._numerics import mad_sigma
 from .floor import floor_targets
 from .kernels import all_finite, erode, flat_indices, label_components, opening, otsu_threshold, region_stats
 
@@ -386,7 +387,7 @@ def calibrate_scene(
     # per-pixel noise of the segmentation image on the top surface (one frame, not the median)
     z0 = torch.as_tensor(z_all[:1], device=dev)[:, None]
     zs0 = _box_mean(z0, smooth).reshape(-1).cpu().numpy()[top_idx]
-    sigma = float(1.4826 * np.nanmedian(np.abs(zs0 - np.nanmedian(zs0))))
+    sigma = mad_sigma(zs0[~np.isnan(zs0)])
     gap = max(5.0, 4.0 * sigma)
     far = (floor_z - top_z - 50.0) if np.isfinite(floor_z) else 400.0
     bands = [(-100.0, -gap), (gap, max(gap + 5.0, min(far, 400.0)))]

@@ -36,6 +36,7 @@ import numpy as np
 import pandas as pd
 
 from .._errors import InputError, echo
+from .._numerics import mad_sigma
 from ..settings import TIMESTAMP_POLICIES, check_timestamp_policy
 
 __all__ = [
@@ -264,7 +265,7 @@ def _check_plausible(path: Path, col: str, v: np.ndarray, plate: np.ndarray) -> 
         return
     ser = pd.Series(v[fin]).groupby(plate[fin])
     counts = ser.size()
-    spread = ser.agg(lambda x: 1.4826 * float(np.median(np.abs(x - np.median(x)))))[counts >= 8]
+    spread = ser.agg(mad_sigma)[counts >= 8]
     if spread.size and float(spread.max()) > 0 and float(spread.max()) < _METRES_SPREAD_MAX:
         raise InputError(
             f"{path}: column 'z' has no unit, every |z| is below {_METRES_ABS_MAX:g} and no plate "

@@ -37,6 +37,7 @@ from typing import Literal
 import numpy as np
 import pandas as pd
 
+from .._numerics import harmonic_design, wls
 from ..status import Status
 
 __all__ = ["TrackerSettings", "HarmonicTracker", "initial_state", "METHODS"]
@@ -254,7 +255,7 @@ def initial_state(
     sd_omega = 2 * np.pi * float(sf[keep].min())
     t_ref = 0.5 * (float(np.nanmin(t)) + float(np.nanmax(t)))
     tau = t - t_ref
-    X = np.stack([np.ones_like(tau), np.cos(omega * tau), np.sin(omega * tau)], axis=1)
+    X = harmonic_design(omega * tau)
     s = Y.shape[1]
     c, d, e = np.zeros(s), np.zeros(s), np.zeros(s)
     P = np.zeros((1 + 3 * s, 1 + 3 * s))
@@ -269,8 +270,8 @@ def initial_state(
             P[1 + j, 1 + j] = P[1 + s + j, 1 + s + j] = P[1 + 2 * s + j, 1 + 2 * s + j] = 1e6
             continue
         Xm, ym = X[m], Y[m, j]
-        beta, *_ = np.linalg.lstsq(Xm, ym, rcond=None)
-        r = ym - Xm @ beta
+        beta, _, fit = wls(Xm, ym, cov=False)
+        r = ym - fit
         s2 = float(r @ r) / max(m.sum() - 4, 1)
         unit[j] = np.linalg.inv(Xm.T @ Xm)
         fitted[j] = True

@@ -28,6 +28,7 @@ import numpy as np
 import pandas as pd
 
 from .._errors import ConfigError
+from .._numerics import harmonic_design
 from .._signals import check_interrupt
 from ..settings import ReconcileSettings
 from ..simulate.injection import INJECTABLE, EffectSpec, make_spec
@@ -234,8 +235,7 @@ def _nuisance_free(twin: Twin, df: pd.DataFrame, gain_of) -> list:
         if abs(g) < 0.05 or s.sigma <= 0:
             continue
         y = df[s.axis].to_numpy()[s.rows]
-        a = np.stack([np.ones_like(s.t), np.cos(twin.omega * s.t), np.sin(twin.omega * s.t)], 1)
-        q = np.linalg.qr(a)[0]
+        q = np.linalg.qr(harmonic_design(twin.omega * s.t))[0]
         out.append((s.plate, s.t, (y - q @ (q.T @ y)) / s.sigma, q, g / s.sigma, s.axis))
     return out
 

@@ -34,6 +34,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._numerics import harmonic_design, mad_sigma, wls
 from .metrics import FAMILY_Q
 
 __all__ = [
@@ -71,12 +72,12 @@ def _pixel_noise(t: np.ndarray, r: np.ndarray, f0_hz: float) -> np.ndarray:
         return np.full(r.shape[1], np.nan)
     tt = t - t[0]
     w = 2 * math.pi * f0_hz * tt
-    a = np.stack([np.ones_like(tt), tt, np.cos(w), np.sin(w)], axis=1)
+    a = np.concatenate([harmonic_design(w), tt[:, None]], axis=1)
     ok = np.all(np.isfinite(r) & (r > 0), axis=0)
     x = np.where(ok[None, :], r, 0.0).astype(np.float64)
-    res = x - a @ np.linalg.lstsq(a, x, rcond=None)[0]
+    res = x - wls(a, x, cov=False)[2]
     d = np.diff(res, axis=0)
-    mad = 1.4826 * np.median(np.abs(d - np.median(d, axis=0)), axis=0)
+    mad = mad_sigma(d, axis=0)
     lattice = mad <= 1e-9 * np.maximum(np.abs(x).max(axis=0), 1.0)
     sd = np.where(lattice, d.std(axis=0), mad) / math.sqrt(2.0)
     return np.where(ok, sd, np.nan)

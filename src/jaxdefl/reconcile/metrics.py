@@ -34,12 +34,14 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from .._numerics import harmonic_design, mad_sigma, wls
+
 __all__ = [
     "FAMILY",
     "METRICS",
     "TableStats",
     "distance",
-    "frame_correlation",
+    "frame_common_correlation",
     "null_95",
     "null_family",
     "outlier_sizes",
@@ -84,12 +86,12 @@ def short_term_noise(r: np.ndarray) -> float:
     d = np.diff(r)
     if d.size < 2:
         return float("nan")
-    mad = 1.4826 * float(np.median(np.abs(d - np.median(d)))) / math.sqrt(2.0)
+    mad = mad_sigma(d) / math.sqrt(2.0)
     plain = float(np.std(d)) / math.sqrt(2.0)
     return mad if mad >= 0.5 * plain else plain
 
 
-def frame_correlation(resid: np.ndarray) -> float:
+def frame_common_correlation(resid: np.ndarray) -> float:
     """Mean pairwise correlation across plates (columns) of the frame-to-frame changes of their
     residuals (frames as rows): noise shared by a frame's plates, blind to slow structure."""
     d = np.diff(resid, axis=0)
@@ -105,8 +107,8 @@ def _design(t: np.ndarray, omega: float) -> np.ndarray:
     small error of ω, which would otherwise leave the motion, shared by every plate, in the
     residuals (and so in their frame-common correlation)."""
     u = (t - 0.5 * (t[0] + t[-1])) / 100.0
-    c, s = np.cos(omega * t), np.sin(omega * t)
-    return np.stack([np.ones_like(t), c, s, u * c, u * s], axis=1)
+    h = harmonic_design(omega * t)
+    return np.concatenate([h, u[:, None] * h[:, 1:]], axis=1)
 
 
 def outlier_sizes(r: np.ndarray, noise: float) -> np.ndarray:
@@ -131,8 +133,8 @@ def _harmonic_fits(df: pd.DataFrame, f0_hz: float, axes: tuple[str, ...]):
                 continue
             t, y = t_all[ok], y[ok]
             a = _design(t, omega)
-            beta = np.linalg.lstsq(a, y, rcond=None)[0]
-            yield int(plate), axis, t, y, a, beta, y - a @ beta
+            beta, _, fitted = wls(a, y, cov=False)
+            yield int(plate), axis, t, y, a, beta, y - fitted
 
 
 def series_residuals(df: pd.DataFrame, f0_hz: float, axes: tuple[str, ...] = ("z", "x", "y")):
@@ -180,7 +182,7 @@ def table_stats(df: pd.DataFrame, f0_hz: float, axes: tuple[str, ...] = ("z", "x
             for j in range(N_WINDOWS):
                 m = w == j
                 if m.sum() >= 10:
-                    bj = np.linalg.lstsq(a[m, :3], y[m], rcond=None)[0]
+                    bj = wls(a[m, :3], y[m], cov=False)[0]
                     zw.append(complex(bj[1], -bj[2]))
             if len(zw) >= 3:
                 env = float(np.sqrt(np.mean(np.abs(np.array(zw) - z) ** 2)) / abs(z))
@@ -205,7 +207,7 @@ def table_stats(df: pd.DataFrame, f0_hz: float, axes: tuple[str, ...] = ("z", "x
             continue
         m = pd.DataFrame(cols).dropna()
         if len(m) >= MIN_SAMPLES:
-            common.append(frame_correlation(m.to_numpy()))
+            common.append(frame_common_correlation(m.to_numpy()))
     series = pd.DataFrame(rows).set_index("key") if rows else pd.DataFrame()
     return TableStats(series, float(np.mean(common)) if common else float("nan"))
 

@@ -36,16 +36,17 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from .._numerics import harmonic_design, wls
 from ..simulate.config import SimConfig
 from ..simulate.injection import make_spec
-from .metrics import frame_correlation, outlier_sizes, series_residuals
+from .metrics import frame_common_correlation, outlier_sizes, series_residuals
 
 __all__ = ["SensorCalibration", "calibrate"]
 
 
 @dataclass
 class SensorCalibration:
-    frame_common: dict[str, float]  # axis -> mean pairwise correlation (`frame_correlation`)
+    frame_common: dict[str, float]  # axis -> mean pairwise correlation (`frame_common_correlation`)
     gain: dict[tuple[int, str], float]  # (plate, axis) -> d centroid / d range (mm/mm)
     seconds: float
     frame_common_se: float = 0.0  # its standard error from the clip's length (Fisher z)
@@ -88,7 +89,7 @@ def _extract(cfg: SimConfig, seconds: float, seed: int) -> pd.DataFrame:
 
 
 def _frame_common(df: pd.DataFrame, f0_hz: float) -> dict[str, tuple[float, int]]:
-    """Per axis: the simulator's frame-common correlation (`frame_correlation`) and the frames."""
+    """Per axis: the simulator's frame-common correlation (`frame_common_correlation`) and the frames."""
     out = {}
     omega = 2 * math.pi * f0_hz
     for axis in ("z", "x", "y"):
@@ -96,9 +97,8 @@ def _frame_common(df: pd.DataFrame, f0_hz: float) -> dict[str, tuple[float, int]
         if wide.shape[0] < 20 or wide.shape[1] < 3:
             continue
         t = wide.index.to_numpy() - wide.index[0]
-        a = np.stack([np.ones_like(t), np.cos(omega * t), np.sin(omega * t)], 1)
         y = wide.to_numpy()
-        rho = frame_correlation(y - a @ np.linalg.lstsq(a, y, rcond=None)[0])
+        rho = frame_common_correlation(y - wls(harmonic_design(omega * t), y, cov=False)[2])
         if np.isfinite(rho):
             out[axis] = (float(np.clip(rho, 0.0, 0.99)), int(wide.shape[0]))
     return out

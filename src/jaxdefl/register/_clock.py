@@ -14,6 +14,7 @@ from __future__ import annotations
 import numpy as np
 
 from .._jax import float64
+from .._numerics import harmonic_design, wls
 
 __all__ = ["fit_reference", "fit_clock", "harmonic", "fuse", "sampling_delay_s"]
 
@@ -38,12 +39,9 @@ _KERNELS: dict = {}
 
 def _linear(t: np.ndarray, z: np.ndarray, f: float, t0: float) -> tuple[np.ndarray, np.ndarray]:
     """Least squares z = a cos + b sin + c at frequency f: (a, b, c), their covariance."""
-    w = 2 * np.pi * f * (t - t0)
-    x = np.stack([np.cos(w), np.sin(w), np.ones_like(w)], axis=1)
-    coef, *_ = np.linalg.lstsq(x, z, rcond=None)
-    resid = z - x @ coef
-    s2 = float(resid @ resid) / max(len(z) - 3, 1)
-    return coef, s2 * np.linalg.inv(x.T @ x)
+    x = harmonic_design(2 * np.pi * f * (t - t0))[:, [1, 2, 0]]
+    coef, cov, _ = wls(x, z)
+    return coef, cov
 
 
 def harmonic(t: np.ndarray, z: np.ndarray, f: float, t0: float) -> dict:

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from .._numerics import mad_sigma
 from ._clock import fit_clock, fit_reference, fuse, harmonic, sampling_delay_s
 from ._pose import PARAMS, rotation_matrix, solve_pose
 from ._scene import BeamGeometry, floor_targets, plane_landmarks
@@ -110,7 +111,7 @@ def _pose_of(cam: CameraInput, geo: BeamGeometry) -> tuple[np.ndarray, np.ndarra
         )
         sig["plates"][2] = max(np.sqrt(np.mean(rp[:, 2] ** 2)) * inflate, _MIN_SIGMA_MM["plates"])
         # x, y outliers against the median plate (robust scale), never below 5 mm
-        scale = 1.4826 * np.median(np.abs(rp[:, :2] - np.median(rp[:, :2], axis=0)), axis=0)
+        scale = mad_sigma(rp[:, :2], axis=0)
         far = np.abs(rp[:, :2] - np.median(rp[:, :2], axis=0)) > np.maximum(4 * scale, 5.0)
         xy_ok = ~far.any(axis=1) if (~far.any(axis=1)).sum() >= 2 else xy_ok
         rl = resid[len(pc) : len(pc) + len(lp), 2]

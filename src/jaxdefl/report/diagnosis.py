@@ -12,7 +12,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from ..diagnose import ALPHA, ALPHA_NAMED, DELTA_BIC_MAX  # noqa: E402
+from ..diagnose import ALPHA, ALPHA_NAMED, DELTA_BIC_MAX, loglik, masked_periodogram  # noqa: E402
 
 __all__ = ["Findings", "plot_effect", "diagnosis_markdown", "selection_rule", "write_diagnosis_report"]
 
@@ -29,8 +29,6 @@ def _binned(t: np.ndarray, r: np.ndarray, nbins: int = 120):
 
 
 def _spectrum(ctx, i: int, r: np.ndarray):
-    from ..diagnose._base import masked_periodogram
-
     return masked_periodogram(ctx, i, r)
 
 
@@ -41,8 +39,6 @@ def plot_effect(diag, k: int, path: Path) -> Path:
     ctx = diag.ctx
     p = a.proposal
     # the series that gained most
-    from ..diagnose._base import loglik
-
     gains = [loglik(ctx.series[i].y, p.states[i]) - loglik(ctx.series[i].y, a.before[i]) for i in p.series]
     i = p.series[int(np.argmax(gains))]
     s = ctx.series[i]

@@ -26,6 +26,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._numerics import MAD_TO_SIGMA, mad_sigma
+
 __all__ = ["Clock", "SNAP_MAX", "fit_clock", "robust_interval"]
 
 # A series whose stamps scatter less than this fraction of a frame (RMS) about the recovered
@@ -99,7 +101,7 @@ def _line(k: np.ndarray, t: np.ndarray) -> tuple[float, float, np.ndarray]:
         b = float(dk @ (t[keep] - tc)) / den if den > 0 else 0.0
         a = tc - b * kc
         r = t - a - b * k
-        s = 1.4826 * float(np.median(np.abs(r - np.median(r))))
+        s = mad_sigma(r)
         if not s > 0:
             break
         keep = np.abs(r) <= 4 * s
@@ -144,7 +146,7 @@ def _assign(t: np.ndarray, a: float, b: float) -> np.ndarray:
         padded = None
         for end in (slice(0, h), slice(-h, None)):
             near = dev[:_MEDIAN_LEN] if end.start == 0 else dev[-_MEDIAN_LEN:]
-            if 1.4826 * float(np.median(near)) >= 0.25:
+            if MAD_TO_SIGMA * float(np.median(near)) >= 0.25:
                 padded = np.rint(_running_median(x, ends="median")) if padded is None else padded
                 g[end] = padded[end]
     return idx + np.maximum.accumulate(g)

@@ -21,6 +21,7 @@ import math
 import numpy as np
 import pandas as pd
 
+from .._numerics import harmonic_design, wls
 from .centroids import plate_pixel_masks
 from .config import SPEED_OF_LIGHT_M_S, config_from_dict
 from .scene import intrinsics, pixel_model
@@ -37,8 +38,7 @@ def harmonic_fit(t_s: np.ndarray, y: np.ndarray, freq_hz: float) -> tuple[float,
     """
     t = np.asarray(t_s, np.float64) - float(np.asarray(t_s)[0])
     w = 2 * math.pi * freq_hz
-    design = np.stack([np.ones_like(t), np.cos(w * t), np.sin(w * t)], axis=1)
-    (c, a, b), *_ = np.linalg.lstsq(design, np.asarray(y, np.float64), rcond=None)
+    c, a, b = wls(harmonic_design(w * t), np.asarray(y, np.float64), cov=False)[0]
     return float(math.hypot(a, b)), float(math.atan2(b, a)), float(c)
 
 

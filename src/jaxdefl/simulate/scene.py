@@ -24,6 +24,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .._beam import beam_shape
 from .injection import motion_terms
 
 if TYPE_CHECKING:  # the config validates geometry through this module: no import cycle
@@ -49,21 +50,6 @@ __all__ = [
 ]
 
 KIND_STATIC, KIND_BEAM_TOP, KIND_SPREADER = 0, 1, 2
-
-
-def beam_shape(x_mm, span_mm: float, a_mm: float):
-    """Elastic deflection of a simply supported beam under two symmetric point loads, peak 1.
-
-    Loads at ``a`` from each support (span L): w(x) ∝ x (3 L a - 3 a² - x²) for x <= a and
-    a (3 L x - 3 x² - a²) between the loads; zero outside the supports.
-    """
-    x = np.asarray(x_mm, float)
-    xs = np.minimum(x, span_mm - x)
-    outer = xs * (3 * span_mm * a_mm - 3 * a_mm**2 - xs**2)
-    inner = a_mm * (3 * span_mm * xs - 3 * xs**2 - a_mm**2)
-    d = np.where(xs <= a_mm, outer, inner)
-    mid = a_mm * (3 * span_mm * span_mm / 2 - 3 * span_mm**2 / 4 - a_mm**2)
-    return np.where((x >= 0) & (x <= span_mm), d / mid, 0.0)
 
 
 @dataclass(frozen=True)

@@ -5,11 +5,11 @@ from __future__ import annotations
 import importlib
 
 from ..._effect_ids import EFFECT_IDS
-from .._base import Effect
+from .._base import Detector
 
 __all__ = ["EFFECT_IDS", "load_effects"]
 
 
-def load_effects() -> dict[str, Effect]:
+def load_effects() -> dict[str, Detector]:
     """{id: effect} of the library, in the order of `EFFECT_IDS`."""
     return {name: importlib.import_module(f"{__name__}.{name}").EFFECT for name in EFFECT_IDS}

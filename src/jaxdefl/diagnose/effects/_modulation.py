@@ -16,12 +16,12 @@ import math
 
 import numpy as np
 
-from .._base import Context, Effect, Proposal, State
+from ..._numerics import P_MAX
+from .._base import Context, Detector, Proposal, State
 from .shared_fits import Carriers, chi2_p_value, one_sided, param, scan_p_value
 
-__all__ = ["ModulationEffect", "modulation_band", "P_MAX", "KINDS"]
+__all__ = ["ModulationEffect", "modulation_band", "KINDS"]
 
-P_MAX = 5e-3  # weaker signatures cannot pass the search's level (α = 0.05 over ~10 effects)
 F_MAX_HZ = 0.2
 KINDS = 2
 
@@ -31,7 +31,7 @@ def modulation_band(ctx: Context) -> tuple[float, float]:
     return 2.0 / ctx.duration_s, min(F_MAX_HZ, ctx.f0_hz / 4)
 
 
-class ModulationEffect(Effect):
+class ModulationEffect(Detector):
     """A shared slow modulation of the loading motion, linear or sinusoidal in time.
 
     Class attributes: ``demodulation`` ("in_phase" or "quadrature": the one that sees it; the

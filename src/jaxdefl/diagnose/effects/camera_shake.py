@@ -42,7 +42,7 @@ import math
 import numpy as np
 from scipy.interpolate import BSpline
 
-from .._base import Context, Effect, Proposal, State
+from .._base import Context, Detector, Proposal, State
 from .screening import bonferroni, chi2_sf, open_series, param, project_out, shared_amplitude, weights
 
 __all__ = ["CameraShake", "EFFECT", "spline_basis"]
@@ -72,7 +72,7 @@ def _long_run(e: np.ndarray, ok: np.ndarray) -> float:
     return (1.0 + rho) / (1.0 - rho)
 
 
-class CameraShake(Effect):
+class CameraShake(Detector):
     id = "camera_shake"
     structural = False  # the camera moves, not the beam
     meaning = "the camera moves: a displacement common to every plate (and the static scene) on an axis"

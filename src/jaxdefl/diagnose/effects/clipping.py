@@ -26,7 +26,8 @@ import math
 
 import numpy as np
 
-from .._base import Context, Effect, Proposal, State, keep_series, lstsq
+from ..._numerics import wls
+from .._base import Context, Detector, Proposal, State, keep_series
 from .screening import chi2_sf, combined_p, gain, param, residual, screen_columns, updated, weights
 
 __all__ = ["Clipping", "EFFECT", "LEVELS", "clip_column"]
@@ -39,7 +40,7 @@ def clip_column(theta: np.ndarray, side: int, c: float) -> np.ndarray:
     return np.maximum(side * np.cos(theta) - c, 0.0)
 
 
-class Clipping(Effect):
+class Clipping(Detector):
     id = "clipping"
     structural = False  # a depth band's or a converter's bound
     meaning = "a plate's reading saturating at the peaks of its motion (the depth band's bound)"
@@ -73,7 +74,7 @@ class Clipping(Effect):
                 if den < 0:
                     c += float(np.clip(0.5 * (a0 - a2) / den, -0.5, 0.5)) * (LEVELS[1] - LEVELS[0])
             col = clip_column(theta, side, c)[:, None]
-            beta, cov, fitted = lstsq(np.concatenate([col, nu], axis=1), r, w)
+            beta, cov, fitted = wls(np.concatenate([col, nu], axis=1), r, w)
             if not -side * beta[0] > 0:  # a clip flattens the peak; a sharper one is another shape
                 continue
             new = updated(st, self.id, 2, mean=st.mean + fitted)

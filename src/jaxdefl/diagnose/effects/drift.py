@@ -36,10 +36,10 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
-from .._base import Context, Effect, Proposal, State, keep_series, lstsq, peak_offset
+from ..._numerics import P_MAX, wls
+from .._base import Context, Detector, Proposal, State, keep_series, peak_offset
 from .._varpro import fit_shared
 from .screening import (
-    P_SCREEN,
     bonferroni,
     chi2_sf,
     combined_p,
@@ -83,7 +83,7 @@ def _legendre(u: np.ndarray, degree: int) -> np.ndarray:
     return np.stack(cols, axis=1)
 
 
-class Drift(Effect):
+class Drift(Detector):
     id = "drift"
     meaning = "slow drift of the measured position (camera warm-up, settling): exponential or polynomial"
     plausible, plausible_unit, gate_params = 1.0 / 600, "mm_per_s", 2  # 1 mm in 10 minutes (warm-up)
@@ -154,7 +154,7 @@ class Drift(Effect):
         c = (beta * info).sum(axis=0) ** 2 / np.maximum(info.sum(axis=0), 1e-300)
         g = int(np.argmax(c))
         p_value = bonferroni(float(chi2_sf(c[g], 1)), N_GRID * n_axes)
-        if p_value >= P_SCREEN:
+        if p_value >= P_MAX:
             return None
         prop = self._common_at(ctx, states, idx, nus, float(grid[g]), None, p_value)
         if prop is not None:
@@ -189,7 +189,13 @@ class Drift(Effect):
         amp = float(fit.beta[0])
         amp_sigma = math.sqrt(max(float(fit.cov[0, 0]), 0.0))
         return _exponential_proposal(
-            ctx, fit.series, fit.states, 2, p_value, (amp, amp_sigma), (tau, sig_tau),
+            ctx,
+            fit.series,
+            fit.states,
+            2,
+            p_value,
+            (amp, amp_sigma),
+            (tau, sig_tau),
             "all drift by {amp:+.3f} mm",
             "the camera warming up shifts its range for the whole image alike.",
             {"mode": "common"},
@@ -203,9 +209,7 @@ class Drift(Effect):
         for i in sel:
             s, st = ctx.series[i], states[i]
             col = np.exp(-s.t / tau)[:, None]
-            beta, cov, fitted = lstsq(
-                np.concatenate([col, nus[i]], axis=1), residual(ctx, i, st), weights(st)
-            )
+            beta, cov, fitted = wls(np.concatenate([col, nus[i]], axis=1), residual(ctx, i, st), weights(st))
             cand = updated(st, self.id, 1, mean=st.mean + fitted)
             if keep_series(gain(ctx, i, st, cand), 1, s.n):
                 new[i], amps[i], sds[i] = cand, float(beta[0]), math.sqrt(max(float(cov[0, 0]), 0.0))
@@ -241,7 +245,13 @@ class Drift(Effect):
         amp = median_signed(a)
         amp_sigma = 1.2533 * math.sqrt(float(np.mean(sa**2)) / a.size)
         return _exponential_proposal(
-            ctx, kept, new, 1 + len(kept), p_value, (amp, amp_sigma), (tau, sig_tau),
+            ctx,
+            kept,
+            new,
+            1 + len(kept),
+            p_value,
+            (amp, amp_sigma),
+            (tau, sig_tau),
             "drift by {amp:+.3f} mm",
             "the camera warming up (or its mount settling) adds a slowly vanishing offset.",
             {"amplitudes_mm": {ctx.series[i].key: amps[i] for i in kept}},
@@ -290,7 +300,7 @@ class Drift(Effect):
                 continue
             st = states[i]
             g = grams[i][:, list(range(d)) + list(range(MAX_DEGREE, grams[i].shape[1]))]
-            beta, _, fitted = lstsq(g, residual(ctx, i, st), weights(st))
+            beta, _, fitted = wls(g, residual(ctx, i, st), weights(st))
             cand = updated(st, self.id, d, mean=st.mean + fitted)
             if keep_series(gain(ctx, i, st, cand), d, ctx.series[i].n):
                 drift = g[:, :d] @ beta[:d]

@@ -33,9 +33,10 @@ import jax.numpy as jnp
 import numpy as np
 from scipy import stats
 
+from ..._numerics import harmonic_design
 from .._base import (
     Context,
-    Effect,
+    Detector,
     Proposal,
     State,
     keep_series,
@@ -93,7 +94,7 @@ def _columns(theta, t, aux):
     return jnp.stack([jnp.cos(a), jnp.sin(a)], axis=1)
 
 
-class ExtraPeriodic(Effect):
+class ExtraPeriodic(Detector):
     id = "extra_periodic"
     meaning = "a vibration at a frequency unrelated to the loading (pump, mount, floor), common to the plates"
     plausible, plausible_unit, gate_params = 0.05, "mm", 3  # a 0.05-mm vibration (pump, mount)
@@ -150,8 +151,8 @@ class ExtraPeriodic(Effect):
         # where it pays for its two amplitudes.
         fits = {}
         for i, s in enumerate(ctx.series):
-            a = 2 * np.pi * f_peak * s.t
-            beta, cov, mean = regress_offset(ctx, i, states[i], s.y, np.stack([np.cos(a), np.sin(a)], axis=1))
+            cols = harmonic_design(2 * np.pi * f_peak * s.t, offset=False)
+            beta, cov, mean = regress_offset(ctx, i, states[i], s.y, cols)
             gain = loglik(s.y, states[i], mean) - loglik(s.y, states[i])
             if keep_series(gain, 2, s.n, margin=6.0):
                 fits[i] = (beta, cov, mean)
@@ -198,8 +199,7 @@ class ExtraPeriodic(Effect):
         nus = {i: ctx.nuisance(i)[:, :1] for i in idx}  # the offset only: the line is far from f0
 
         def cols(i):
-            a = 2 * np.pi * f_hat * ctx.series[i].t
-            return np.stack([np.cos(a), np.sin(a)], axis=1)
+            return harmonic_design(2 * np.pi * f_hat * ctx.series[i].t, offset=False)
 
         fit = shared_amplitude(ctx, states, idx, cols, nus, self.id, k_own=0)
         if fit is None:

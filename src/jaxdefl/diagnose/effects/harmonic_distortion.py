@@ -37,9 +37,9 @@ import math
 
 import numpy as np
 
-from .._base import Context, Effect, Proposal, State, keep_series, lstsq, masked_periodogram
+from ..._numerics import P_MAX, wls
+from .._base import Context, Detector, Proposal, State, keep_series, masked_periodogram
 from .screening import (
-    P_SCREEN,
     bonferroni,
     chi2_sf,
     combined_p,
@@ -73,6 +73,8 @@ def _local_levels(ctx: Context, i: int, r: np.ndarray) -> np.ndarray:
         if int(near.sum()) >= MIN_LEVEL_BINS:
             out[j] = max(float(np.median(power[near])) / math.log(2.0), 1.0)
     return out
+
+
 SCREEN_MARGIN = 8.0  # exact fits for series whose screen comes within this of the BIC bar
 
 
@@ -92,7 +94,7 @@ def _columns(ctx: Context, i: int, omega: float | None = None, t_ref: float | No
     return cols
 
 
-class HarmonicDistortion(Effect):
+class HarmonicDistortion(Detector):
     id = "harmonic_distortion"
     meaning = "motion not purely sinusoidal: components at 2-5 x f0 (support contact, cyclic range error)"
     plausible, plausible_unit, gate_params = 0.1, "mm", 2  # a 0.1-mm 2nd harmonic (mixed pixels)
@@ -128,7 +130,7 @@ class HarmonicDistortion(Effect):
             if wald[i].max() < 2.0 * math.log(s.n) - SCREEN_MARGIN:
                 continue
             nu = ctx.nuisance(i)
-            beta, cov, _ = lstsq(np.concatenate([cols, nu], axis=1), r, w)
+            beta, cov, _ = wls(np.concatenate([cols, nu], axis=1), r, w)
             for j in range(n_ord):
                 b = beta[2 * j : 2 * j + 2]
                 c = cov[2 * j : 2 * j + 2, 2 * j : 2 * j + 2]
@@ -164,7 +166,7 @@ class HarmonicDistortion(Effect):
             js = [j for j in range(n_ord) if keep_pair[i, j]]
             cols = fits[i][0][:, [c for j in js for c in (2 * j, 2 * j + 1)]]
             nu = ctx.nuisance(i)
-            beta, cov, fitted = lstsq(np.concatenate([cols, nu], axis=1), residual(ctx, i, st), weights(st))
+            beta, cov, fitted = wls(np.concatenate([cols, nu], axis=1), residual(ctx, i, st), weights(st))
             k_own = 2 * len(js)
             new = updated(st, self.id, k_own, mean=st.mean + fitted)
             if not keep_series(gain(ctx, i, st, new) / float(levels[i, js].max()), k_own, ctx.series[i].n):
@@ -241,7 +243,7 @@ class HarmonicDistortion(Effect):
         m = common_m[idx].sum(axis=0)
         stat = (b[0::2] ** 2 + b[1::2] ** 2) / m  # χ²_2 per order
         p_order = np.array([bonferroni(float(chi2_sf(x, 2)), 3 * n_ord) for x in stat])  # orders × axes
-        orders = [ORDERS[j] for j in range(n_ord) if p_order[j] < P_SCREEN]
+        orders = [ORDERS[j] for j in range(n_ord) if p_order[j] < P_MAX]
         if not orders:
             return None
         p = float(p_order.min())

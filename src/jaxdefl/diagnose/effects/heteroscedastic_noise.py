@@ -30,7 +30,8 @@ import math
 
 import numpy as np
 
-from .._base import Context, Effect, Proposal, State, keep_series, lstsq
+from ..._numerics import harmonic_design, wls
+from .._base import Context, Detector, Proposal, State, keep_series
 from .screening import (
     combined_p,
     gain,
@@ -54,8 +55,7 @@ M_MAX = 0.95  # |1 + θ·x| stays >= 0.05
 def _features(ctx: Context, i: int, kind: str) -> np.ndarray:
     s = ctx.series[i]
     if kind == "phase":
-        a = ctx.nominal[i].argument(s.t)
-        return np.stack([np.cos(a), np.sin(a)], axis=1)
+        return harmonic_design(ctx.nominal[i].argument(s.t), offset=False)
     mid = 0.5 * ctx.duration_s
     return ((s.t - mid) / (0.5 * ctx.duration_s))[:, None]
 
@@ -127,7 +127,7 @@ def _binned(x: np.ndarray, v: np.ndarray, key: np.ndarray, n_bins: int):
     return xb[ok] / c[ok, None], vb[ok], c[ok]
 
 
-class HeteroscedasticNoise(Effect):
+class HeteroscedasticNoise(Detector):
     id = "heteroscedastic_noise"
     meaning = "noise level that depends on the motion's phase or changes over the record"
     plausible, plausible_unit, gate_params = 0.15, "noise", 2  # the variance ±30 % with the phase
@@ -186,7 +186,7 @@ class HeteroscedasticNoise(Effect):
             theta, cov, x = fits[i]
             scale = st.scale * (1.0 + x @ theta)
             w = np.where(st.inlier, 1.0 / scale**2, 0.0)
-            _, _, fitted = lstsq(ctx.nuisance(i), residual(ctx, i, st), w)
+            _, _, fitted = wls(ctx.nuisance(i), residual(ctx, i, st), w)
             cand = updated(st, self.id, k, mean=st.mean + fitted, scale=scale)
             if keep_series(gain(ctx, i, st, cand) / infl[j], k, ctx.series[i].n):
                 new[i], thetas[i], covs[i] = cand, theta, cov

@@ -37,9 +37,9 @@ import math
 
 import numpy as np
 
-from .._base import Context, Effect, Proposal, State, keep_series
+from ..._numerics import P_MAX, wls
+from .._base import Context, Detector, Proposal, State, keep_series
 from .screening import (
-    P_SCREEN,
     bonferroni,
     changepoint_trials,
     chi2_sf,
@@ -86,7 +86,7 @@ def _cusum(ctx: Context, i: int, st: State):
     return stat, s2, b, den / s2
 
 
-class LevelJump(Effect):
+class LevelJump(Detector):
     id = "level_jump"
     meaning = "a step of the measured position (structured-light instability, integration-time change)"
     causes = {  # noqa: RUF012
@@ -187,7 +187,7 @@ class LevelJump(Effect):
         j = int(np.argmax(c))
         n_splits = changepoint_trials(EDGE, c.size)  # effective splits
         p_value = bonferroni(float(chi2_sf(c[j], 1)), n_splits * n_axes)
-        if p_value >= P_SCREEN:
+        if p_value >= P_MAX:
             return None
         m = lo + j
         fit = shared_amplitude(
@@ -252,17 +252,11 @@ class LevelJump(Effect):
                 continue
             nu = ctx.nuisance(i)
             w = weights(st)
-            g = np.concatenate([col, nu], axis=1)
-            gw = g * w[:, None]
-            gtg = gw.T @ g
-            beta = np.linalg.solve(gtg, gw.T @ (s.y - st.mean))
-            new = updated(st, self.id, 1, mean=st.mean + g @ beta)
+            beta, cov, fitted = wls(np.concatenate([col, nu], axis=1), s.y - st.mean, w)
+            new = updated(st, self.id, 1, mean=st.mean + fitted)
             d_ll = gain(ctx, i, st, new)
             if keep_series(d_ll, 1, s.n, margin):
-                r = s.y - new.mean
-                s2 = float(np.sum(w * r * r) / max(int((w > 0).sum()) - g.shape[1], 1))
-                sd = math.sqrt(max(s2 * float(np.linalg.pinv(gtg)[0, 0]), 0.0))
-                fits[i] = (new, float(beta[0]), sd)
+                fits[i] = (new, float(beta[0]), math.sqrt(max(float(cov[0, 0]), 0.0)))
                 score += 2 * d_ll - math.log(s.n)
         if not fits:
             return None

@@ -41,7 +41,8 @@ import math
 import jax.numpy as jnp
 import numpy as np
 
-from .._base import Context, Effect, Proposal, State, loglik, masked_fourier
+from ..._numerics import harmonic_design
+from .._base import Context, Detector, Proposal, State, loglik, masked_fourier
 from .._correlation import floored_inverse
 from .._varpro import fit_shared
 from .extra_periodic import LOCAL_BINS, OVERSAMPLE, line_band, local_median
@@ -92,7 +93,7 @@ def _weighted_residual(ctx: Context, states: list[State], i: int):
     return w, r, rc, s2
 
 
-class ModeShape(Effect):
+class ModeShape(Detector):
     id = "mode_shape"
     meaning = "another bending mode of the beam: every plate moving in the mode's shape sin(n pi x/L)"
     plausible, plausible_unit, gate_params = 0.1, "mm", 4  # 0.1 mm at the antinode
@@ -182,8 +183,7 @@ class ModeShape(Effect):
         nus = {i: ctx.nuisance(i)[:, :1] for i in idx}  # the offset only: the line is far from f0
 
         def cols(i):
-            a = 2 * np.pi * f_hat * ctx.series[i].t
-            return shape[i] * np.stack([np.cos(a), np.sin(a)], axis=1)
+            return shape[i] * harmonic_design(2 * np.pi * f_hat * ctx.series[i].t, offset=False)
 
         fit = shared_amplitude(ctx, states, idx, cols, nus, self.id, k_own=0)
         if fit is None:

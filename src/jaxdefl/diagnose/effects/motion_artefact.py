@@ -28,6 +28,7 @@ import math
 
 import numpy as np
 
+from ..._numerics import P_MAX
 from .._base import Context, Proposal, State
 from .shared_fits import (
     AMBIGUOUS_CHI2,
@@ -40,8 +41,6 @@ from .shared_fits import (
 )
 
 __all__ = ["MotionArtefact", "EFFECT"]
-
-P_MAX = 5e-3  # weaker signatures cannot pass the search's level (α = 0.05 over ~10 effects)
 
 
 class MotionArtefact(TiedEffect):

@@ -26,7 +26,8 @@ import math
 import numpy as np
 from scipy import stats
 
-from .._base import Context, Effect, Proposal, State, keep_series, lstsq
+from ..._numerics import mad_sigma, wls
+from .._base import Context, Detector, Proposal, State, keep_series
 from .screening import bonferroni, gain, param, residual, subset_trials, touched, updated
 
 __all__ = ["Outliers", "EFFECT"]
@@ -37,7 +38,7 @@ S_MIN = 3.5  # the outlier component's σ at least this many inlier σ's
 
 
 def _robust_sigma(z: np.ndarray) -> float:
-    return float(1.4826 * np.median(np.abs(z - np.median(z)))) or 1e-300
+    return mad_sigma(z) or 1e-300
 
 
 def _tail_p(z: np.ndarray, sigma: float) -> float:
@@ -99,7 +100,7 @@ def _em(r: np.ndarray, scale: np.ndarray, sigma0: float, kind: str):
     return eps, sig, s, resp, ll
 
 
-class Outliers(Effect):
+class Outliers(Detector):
     id = "outliers"
     meaning = "heavy-tailed residuals: single frames far off (mixed pixels, segmentation failures)"
     plausible, plausible_unit, gate_params = 0.5, "noise", 2  # 1 % of the frames 5 σ off
@@ -140,7 +141,7 @@ class Outliers(Effect):
             sc_st = float(np.sqrt(np.mean(r[~inlier & st.inlier] ** 2)))
             # the offset (and C, D) refitted without the outliers: free nuisance
             w = np.where(inlier, 1.0 / st.scale**2, 0.0)
-            _, _, fitted = lstsq(ctx.nuisance(i), r, w)
+            _, _, fitted = wls(ctx.nuisance(i), r, w)
             cand_st = updated(
                 st,
                 self.id,

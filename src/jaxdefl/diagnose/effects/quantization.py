@@ -61,9 +61,10 @@ import numpy as np
 
 from ..._lattice import dithered_round, dithered_round_var
 from ..._lattice import smoothed_staircase as staircase  # the mean reading (dither 0: hard steps)
-from .._base import Context, Effect, Proposal, State, keep_series, lstsq
+from ..._numerics import P_MAX, wls
+from .._base import Context, Detector, Proposal, State, keep_series
 from ..record_kind import value_lattice
-from .screening import P_SCREEN, bonferroni, chi2_sf, gain, param, residual, touched, updated, weights
+from .screening import bonferroni, chi2_sf, gain, param, residual, touched, updated, weights
 
 __all__ = ["Quantization", "EFFECT"]
 
@@ -180,7 +181,7 @@ def _inside(
 
     def rss(hh):
         stair = staircase(hh, q, phi, dither)
-        beta, _, fitted = lstsq(one, s.y - stair, w)
+        beta, _, fitted = wls(one, s.y - stair, w)
         return float(np.sum(w * (s.y - stair - fitted) ** 2)), stair + fitted, float(beta[0])
 
     best = (h, *rss(h))
@@ -192,7 +193,7 @@ def _inside(
             ],
             axis=1,
         )
-        beta = lstsq(jac, s.y - staircase(h, q, phi, dither), w)[0]
+        beta = wls(jac, s.y - staircase(h, q, phi, dither), w)[0]
         lam = 1.0
         while lam > 0.1:
             trial = h + lam * (nu @ beta)
@@ -230,7 +231,7 @@ def _phase(
         h0 = centre + g * (st.mean - centre)
         for phi, out in [*((float(f), scored) for f in phases), (level, at_level)]:
             stair = staircase(h0, q, phi, dither)
-            fitted = lstsq(nu, s.y - stair, w)[2]
+            fitted = wls(nu, s.y - stair, w)[2]
             out.append((float(np.sum(w * (s.y - stair - fitted) ** 2)), h0, phi))
     scored.sort(key=lambda x: x[0])
     best = None
@@ -355,7 +356,7 @@ def _on_lattices(q: float, lattice: dict[int, float]) -> bool:
 MIN_STEPS_ONE_SERIES = 10.0  # steps a single series' motion must span for its lattice to be told
 
 
-class Quantization(Effect):
+class Quantization(Detector):
     id = "quantization"
     structural = False  # a converter's or a disparity's lattice
     meaning = "depth measured in steps (structured-light disparity quantisation, a logger's ADC)"
@@ -432,7 +433,7 @@ class Quantization(Effect):
         p_single = bonferroni(chi2_sf(stat.max(), 2), stat.size)
         p_total = bonferroni(chi2_sf(total.max(), 2 * len(idx)), nus.size)
         p_value = min(1.0, 2 * min(p_single, p_total))
-        if p_value >= P_SCREEN:  # the search's test could not pass it: no refit of a staircase
+        if p_value >= P_MAX:  # the search's test could not pass it: no refit of a staircase
             return []
         logn = np.array([math.log(ctx.series[i].n) for i in idx])
         crit = np.maximum(stat - 2 * logn[:, None], 0.0).sum(axis=0)

@@ -12,7 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import stats
 
-from .._base import Context, State, loglik
+from ..._numerics import wls
+from .._base import Context, State, loglik, weights
 
 __all__ = [
     "residual",
@@ -32,15 +33,10 @@ __all__ = [
     "median_signed",
     "SharedAmplitude",
     "shared_amplitude",
-    "P_SCREEN",
     "subset_trials",
     "changepoint_trials",
     "scanned",
 ]
-
-# A signature weaker than this cannot pass the search's calibrated test (α = 0.05 over ~10
-# effects, `_search.Calibration`): screens propose up to it, the search decides.
-P_SCREEN = 5e-3
 
 
 def subset_trials(n_kept: int, n_candidates: int) -> float:
@@ -83,11 +79,6 @@ def changepoint_trials(edge: float, n_splits: int, u: float = 25.0) -> float:
 def residual(ctx: Context, i: int, st: State) -> np.ndarray:
     """(sample,) y − mean of series i."""
     return ctx.series[i].y - st.mean
-
-
-def weights(st: State) -> np.ndarray:
-    """(sample,) least-squares weights of a state: 1/scale² on inliers, 0 on outliers."""
-    return np.where(st.inlier, 1.0 / st.scale**2, 0.0)
 
 
 def param(value, sigma=None) -> dict:
@@ -351,9 +342,7 @@ def shared_amplitude(
         _, _, _, c, nu, w = parts[i]
         term = c @ beta
         r = ctx.series[i].y - st.mean - term
-        nw = nu * w[:, None]
-        gamma = np.linalg.lstsq(nw.T @ nu, nw.T @ r, rcond=None)[0]
-        cand = updated(st, effect, k_own, mean=st.mean + term + nu @ gamma)
+        cand = updated(st, effect, k_own, mean=st.mean + term + wls(nu, r, w, cov=False)[2])
         d = gain(ctx, i, st, cand)
         if d > 0:
             new[i], gains[i] = cand, d

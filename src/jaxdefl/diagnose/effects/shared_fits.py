@@ -29,7 +29,8 @@ import jax.numpy as jnp
 import numpy as np
 from scipy import stats
 
-from .._base import Context, Effect, Proposal, State, keep_series, loglik
+from ..._numerics import harmonic_design
+from .._base import Context, Detector, Proposal, State, keep_series, loglik
 from .._varpro import SharedFit, fit_shared
 from .screening import param, updated, weights
 
@@ -201,7 +202,7 @@ TIED_EFFECTS = ("motion_artefact", "timing_error")
 NAMES = ("tap_spread_s", "offset_s", "rate_ppm")
 
 
-class TiedEffect(Effect):
+class TiedEffect(Detector):
     """An effect of the camera against the reference (motion_artefact, timing_error): seen on the
     reference-tied z series only, through their `TiedModel`."""
 
@@ -375,7 +376,7 @@ def current_motion(ctx: Context, i: int, mean: np.ndarray) -> tuple[np.ndarray, 
     n = ctx.n_frames
     half = max(int(round(1.0 / (ctx.f0_hz * ctx.dt_s))), 2)
     arg = h.argument(s.t)
-    cols = np.stack([np.ones_like(s.t), np.cos(arg), np.sin(arg)])
+    cols = harmonic_design(arg).T
     lo = np.clip(s.k - half, 0, n)
     hi = np.clip(s.k + half + 1, 0, n)
 

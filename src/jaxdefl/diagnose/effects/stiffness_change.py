@@ -44,7 +44,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .._base import Context, Effect, Proposal, State
+from .._base import Context, Detector, Proposal, State
 from .screening import bonferroni, chi2_sf, scanned
 from .shared_fits import Carriers, param
 
@@ -52,7 +52,8 @@ __all__ = ["StiffnessChange", "EFFECT"]
 
 EDGE = 0.05
 WIDTH_S = 0.05  # width of the smooth step (s): sharp on the loading period, smooth for the solver
-P_MAX = 1e-3
+# stricter than the screens' `jaxdefl._numerics.P_MAX`: a step scanned over time, variants and bands
+P_STEP = 1e-3
 VARIANTS = ("amplitude", "stiffness", "free")
 N_PARAMS = {"amplitude": 2, "stiffness": 2, "free": 3}
 
@@ -97,7 +98,7 @@ def _long_run(g: np.ndarray) -> float:
     return (1.0 + rho) / (1.0 - rho)
 
 
-class StiffnessChange(Effect):
+class StiffnessChange(Detector):
     id = "stiffness_change"
     meaning = "a crack: the motion's amplitude steps (its frequency shifts) at one instant on every plate"
     plausible, plausible_unit, gate_params = 1e-3, "motion", 2  # 0.1 % of the stiffness at mid-record
@@ -201,7 +202,7 @@ class StiffnessChange(Effect):
         dof = 2 if variant == "free" else 1
         j = int(np.argmax(stat))
         p_value = bonferroni(float(chi2_sf(stat[j], dof)), scan["n_scan"] * len(VARIANTS))
-        if p_value >= P_MAX:
+        if p_value >= P_STEP:
             return None
         tc = float(scan["tc"][j])
         a0 = float(na[j] / da[j])  # the amplitude step's relative size (columns carry a)

@@ -31,6 +31,7 @@ import math
 
 import numpy as np
 
+from ..._numerics import P_MAX
 from .._base import Context, Proposal, State
 from .shared_fits import (
     AMBIGUOUS_CHI2,
@@ -45,7 +46,6 @@ from .shared_fits import (
 
 __all__ = ["TimingError", "EFFECT"]
 
-P_MAX = 5e-3  # weaker signatures cannot pass the search's level (α = 0.05 over ~10 effects)
 VARIANTS = {"offset": [1], "rate": [2], "both": [1, 2]}
 
 
