@@ -61,12 +61,10 @@ __all__ = [
     "masked_periodogram",
     "peak_offset",
     "LOG_2PI",
-    "lstsq",
 ]
 
 LOG_2PI = math.log(2 * math.pi)
 # the one weighted least squares (`jaxdefl._numerics.wls`) under its old name, for `_sensor_nominal`
-lstsq = wls
 
 
 @dataclass(frozen=True)

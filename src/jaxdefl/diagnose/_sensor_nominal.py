@@ -34,7 +34,8 @@ import warnings
 import numpy as np
 from scipy import stats
 
-from ._base import Context, State, lstsq
+from .._numerics import wls
+from ._base import Context, State
 from .record_kind import binary_steps
 
 __all__ = ["nominal_level_jumps", "within_configured", "JUMP_SIGMAS", "LATTICE_FACTOR"]
@@ -86,7 +87,7 @@ def nominal_level_jumps(ctx: Context, states: list[State]) -> tuple[list[State],
     for i, s in enumerate(ctx.series):
         st = states[i]
         cols = np.stack([np.ones(s.n)] + [(s.k >= k).astype(float) for k in k_cut + k_other], axis=1)
-        beta = lstsq(cols, s.y - st.mean)[0] if s.n > cols.shape[1] else np.zeros(cols.shape[1])
+        beta = wls(cols, s.y - st.mean)[0] if s.n > cols.shape[1] else np.zeros(cols.shape[1])
         held = cols[:, : 1 + len(k_cut)] @ beta[: 1 + len(k_cut)]
         new[i] = st.with_(mean=st.mean + held, n_params=st.n_params + len(k_cut))
     out = [

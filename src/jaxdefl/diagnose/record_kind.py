@@ -48,6 +48,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._numerics import difference_sigma
 from ._base import Context, State
 
 __all__ = [
@@ -280,7 +281,7 @@ def binary_steps(r: np.ndarray, max_steps: int = PATH_STEPS_MAX) -> tuple[np.nda
     each step, increasing)."""
     n = r.size
     d = np.diff(r)
-    sig = 1.4826 * float(np.median(np.abs(d - np.median(d)))) / math.sqrt(2) if d.size else 0.0
+    sig = difference_sigma(r)
     if sig <= 0:  # values on a coarse lattice: the differences' RMS
         sig = float(np.std(d)) / math.sqrt(2) if d.size else 0.0
     pen = STEP_PENALTY * math.log(max(n, 2)) * max(sig, 1e-300) ** 2

@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from .._numerics import harmonic_design, wls
 from ..simulate.injection import (
     EffectSpec,
     mode_displacement,
@@ -88,8 +89,8 @@ class Twin:
                 if ok.sum() < 10:
                     continue
                 rows, t = idx[ok], t_all[idx][ok]
-                a = np.stack([np.ones_like(t), np.cos(self.omega * t), np.sin(self.omega * t)], 1)
-                coef = np.linalg.lstsq(a, y[ok], rcond=None)[0]
+                a = harmonic_design(self.omega * t)
+                coef = wls(a, y[ok], cov=False)[0]
                 sigma = short_term_noise(y[ok] - a @ coef)
                 self.series.append(_Series(int(plate), axis, rows, t, coef, sigma))
         self.axis_corr = self._axis_correlations(axes)
@@ -148,7 +149,7 @@ class Twin:
     def _harmonic(self, s: _Series, rows: np.ndarray) -> np.ndarray:
         """The series' offset and harmonic at table rows ``rows``."""
         t = self.df["t"].to_numpy()[rows] - self.t_first
-        return s.coef[0] + s.coef[1] * np.cos(self.omega * t) + s.coef[2] * np.sin(self.omega * t)
+        return harmonic_design(self.omega * t) @ s.coef
 
     def noise_without_lines(self, freqs_hz) -> None:
         """Each series' noise level again, from its residual about the harmonic *and* lines at
@@ -163,7 +164,7 @@ class Twin:
             w = [self.omega, *(2 * math.pi * f for f in freqs)]
             a = np.stack([np.ones_like(s.t)] + [g(x * s.t) for x in w for g in (np.cos, np.sin)], 1)
             y = y_all[s.axis][s.rows]
-            s.sigma = short_term_noise(y - a @ np.linalg.lstsq(a, y, rcond=None)[0])
+            s.sigma = short_term_noise(y - wls(a, y, cov=False)[2])
 
     def _configured_jumps(self, frame_t: np.ndarray, seed: int) -> np.ndarray | None:
         """(frame,) mm: a structured-light camera's level jumps as the frame simulator draws
