@@ -3,6 +3,7 @@ in one of two cameras is that camera's; a stiffness change is the structure's; a
 nothing to attribute."""
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -11,6 +12,7 @@ import pytest
 from jaxdefl import InputError
 from jaxdefl.cli import main
 from jaxdefl.diagnose.attribution import attribute
+from jaxdefl.settings import DiagnoseSettings
 
 PLATES = {"cam3": range(1, 8), "cam4": range(7, 14)}
 SPAN_MM = 3400.0
@@ -126,3 +128,42 @@ def test_plates_sampled_with_their_own_delays_go_back_on_the_cameras_frame_clock
     shared = part.assign(t=np.round((part["t"] - 1.7e9 - 0.2) / dt) * dt + 1.7e9)
     same, none = on_frame_clock(shared)
     assert none == 0.0 and same is shared
+
+
+def test_what_a_cameras_twins_make_by_themselves_is_its_nominal_physics_not_a_finding():
+    # the twins' null (`reconcile.chain`) applied per camera: a drift cam3's own twins show as
+    # strongly (a warm-up the camera's config already has) is cam3's nominal physics; where the
+    # twins show none, the same drift stays a camera-side finding
+    from jaxdefl.reconcile.chain import ChainNull, apply_chain_null
+
+    df = registered(1, drift_mm=2.0)
+
+    def nulls(drift_per_s: float):
+        null = {
+            c: ChainNull({"drift": [drift_per_s * (1 + 0.1 * j) for j in range(4)]}, 60.0, 4) for c in PLATES
+        }
+        return {c: (lambda d, s, n=n: apply_chain_null(d, n, s)) for c, n in null.items()}
+
+    strong = attribute(df, settings=DiagnoseSettings(effects="drift"), nulls=nulls(1e4))
+    assert "drift" not in _by_id(strong), strong.to_json()
+    assert strong.cameras["cam3"]["nominal_physics"] == ["drift"]
+    none = attribute(df, settings=DiagnoseSettings(effects="drift"), nulls=nulls(0.0))
+    f = _by_id(none)
+    assert f["drift"].attribution == "camera" and f["drift"].side == "cam3", none.to_json()
+    assert none.cameras["cam3"]["nominal_physics"] == []
+
+
+def test_attribute_with_a_config_names_a_camera_it_does_not_have_and_refuses_one_camera(tmp_path, capsys):
+    df = registered(5)
+    df["camera"] = df["camera"].replace({"cam4": "cam9"})
+    df.to_csv(tmp_path / "reg.csv", index=False)
+    configs = Path(__file__).parents[1] / "configs"
+    cases = (("exp1_two_cameras.toml", "camera 'cam9' is not in --config"), ("exp1.toml", "has one camera"))
+    for name, message in cases:
+        config = str(configs / name)
+        capsys.readouterr()
+        args = ["attribute", str(tmp_path / "reg.csv"), "--out", str(tmp_path / "A.json"), "--config", config]
+        assert main(args) == 2
+        err = [x for x in capsys.readouterr().err.splitlines() if x.startswith("jaxdefl: ")]
+        assert len(err) == 1 and message in err[0], err
+    assert not (tmp_path / "A.json").exists()

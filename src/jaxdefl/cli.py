@@ -308,17 +308,37 @@ def attribute(
     timestamps: Annotated[
         str, typer.Option("--timestamps", help=_TIMESTAMPS_HELP)
     ] = _settings.DiagnoseSettings.timestamps,
+    config: Annotated[
+        Path | None,
+        typer.Option(
+            help="The several-camera simulation config (TOML, \\[\\[camera]] tables) of the recording: "
+            "each camera's sensor facts, and its twins' null."
+        ),
+    ] = None,
+    session: Annotated[str | None, typer.Option(help="Session of the config (\\[\\[session]] name).")] = None,
+    twins: Annotated[int, typer.Option("--twins", help=_TWINS_HELP)] = 4,
     wait: Annotated[bool, typer.Option("--wait", help=_WAIT_HELP)] = False,
 ) -> None:
     """Diagnose each camera of a multi-camera recording; say of each finding: camera side or structure."""
     from .settings import DiagnoseSettings
 
+    if twins < 0:
+        raise typer.BadParameter(f"expected a count >= 0, got {twins}", param_hint="--twins")
     settings = DiagnoseSettings(effects=effects, timestamps=timestamps)
     _jax_setup()
     from . import pipeline
 
     with _locked(out, "attribute", wait):
-        pipeline.attribute_file(traj, out, settings, reference=reference, column=camera_column)
+        pipeline.attribute_file(
+            traj,
+            out,
+            settings,
+            reference=reference,
+            column=camera_column,
+            config=config,
+            session=session,
+            twins=twins,
+        )
 
 
 _TWINS_HELP = (

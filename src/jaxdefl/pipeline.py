@@ -15,7 +15,7 @@ import pandas as pd
 
 from . import __version__
 from ._configs import config_dir
-from ._errors import ConfigError, JaxdeflError, ParameterError
+from ._errors import ConfigError, InputError, JaxdeflError, ParameterError
 from .io import (
     layout_note,
     load_table,
@@ -493,14 +493,16 @@ _CAMERA_FACTS = (
 )
 
 
-def _camera_facts(config: Path | None) -> dict:
+def _camera_facts(config: Path | None, camera: str | None = None) -> dict:
     """Sensor, frame rate, modulation and tap offsets from a simulation config (TOML); of a
-    structured-light camera, its depth lattice and level jumps (its nominal physics)."""
+    structured-light camera, its depth lattice and level jumps (its nominal physics). ``camera``:
+    one camera of a several-camera config (default: its first)."""
     if config is None:
         return {}
     from .simulate import load_config
 
-    cam = load_config(config).camera
+    cfg = load_config(config)
+    cam = cfg.for_camera(camera).camera if camera is not None else cfg.camera
     facts = {
         "sensor": "tof" if cam.sensor == "sr4000" else "structured_light",
         "frame_rate_hz": cam.frame_rate_hz,
@@ -673,31 +675,83 @@ def attribute_file(
     settings: DiagnoseSettings,
     reference: Path | None = None,
     column: str = "camera",
+    config: Path | None = None,
+    session: str | None = None,
+    twins: int = 4,
 ) -> dict:
     """`jaxdefl attribute`: diagnose every camera of a registered trajectory and say of each
     finding whether it is on a camera's side or the structure's (`jaxdefl.diagnose.attribution`);
-    OUT.json and OUT.md."""
+    OUT.json and OUT.md. With the recording's several-camera ``config``: each camera is diagnosed
+    with its own sensor facts, and what ``twins`` simulated twins of that camera find by
+    themselves (`reconcile.chain.chain_null`, one render for all cameras) is its nominal physics,
+    not a finding."""
     from .diagnose.attribution import attribute, attribution_table
 
     traj, out = Path(traj), Path(out)
-    outs = Outputs(inputs=[traj, reference])
+    outs = Outputs(inputs=[traj, reference, config])
     outs.reserve(out, "--out", suffixes=(".json",))
     outs.reserve(out.with_suffix(".md"), "the attribution report")
+    cfg = None
+    if config is not None:
+        from .simulate import load_config
+
+        cfg = load_config(config, session)  # checked before anything is read
+        if not cfg.cameras:
+            raise ConfigError(f"--config {config}: has one camera; expected [[camera]] tables (several)")
     with status(f"jaxdefl attribute: reading {traj}"):
         df = load_table(traj)
         ref = load_table(reference) if reference is not None else None
     _check_diagnosis_memory(df, traj, settings)
+    per_camera, nulls = None, None
+    if cfg is not None and column in df.columns:
+        names = [str(c) for c in pd.unique(df[column].astype(str))]
+        unknown = [c for c in names if c not in cfg.camera_names]
+        if unknown:
+            raise InputError(
+                f"{traj}: camera {unknown[0]!r} is not in --config {config}; expected one of "
+                + ", ".join(cfg.camera_names)
+            )
+        per_camera = {c: settings.with_camera(_camera_facts(config, c)) for c in names}
+        if twins > 0:
+            from .reconcile.chain import apply_chain_null, chain_null
+
+            duration = float(df["t"].max() - df["t"].min())
+            nulls = {}
+            for c in names:
+                say = f"jaxdefl attribute: simulating, extracting and diagnosing {twins} twins of {c} ..."
+                with status(say):
+                    null = chain_null(
+                        config,
+                        per_camera[c],
+                        clip_s=min(60.0, duration),
+                        k=twins,
+                        with_reference=ref is not None,
+                        session=session,
+                        camera=c,
+                    )
+                nulls[c] = lambda d, seconds, null=null: apply_chain_null(d, null, seconds)
 
     def on_camera(c: str) -> None:
         console.print(f"diagnosing camera [bold]{c}[/bold]")
 
     with status(f"jaxdefl attribute: {traj}, camera by camera ..."):
-        a = attribute(df, ref, settings, column=column, source=str(traj), on_camera=on_camera)
+        a = attribute(
+            df,
+            ref,
+            settings,
+            column=column,
+            source=str(traj),
+            on_camera=on_camera,
+            per_camera=per_camera,
+            nulls=nulls,
+        )
     d = a.to_json()
     d["settings"] = {
         "jaxdefl_version": __version__,
         "trajectory": str(traj),
         "reference": str(reference) if reference else None,
+        "config": str(config) if config else None,
+        "twins": twins if nulls else 0,
         "camera_column": column,
         "effects": list(settings.effects) if settings.effects else None,
         "timestamps": settings.timestamps,

@@ -24,6 +24,7 @@ One effect on one side is one finding, whatever axes and cameras report it.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -197,6 +198,8 @@ def attribute(
     column: str = "camera",
     source: str = "<table>",
     on_camera=None,
+    per_camera: dict[str, DiagnoseSettings] | None = None,
+    nulls: dict[str, Callable[[dict, float], dict]] | None = None,
 ) -> Attribution:
     """Diagnose every camera of a registered trajectory, then attribute each finding.
 
@@ -206,6 +209,10 @@ def attribute(
         reference: an LDS table on that clock, or None.
         settings: the diagnosis' settings (effects searched, timestamps, axes); per camera.
         on_camera: optional callback(camera) as each camera's diagnosis starts.
+        per_camera: a camera's own settings (its sensor facts), in place of ``settings``.
+        nulls: per camera, (DIAG.json, seconds) -> DIAG.json with what the camera's simulated
+            twins find by themselves moved to ``nominal_physics`` (`reconcile.chain`): those
+            are the camera's own physics, never findings.
     """
     import time
 
@@ -218,19 +225,23 @@ def attribute(
     seen = {c: sorted(int(p) for p in pd.unique(d["plate"])) for c, d in per.items()}
     counts = pd.Series([p for ps in seen.values() for p in ps]).value_counts()
     shared = sorted(int(p) for p in counts[counts >= 2].index)
+    own = {c: (per_camera or {}).get(c, settings) for c in per}
     diag: dict[str, dict] = {}
     for c, d in per.items():
         if on_camera is not None:
             on_camera(c)
-        diag[c] = run_diagnosis(
-            d, reference, replace(settings, segment=None), source=f"{source} [{c}]"
-        ).to_json()
+        found = run_diagnosis(d, reference, replace(own[c], segment=None), source=f"{source} [{c}]")
+        diag[c] = found.to_json()
+        if nulls is not None and c in nulls:
+            diag[c] = nulls[c](diag[c], float(d["t"].max() - d["t"].min()))
     cameras = {
         c: {
             "plates": seen[c],
             "effects": [e["id"] for e in diag[c]["effects"]],
             "rms_nominal_mm": diag[c]["nominal"]["rms_mm"],
             "rms_final_mm": diag[c]["final"]["rms_mm"],
+            # within the camera's twins: its own physics, not findings (with a config's twins)
+            "nominal_physics": [e["id"] for e in diag[c].get("nominal_physics", [])],
             # the plates' sampling offsets put back on the camera's frame clock (`on_frame_clock`)
             "plate_offsets_ms": 1e3 * spread[c],
         }
@@ -240,7 +251,7 @@ def attribute(
 
     def test(c: str, eid: str) -> CameraTest:
         if (c, eid) not in tests:
-            tests[c, eid] = _test(per[c], [p for p in seen[c] if p in shared], eid, reference, settings)
+            tests[c, eid] = _test(per[c], [p for p in seen[c] if p in shared], eid, reference, own[c])
         return tests[c, eid]
 
     library = load_effects()

@@ -66,10 +66,20 @@ class ChainNull:
         return mean + z * math.sqrt(float(v.var(ddof=1)) * (1 + 1 / v.size) + 4 * mean + 2)
 
 
-def _twin_clip(config: str, session, clip_s: float, seed: int, with_reference: bool, clips: Path | None):
+def _twin_clip(
+    config: str,
+    session,
+    clip_s: float,
+    seed: int,
+    with_reference: bool,
+    clips: Path | None,
+    camera: str | None = None,
+):
     """One twin's extracted trajectories and LDS (None without a reference): rendered and
     extracted, or read from ``clips`` (the clip cache: a change of the diagnosis alone does not
-    render the clips again)."""
+    render the clips again). ``camera``: the camera of a several-camera config whose trajectories
+    are wanted; every camera of the render is extracted and kept (the next camera's null reads
+    them)."""
     import pandas as pd
 
     from ..frames import extract_recording
@@ -77,33 +87,41 @@ def _twin_clip(config: str, session, clip_s: float, seed: int, with_reference: b
     from ..io.recording import open_recording
     from ..simulate import load_config, simulate_to_dir, usable_reference
 
-    if clips is not None and (clips / "traj.parquet").exists():
-        traj = pd.read_parquet(clips / "traj.parquet")
+    name = "traj.parquet" if camera is None else f"traj_{camera}.parquet"
+    if clips is not None and (clips / name).exists():
+        traj = pd.read_parquet(clips / name)
         ref = pd.read_parquet(clips / "lds.parquet") if with_reference else None
         return traj, ref
+    cfg = load_config(config, session)
     with tempfile.TemporaryDirectory(prefix="jaxdefl_twin_") as tmp:
         out = simulate_to_dir(config, Path(tmp) / "sim", clip_s, seed, progress=False, session=session)
-        traj = extract_recording(open_recording(out / "recording.zarr"), progress=False)
+        zarrs = (
+            {None: out / "recording.zarr"}
+            if camera is None
+            else {c: out / f"{c}.zarr" for c in cfg.camera_names}
+        )
+        trajs = {c: extract_recording(open_recording(z), progress=False) for c, z in zarrs.items()}
         ref = None
         if with_reference:  # as the recording's: without the plate whose LDS is defective
-            ref = usable_reference(read_reference(out / "lds.csv"), load_config(config, session))[0]
+            ref = usable_reference(read_reference(out / "lds.csv"), cfg)[0]
     if clips is not None:
         clips.mkdir(parents=True, exist_ok=True)
         if ref is not None:
             ref.to_parquet(clips / "lds.parquet")
-        tmp_path = clips / "traj.tmp.parquet"
-        traj.to_parquet(tmp_path)
-        tmp_path.replace(clips / "traj.parquet")  # written last: its presence means whole
-    return traj, ref
+        for c, t in sorted(trajs.items(), key=lambda kv: kv[0] == camera):  # the wanted one last
+            tmp_path = clips / "traj.tmp.parquet"
+            t.to_parquet(tmp_path)
+            tmp_path.replace(clips / ("traj.parquet" if c is None else f"traj_{c}.parquet"))  # whole
+    return trajs[camera], ref
 
 
 def _twin(args) -> dict[str, float]:
     """One twin: render, extract (or read the cached clip), diagnose; {id: largest lr} (a
     worker process's job)."""
-    config, session, clip_s, seed, settings, with_reference, clips = args
+    config, session, clip_s, seed, settings, with_reference, clips, camera = args
     from ..diagnose import run_diagnosis
 
-    traj, ref = _twin_clip(config, session, clip_s, seed, with_reference, clips)
+    traj, ref = _twin_clip(config, session, clip_s, seed, with_reference, clips, camera)
     diag = run_diagnosis(traj, ref, settings).to_json()
     best: dict[str, float] = {}
     for e in diag["effects"]:
@@ -136,8 +154,11 @@ def chain_null(
     session: str | None = None,
     workers: int = 2,
     cache: Path | None = None,
+    camera: str | None = None,
 ) -> ChainNull:
-    """The null of ``k`` twins of ``clip_s`` seconds of ``config`` (in ``workers`` processes).
+    """The null of ``k`` twins of ``clip_s`` seconds of ``config`` (in ``workers`` processes);
+    of one ``camera`` of a several-camera config (``settings`` then that camera's), its twins the
+    same renders as the other cameras'.
 
     Twins depend on the config, the settings and the code only, so they are kept in ``cache``
     (default ``$JAXDEFL_CACHE`` or ``~/.cache/jaxdefl``: ``chain_null/`` the findings,
@@ -145,7 +166,8 @@ def chain_null(
     extraction alone) and reused."""
     config = Path(config)
     key = json.dumps(
-        [config.read_text(), session, clip_s, k, asdict(settings), with_reference, _source_digest()],
+        [config.read_text(), session, clip_s, k, asdict(settings), with_reference, _source_digest()]
+        + ([camera] if camera is not None else []),
         sort_keys=True,
         default=str,
     )
@@ -157,7 +179,7 @@ def chain_null(
     clip_key = json.dumps([config.read_text(), session, clip_s, with_reference, _source_digest(_CLIP_CODE)])
     clips = root / "chain_clips" / hashlib.sha256(clip_key.encode()).hexdigest()[:24]
     jobs = [
-        (str(config), session, clip_s, TWIN_SEED + j, settings, with_reference, clips / str(j))
+        (str(config), session, clip_s, TWIN_SEED + j, settings, with_reference, clips / str(j), camera)
         for j in range(k)
     ]
     if workers > 1 and k > 1:
