@@ -167,3 +167,41 @@ def test_attribute_with_a_config_names_a_camera_it_does_not_have_and_refuses_one
         err = [x for x in capsys.readouterr().err.splitlines() if x.startswith("jaxdefl: ")]
         assert len(err) == 1 and message in err[0], err
     assert not (tmp_path / "A.json").exists()
+
+
+@pytest.mark.slow
+def test_one_render_of_a_two_camera_config_makes_both_cameras_twins(tmp_path):
+    # each camera's twins: the same renders of the several-camera config, that camera's clip
+    # extracted (its own plates) and diagnosed with its own sensor facts; the second camera's null
+    # reads the clips the first one's render left
+    import pandas as pd
+
+    from jaxdefl.pipeline import _camera_facts
+    from jaxdefl.reconcile.chain import chain_null
+    from jaxdefl.simulate import load_config
+
+    config = Path(__file__).parents[1] / "configs" / "exp1_two_cameras.toml"
+    cfg = load_config(config)
+
+    def plates_of(d, cam):
+        return set(pd.read_parquet(d / f"traj_{cam}.parquet")["plate"].unique())
+
+    facts = {c: _camera_facts(config, c) for c in ("cam3", "cam4")}
+    assert facts["cam3"]["modulation_mhz"] != facts["cam4"]["modulation_mhz"]  # 29 and 31 MHz
+    s3 = DiagnoseSettings().with_camera(facts["cam3"])
+    chain_null(config, s3, clip_s=5.0, k=2, with_reference=True, workers=1, cache=tmp_path, camera="cam3")
+    clips = sorted((tmp_path / "chain_clips").glob("*/*"))
+    assert len(clips) == 2
+    for d in clips:
+        for cam in ("cam3", "cam4"):
+            plates = plates_of(d, cam)
+            assert set(cfg.for_camera(cam).camera.plates) <= plates, (cam, plates)  # those in view
+        p3, p4 = plates_of(d, "cam3"), plates_of(d, "cam4")
+        assert 1 in p3 - p4 and 13 in p4 - p3, (p3, p4)
+    before = {p: p.stat().st_mtime_ns for p in (tmp_path / "chain_clips").rglob("*.parquet")}
+    s4 = DiagnoseSettings().with_camera(facts["cam4"])
+    null = chain_null(
+        config, s4, clip_s=5.0, k=2, with_reference=True, workers=1, cache=tmp_path, camera="cam4"
+    )
+    assert {p: p.stat().st_mtime_ns for p in (tmp_path / "chain_clips").rglob("*.parquet")} == before
+    assert null.k == 2 and len(list((tmp_path / "chain_null").glob("*.json"))) == 2
