@@ -10,11 +10,13 @@ with one of
   -0.1 with ``f0_change = 0``: 11 % more deflection), seen by both cameras: expected
   ``structure``;
 
-then `jaxdefl extract` of each camera, `jaxdefl register --lds`, `jaxdefl attribute`. Prints
-each record's findings and whether the expected attribution was made, with no finding given the
-other side; and the totals.
+then `jaxdefl extract` of each camera, `jaxdefl register --lds`, `jaxdefl attribute --config
+exp1_two_cameras.toml --twins N` (the config as the user set it up, without the case's effect:
+each camera's sensor facts, and ``N`` twins per camera whose findings are that camera's nominal
+physics; ``--twins 0``: no config, as before). Prints each record's findings and whether the
+expected attribution was made, with no finding given the other side; and the totals.
 
-    PYTHONPATH=src python experiments/multicam_attribution.py --seeds 21 22 --duration 90
+    PYTHONPATH=src python experiments/multicam_attribution.py --seeds 21 22 --duration 90 [--twins 4]
 """
 
 from __future__ import annotations
@@ -41,7 +43,7 @@ EXPECTED = {
 }
 
 
-def run(case: str, seed: int, duration: float, work: Path) -> dict:
+def run(case: str, seed: int, duration: float, work: Path, twins: int = 4) -> dict:
     out = work / f"{case}_s{seed}"
     cfg = out.with_suffix(".toml")
     cfg.write_text(CONFIG.read_text() + CASES[case].format(t=round(duration / 2, 1)))
@@ -58,9 +60,10 @@ def run(case: str, seed: int, duration: float, work: Path) -> dict:
     assert main(args) == 0
     t_chain = time.perf_counter() - t
     t = time.perf_counter()
-    assert (
-        main(["attribute", str(out / "reg" / "trajectory.csv"), "--out", str(out / "attribution.json")]) == 0
-    )
+    args = ["attribute", str(out / "reg" / "trajectory.csv"), "--out", str(out / "attribution.json")]
+    if twins > 0:
+        args += ["--config", str(CONFIG), "--twins", str(twins)]
+    assert main(args) == 0
     t_attr = time.perf_counter() - t
     d = json.loads((out / "attribution.json").read_text())
     found = [(f["id"], f["attribution"], f["camera"]) for f in d["findings"]]
@@ -76,6 +79,7 @@ def run(case: str, seed: int, duration: float, work: Path) -> dict:
         "findings": found,
         "right": right,
         "named": {c: v["effects"] for c, v in d["cameras"].items()},
+        "nominal": {c: v.get("nominal_physics", []) for c, v in d["cameras"].items()},
         "chain_s": t_chain,
         "attribute_s": t_attr,
     }
@@ -87,18 +91,20 @@ def main_(argv=None) -> None:
     ap.add_argument("--cases", nargs="+", default=list(CASES), choices=list(CASES))
     ap.add_argument("--duration", type=float, default=90.0)
     ap.add_argument("--out", type=Path, default=None)
+    ap.add_argument("--twins", type=int, default=4, help="twins per camera (0: attribute without a config)")
     a = ap.parse_args(argv)
     work = a.out or Path(tempfile.mkdtemp(prefix="attribution_"))
     work.mkdir(parents=True, exist_ok=True)
     rows = []
     for seed in a.seeds:
         for case in a.cases:
-            r = run(case, seed, a.duration, work)
+            r = run(case, seed, a.duration, work, a.twins)
             rows.append(r)
             (work / "rows.json").write_text(json.dumps(rows, indent=1))
             print(
                 f"{case:8s} seed {seed}: {'right' if r['right'] else 'WRONG'}; findings "
-                f"{r['findings'] or 'none'}; named per camera {r['named']}; chain {r['chain_s']:.0f} s, "
+                f"{r['findings'] or 'none'}; named per camera {r['named']}; nominal physics per camera "
+                f"{r['nominal']}; chain {r['chain_s']:.0f} s, "
                 f"attribute {r['attribute_s']:.0f} s",
                 flush=True,
             )
