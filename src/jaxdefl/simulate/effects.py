@@ -85,6 +85,7 @@ import numpy as np
 import pandas as pd
 
 from .._lattice import smoothed_staircase
+from ..effects import EFFECT_IDS, REGISTRY, ids_where
 from .config import SimConfig, config_from_dict
 from .injection import make_spec, motion_modulations, shake_displacement
 from .lds import frame_clock, truth_table
@@ -109,11 +110,14 @@ __all__ = [
     "best_evidence",
 ]
 
-from .._effect_ids import EFFECT_IDS  # noqa: F401 (re-exported)
-
-NEEDS_REFERENCE = frozenset({"motion_artefact", "timing_error"})
-STRUCTURED_LIGHT_ONLY = frozenset({"quantization"})
-TOF_ONLY = frozenset({"motion_artefact"})  # four-phase sampling is a ToF property
+# the benchmark's two cameras: which effects need the LDS, and which one camera alone makes
+NEEDS_REFERENCE = ids_where(needs_reference=True)
+STRUCTURED_LIGHT_ONLY = frozenset(
+    e.id for e in REGISTRY.values() if "structured_light" in e.sensors and "tof" not in e.sensors
+)
+TOF_ONLY = frozenset(
+    e.id for e in REGISTRY.values() if "tof" in e.sensors and "structured_light" not in e.sensors
+)
 SIGNAL_MIN = 200.0  # Σ n rms²/σ² over the affected series (aim: >= ~150, with a margin)
 RMS_RATIO_RANGE = (0.1, 0.6)  # effect RMS / raw noise σ of the touched series
 MODULATION_RANGE = (0.15, 0.4)  # heteroscedastic noise

@@ -37,6 +37,7 @@ import math
 
 import numpy as np
 
+from ...effects.harmonic_distortion import ENTRY
 from .._base import Context, Effect, Proposal, State, keep_series, lstsq, masked_periodogram
 from .screening import (
     P_SCREEN,
@@ -93,7 +94,8 @@ def _columns(ctx: Context, i: int, omega: float | None = None, t_ref: float | No
 
 
 class HarmonicDistortion(Effect):
-    id = "harmonic_distortion"
+    id = ENTRY.id
+    sensors, structural, needs_reference = ENTRY.sensors, ENTRY.structural, ENTRY.needs_reference
     meaning = "motion not purely sinusoidal: components at 2-5 x f0 (support contact, cyclic range error)"
     plausible, plausible_unit, gate_params = 0.1, "mm", 2  # a 0.1-mm 2nd harmonic (mixed pixels)
     min_plates = 1

@@ -37,6 +37,7 @@ import math
 
 import numpy as np
 
+from ...effects.level_jump import ENTRY
 from .._base import Context, Effect, Proposal, State, keep_series
 from .screening import (
     P_SCREEN,
@@ -87,7 +88,8 @@ def _cusum(ctx: Context, i: int, st: State):
 
 
 class LevelJump(Effect):
-    id = "level_jump"
+    id = ENTRY.id
+    sensors, structural, needs_reference = ENTRY.sensors, ENTRY.structural, ENTRY.needs_reference
     meaning = "a step of the measured position (structured-light instability, integration-time change)"
     causes = {  # noqa: RUF012
         "structured_light": "a structured-light re-calibration or a knock",

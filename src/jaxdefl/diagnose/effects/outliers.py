@@ -26,6 +26,7 @@ import math
 import numpy as np
 from scipy import stats
 
+from ...effects.outliers import ENTRY
 from .._base import Context, Effect, Proposal, State, keep_series, lstsq
 from .screening import bonferroni, gain, param, residual, subset_trials, touched, updated
 
@@ -100,7 +101,8 @@ def _em(r: np.ndarray, scale: np.ndarray, sigma0: float, kind: str):
 
 
 class Outliers(Effect):
-    id = "outliers"
+    id = ENTRY.id
+    sensors, structural, needs_reference = ENTRY.sensors, ENTRY.structural, ENTRY.needs_reference
     meaning = "heavy-tailed residuals: single frames far off (mixed pixels, segmentation failures)"
     plausible, plausible_unit, gate_params = 0.5, "noise", 2  # 1 % of the frames 5 σ off
     noise_structure = True

@@ -61,6 +61,7 @@ import numpy as np
 
 from ..._lattice import dithered_round, dithered_round_var
 from ..._lattice import smoothed_staircase as staircase  # the mean reading (dither 0: hard steps)
+from ...effects.quantization import ENTRY
 from .._base import Context, Effect, Proposal, State, keep_series, lstsq
 from ..record_kind import value_lattice
 from .screening import P_SCREEN, bonferroni, chi2_sf, gain, param, residual, touched, updated, weights
@@ -356,12 +357,11 @@ MIN_STEPS_ONE_SERIES = 10.0  # steps a single series' motion must span for its l
 
 
 class Quantization(Effect):
-    id = "quantization"
-    structural = False  # a converter's or a disparity's lattice
+    id = ENTRY.id
+    sensors, structural, needs_reference = ENTRY.sensors, ENTRY.structural, ENTRY.needs_reference
     meaning = "depth measured in steps (structured-light disparity quantisation, a logger's ADC)"
     # A ToF camera's range is a 14-bit phase (a lattice of ~0.3 mm per pixel, averaged away over
     # a plate's pixels): no lattice a plate's centroid can show. Disparity, ADCs and trackers do.
-    sensors = ("structured_light", "lds", "accelerometer", "camera_tracking", "logger")
     causes = {  # noqa: RUF012
         "structured_light": "the structured-light camera measures disparity in fractions of a pixel",
         "camera_tracking": "the tracker reports positions on a sub-pixel lattice",

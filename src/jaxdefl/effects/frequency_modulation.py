@@ -1,0 +1,43 @@
+"""``frequency_modulation``: the load's phase + π d (t_rel − t_ref)² + β sin(2π f_m t_rel + ψ): its
+frequency drifts or wanders alike on every plate."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from ._entry import Entry, Motion, Report, modulation_params
+
+
+def inject(e, m: Motion):
+    d, tr, beta, fm, psi = (
+        e.p(k) for k in ("drift_hz_per_s", "t_ref_s", "depth_rad", "freq_hz", "phase_rad")
+    )
+    m.shift = m.shift + math.pi * d * (m.tau - tr) ** 2 + beta * np.sin(2 * math.pi * fm * m.tau + psi)
+
+
+def from_diagnosis(r: Report) -> tuple[dict, tuple[int, ...]]:
+    """Linear about the record's middle (``t_ref_s`` = duration / 2, as the diagnosis fits it),
+    or sinusoidal; one motion of the beam (no plates)."""
+    p = r.p
+    if "drift_hz_per_s" in p:
+        return {"drift_hz_per_s": p["drift_hz_per_s"], "t_ref_s": r.duration_s / 2}, ()
+    return {
+        "depth_rad": p["depth_rad"],
+        "freq_hz": p["freq_hz"],
+        "phase_rad": r.detail.get("phase_rad", 0.0),
+    }, ()
+
+
+ENTRY = Entry(
+    id="frequency_modulation",
+    meaning="the load's phase + π d (t_rel − t_ref)² + β sin(2π f_m t_rel + ψ)",
+    rank=6,
+    level="motion",
+    params=modulation_params("drift_hz_per_s", "Hz/s", "depth_rad", "rad"),
+    inject=inject,
+    from_diagnosis=from_diagnosis,
+    locator=("freq_hz", 1e-3),
+    example={"depth_rad": 0.2, "freq_hz": 0.02, "phase_rad": 0.3},
+)
