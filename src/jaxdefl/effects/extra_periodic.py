@@ -31,5 +31,5 @@ ENTRY = Entry(
     check=positive("freq_hz", "a frequency > 0 Hz"),
     from_diagnosis=from_diagnosis,
     locator=("freq_hz", 1e-3),
-    example={"freq_hz": 4.7, "amplitude_mm": 0.3, "phase_rad": 0.4},
+    example={"freq_hz": 4.2, "amplitude_mm": 0.3, "phase_rad": 0.4},
 )

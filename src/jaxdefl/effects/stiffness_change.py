@@ -56,5 +56,5 @@ ENTRY = Entry(
     resolve=resolve,
     from_diagnosis=from_diagnosis,
     locator=("t_s", 1.0),
-    example={"t_s": 100.0, "stiffness_change": -0.02},
+    example={"t_s": 120.0, "stiffness_change": -0.0005},
 )
