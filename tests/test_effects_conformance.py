@@ -285,8 +285,6 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "jaxdefl"
 SPELLED = {
     "simulate/effects.py": "the concealed benchmark's per-id draws and rendering (to move into the modules)",
     "simulate/schedule.py": "the [[change]] kinds' aliases of the ids",
-    "reconcile/engine.py": "the reconciliation's refits of the range effects and lines",
-    "reconcile/sensor.py": "the calibration's unit level jump",
     "reconcile/twin.py": "the twin's line keys (edited by the integrator this session)",
     "diagnose/record_kind.py": "the ids each record kind searches (edited by the integrator this session)",
     "diagnose/_sensor_nominal.py": "a configured sensor's own effects (the integrator's this session)",

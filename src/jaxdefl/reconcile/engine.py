@@ -27,7 +27,7 @@ import pandas as pd
 
 from .._errors import ConfigError
 from .._signals import check_interrupt
-from ..effects import INJECTABLE, Report
+from ..effects import INJECTABLE, Report, drift, extra_periodic, harmonic_distortion, level_jump
 from ..effects import REGISTRY as VOCABULARY
 from ..settings import ReconcileSettings
 from ..simulate.injection import EffectSpec, make_spec
@@ -146,8 +146,12 @@ def _spec_values(eid: str, params: dict) -> dict:
     }
 
 
+DRIFT, LINE = drift.ENTRY.id, extra_periodic.ENTRY.id
+_SIZED = (DRIFT, level_jump.ENTRY.id)  # the range effects whose size the recording refits
+
+
 def _range_columns(spec: EffectSpec, t: np.ndarray, tau: float | None = None) -> np.ndarray:
-    if spec.id == "drift":
+    if spec.id == DRIFT:
         return np.exp(-t / (spec.p("tau_s") if tau is None else tau))
     return (t >= spec.p("t_jump_s")).astype(float)
 
@@ -184,7 +188,7 @@ def refine_range_effects(twin: Twin, df: pd.DataFrame, specs: tuple[EffectSpec, 
     out = []
     for spec in specs:
         parts = [x for x in series if not spec.plates or x[0] in spec.plates]
-        if spec.id not in ("drift", "level_jump") or not parts:
+        if spec.id not in _SIZED or not parts:
             out.append(spec)
             continue
 
@@ -198,7 +202,7 @@ def refine_range_effects(twin: Twin, df: pd.DataFrame, specs: tuple[EffectSpec, 
             return (num / den if den > 0 else 0.0), (num * num / den if den > 0 else 0.0)
 
         params = dict(spec.parameters)
-        if spec.id == "drift":
+        if spec.id == DRIFT:
             taus = spec.p("tau_s") * np.geomspace(0.33, 3.0, 61)
             gains = [fit(tau)[1] for tau in taus]
             tau = float(taus[int(np.argmax(gains))])
@@ -214,7 +218,7 @@ def _joint_range_sizes(series: list, specs: tuple[EffectSpec, ...]):
     """The range effects' sizes fitted together (time constants kept): every pixel reads their
     sum, so two reports of one step (a jump seen on z and, a little later, on x) share it
     instead of each taking all of it (injected side by side they doubled the step)."""
-    idx = [j for j, sp in enumerate(specs) if sp.id in ("drift", "level_jump")]
+    idx = [j for j, sp in enumerate(specs) if sp.id in _SIZED]
     if len(idx) < 2:
         return specs
     ata = np.zeros((len(idx), len(idx)))
@@ -232,19 +236,19 @@ def _joint_range_sizes(series: list, specs: tuple[EffectSpec, ...]):
     size = np.linalg.lstsq(ata, atb, rcond=None)[0]
     out = list(specs)
     for k, j in enumerate(idx):
-        name = "amplitude_mm" if specs[j].id == "drift" else "size_mm"
+        name = "amplitude_mm" if specs[j].id == DRIFT else "size_mm"
         out[j] = make_spec(specs[j].id, {**dict(specs[j].parameters), name: float(size[k])}, specs[j].plates)
     return tuple(out)
 
 
-_LINES = ("extra_periodic", "harmonic_distortion")
+_LINES = (LINE, harmonic_distortion.ENTRY.id)
 
 
 def _line_columns(twin: Twin, spec: EffectSpec, t: np.ndarray) -> np.ndarray:
     """(t, 2) the cos and sin whose combination p cos + q sin is the spec's motion term as the
     twin renders it (`Twin.simulate`): an extra line at its frequency, a harmonic at its order
     of the simulator's phase θ."""
-    if spec.id == "extra_periodic":
+    if spec.id == LINE:
         arg = 2 * math.pi * spec.p("freq_hz") * t
     else:
         arg = spec.p("order") * (twin.omega * t - twin.phi_ref + math.pi / 2)
@@ -293,7 +297,7 @@ def refine_motion_lines(twin: Twin, df: pd.DataFrame, specs: tuple[EffectSpec, .
         params = dict(spec.parameters)
         params["amplitude_mm"] = float(math.hypot(p, qs))
         # a cos(2πft + ψ) = a cos ψ cos − a sin ψ sin; a cos(kθ − ψ) = a cos ψ cos + a sin ψ sin
-        params["phase_rad"] = float(math.atan2(-qs if spec.id == "extra_periodic" else qs, p))
+        params["phase_rad"] = float(math.atan2(-qs if spec.id == LINE else qs, p))
         out.append(make_spec(spec.id, params, spec.plates))
     return tuple(out)
 
@@ -400,7 +404,7 @@ def reconcile(
     twin = Twin(df, f0, calibration)
     specs = refine_motion_lines(twin, df, refine_range_effects(twin, df, specs, calibration))
     twin.noise_without_lines(
-        [s.p("freq_hz") if s.id == "extra_periodic" else s.p("order") * f0 for s in specs if s.id in _LINES]
+        [s.p("freq_hz") if s.id == LINE else s.p("order") * f0 for s in specs if s.id in _LINES]
     )
     refined = iter(specs)
     mapped = [(next(refined) if spec is not None else None, why) for spec, why in mapped]

@@ -32,6 +32,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from ..effects import level_jump
 from ..simulate.config import SimConfig
 from ..simulate.injection import make_spec
 from .metrics import frame_correlation, outlier_sizes, series_residuals
@@ -111,7 +112,9 @@ def calibrate(
     """Simulate and extract a ``seconds`` clip twice (ranges as configured, and 1 mm farther),
     and an ``outlier_seconds`` clip of the configured experiment (0: none) for its outliers."""
     clean = dataclasses.replace(cfg, effects=())
-    shifted = dataclasses.replace(cfg, effects=(make_spec("level_jump", {"t_jump_s": 0.0, "size_mm": 1.0}),))
+    shifted = dataclasses.replace(
+        cfg, effects=(make_spec(level_jump.ENTRY.id, {"t_jump_s": 0.0, "size_mm": 1.0}),)
+    )
     a = _extract(clean, seconds, seed)
     b = _extract(shifted, seconds, seed)
     m = a.merge(b, on=["t", "plate"], suffixes=("", "_1"))
