@@ -66,6 +66,8 @@ def test_an_entry_is_well_formed(eid):
         assert entry.level is None and not entry.params and entry.from_diagnosis is None
     if entry.locator is not None:
         assert entry.locator[0] in names and entry.locator[1] > 0
+    # the concealed benchmark draws and scores every id the diagnosis names
+    assert (entry.draw is not None) == (entry.scored is not None) == entry.detectable
 
 
 @pytest.mark.parametrize("eid", IDS)

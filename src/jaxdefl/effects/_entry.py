@@ -143,6 +143,12 @@ class Entry:
             time, a line's frequency), for reports of one effect seen on several axes.
         example: the parameters of a valid ``[[effect]]`` table, large enough to be diagnosed on
             a few minutes of an 11-plate ToF record (the conformance suite injects it).
+        draw: ``draw(b) -> effect`` the concealed benchmark's random draw of a detectable id
+            (`jaxdefl.simulate.effects.draw_effect`; ``b`` a `jaxdefl.simulate.effects.Draw`:
+            the recording, the random stream, the size target and the benchmark's sizing).
+        scored: ``scored(kind) -> {name: sign matters}``: the parameters the benchmark requires
+            within 25 % of their true values, by the drawn kind
+            (`jaxdefl.simulate.effects.primary_parameters`).
     """
 
     id: str
@@ -160,6 +166,8 @@ class Entry:
     from_diagnosis: Callable[[Report], tuple[dict, tuple[int, ...]]] | None = None
     locator: tuple[str, float] | None = None
     example: dict[str, Any] = field(default_factory=dict)
+    draw: Callable[[Any], dict] | None = None
+    scored: Callable[[str], dict[str, bool]] | None = None
 
     @property
     def injectable(self) -> bool:

@@ -54,6 +54,17 @@ def from_diagnosis(r: Report) -> tuple[dict, tuple[int, ...]]:
     return {"rms_mm": r.p["rms_mm"], "corner_hz": r.p["corner_hz"]}, ()
 
 
+def draw(b) -> dict:
+    """The benchmark's shake: a random low-pass motion of corner 3-30 mHz, every plate, at most σ."""
+    e = dict(
+        kind="low_pass",
+        parameters={"rms_mm": 0.1, "corner_hz": round(b.loguniform(0.003, 0.03), 5)},
+        plates=b.everyone,
+        axes=["z"],
+    )
+    return b.sized(e, "rms_mm", (0.0, b.sigma_z(e["plates"])))
+
+
 ENTRY = Entry(
     id="camera_shake",
     meaning="the camera moves along its optical axis: every pixel reads the same displacement",
@@ -72,4 +83,6 @@ ENTRY = Entry(
     check=check,
     from_diagnosis=from_diagnosis,
     example={"rms_mm": 0.5, "corner_hz": 0.02},
+    draw=draw,
+    scored=lambda kind: {"rms_mm": False},
 )

@@ -29,6 +29,23 @@ def from_diagnosis(r: Report) -> tuple[dict, tuple[int, ...]]:
     return {"plate": int(round(float(r.p["plate"]))), "level_mm": r.p["level_mm"]}, ()
 
 
+def draw(b) -> dict:
+    """The benchmark's clip: 1-2 adjacent plates of the span's middle third (they move most), a
+    side, the level c (fraction of the amplitude) from the target (`Draw.clip_level`)."""
+    rng, n_pl = b.rng, b.n_plates
+    mid = list(range(max(1, n_pl // 3), n_pl - n_pl // 3 + 1))  # the plates that move most
+    plates = b.adjacent(len(mid), int(rng.integers(1, 3)))
+    side = float(rng.choice([-1.0, 1.0]))
+    e = dict(
+        id=ENTRY.id,
+        kind="far" if side > 0 else "near",
+        parameters={"level": 0.9, "side": side},
+        plates=[mid[k - 1] for k in plates],
+        axes=["z"],
+    )
+    return b.clip_level(e)
+
+
 ENTRY = Entry(
     id="clipping",
     meaning="a plate's reading saturating at level_mm from its rest position (the depth band's bound)",
@@ -40,4 +57,6 @@ ENTRY = Entry(
     check=check,
     from_diagnosis=from_diagnosis,
     example={"plate": 6, "level_mm": 1.5},
+    draw=draw,
+    scored=lambda kind: {"level_mm": True},
 )

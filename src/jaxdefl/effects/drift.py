@@ -26,6 +26,20 @@ def from_diagnosis(r: Report) -> tuple[dict, tuple[int, ...]]:
     return {"amplitude_mm": amp, "tau_s": tau}, () if r.whole else r.plates
 
 
+def draw(b) -> dict:
+    """The benchmark's warm-up: τ 60-400 s, every plate, its size at most σ (more shows by eye)."""
+    e = dict(
+        kind="exponential",
+        parameters={
+            "amplitude_mm": float(b.rng.choice([-1.0, 1.0])) * 0.1,
+            "tau_s": round(b.loguniform(60.0, 400.0), 2),
+        },
+        plates=b.everyone,
+        axes=["z"],
+    )
+    return b.sized(e, "amplitude_mm", (0.0, b.sigma_z(e["plates"])))
+
+
 ENTRY = Entry(
     id="drift",
     meaning="a camera warming up: every pixel reads a·exp(−t_rel/τ) farther",
@@ -36,4 +50,6 @@ ENTRY = Entry(
     check=positive("tau_s", "a time constant > 0 s"),
     from_diagnosis=from_diagnosis,
     example={"amplitude_mm": 1.5, "tau_s": 60.0},
+    draw=draw,
+    scored=lambda kind: {"amplitude_mm": True, "tau_s": True},
 )

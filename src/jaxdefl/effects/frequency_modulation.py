@@ -30,6 +30,21 @@ def from_diagnosis(r: Report) -> tuple[dict, tuple[int, ...]]:
     }, ()
 
 
+def draw(b) -> dict:
+    """The benchmark's frequency: a linear drift about the middle or a sinusoidal wobble
+    (5-50 mHz, within 0.5 rad)."""
+    rng = b.rng
+    if rng.random() < 0.5:
+        e = dict(kind="linear", parameters={"drift_hz_per_s": float(rng.choice([-1.0, 1.0])) * 1e-7})
+        key, bounds = "drift_hz_per_s", (0.0, math.inf)
+    else:
+        pars = {"depth_rad": 0.05, "freq_hz": round(b.loguniform(0.005, 0.05), 5), "phase_rad": b.psi}
+        e = dict(kind="sinusoidal", parameters=pars)
+        key, bounds = "depth_rad", (0.0, 0.5)
+    e |= dict(plates=b.everyone, axes=list(b.axes))
+    return b.sized(e, key, bounds)
+
+
 ENTRY = Entry(
     id="frequency_modulation",
     meaning="the load's phase + π d (t_rel − t_ref)² + β sin(2π f_m t_rel + ψ)",
@@ -40,4 +55,8 @@ ENTRY = Entry(
     from_diagnosis=from_diagnosis,
     locator=("freq_hz", 1e-3),
     example={"depth_rad": 0.2, "freq_hz": 0.02, "phase_rad": 0.3},
+    draw=draw,
+    scored=lambda kind: (
+        {"drift_hz_per_s": True} if kind == "linear" else {"depth_rad": False, "freq_hz": True}
+    ),
 )

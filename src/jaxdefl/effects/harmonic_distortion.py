@@ -28,6 +28,19 @@ def from_diagnosis(r: Report) -> tuple[dict, tuple[int, ...]]:
     }, ()
 
 
+def draw(b) -> dict:
+    """The benchmark's harmonic: order 2 or 3 on 1-3 adjacent plates (mixed pixels) or on all."""
+    rng, n_pl = b.rng, b.n_plates
+    plates = b.adjacent(n_pl, int(rng.integers(1, 4))) if rng.random() < 0.6 else b.everyone
+    e = dict(
+        kind="mixed_pixels" if len(plates) < n_pl else "cyclic_error",
+        parameters={"order": int(rng.choice([2, 3])), "amplitude_mm": 0.1, "phase_rad": b.psi},
+        plates=plates,
+        axes=["z"],
+    )
+    return b.sized(e, "amplitude_mm")
+
+
 ENTRY = Entry(
     id="harmonic_distortion",
     meaning="the load's k-th harmonic a cos(k θ − ψ)",
@@ -39,4 +52,6 @@ ENTRY = Entry(
     from_diagnosis=from_diagnosis,
     locator=("order", 1.0),
     example={"order": 2, "amplitude_mm": 0.3, "phase_rad": 0.5},
+    draw=draw,
+    scored=lambda kind: {"order": True, "amplitude_mm": False},
 )

@@ -18,6 +18,20 @@ def from_diagnosis(r: Report) -> tuple[dict, tuple[int, ...]]:
     return {"t_jump_s": r.p["t_jump_s"], "size_mm": size}, () if r.whole else r.plates
 
 
+def draw(b) -> dict:
+    """The benchmark's jump: at 15-85 % of the record, on every plate or one, at most σ."""
+    rng, n_pl = b.rng, b.n_plates
+    plates = b.everyone if rng.random() < 0.6 else [int(rng.integers(1, n_pl + 1))]
+    t_j = round(float(rng.uniform(0.15, 0.85)) * b.base.duration, 3)
+    e = dict(
+        kind="all_plates" if len(plates) > 1 else "one_plate",
+        parameters={"t_jump_s": t_j, "size_mm": float(rng.choice([-1.0, 1.0])) * 0.1},
+        plates=plates,
+        axes=["z"],
+    )
+    return b.sized(e, "size_mm", (0.0, b.sigma_z(e["plates"])))
+
+
 ENTRY = Entry(
     id="level_jump",
     meaning="a range offset from t_jump_s on",
@@ -29,4 +43,6 @@ ENTRY = Entry(
     from_diagnosis=from_diagnosis,
     locator=("t_jump_s", 1.0),
     example={"t_jump_s": 90.0, "size_mm": 1.0},
+    draw=draw,
+    scored=lambda kind: {"size_mm": True},
 )

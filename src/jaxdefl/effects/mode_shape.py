@@ -31,6 +31,18 @@ def from_diagnosis(r: Report) -> tuple[dict, tuple[int, ...]]:
     return {k: r.p[k] for k in ("mode", "freq_hz", "amplitude_mm", "phase_rad")}, ()
 
 
+def draw(b) -> dict:
+    """The benchmark's mode: n = 2 (70 %) or 3 at 0.3-8 Hz away from the load's harmonics."""
+    e = dict(
+        kind=f"mode_{int(b.rng.choice([2, 3], p=[0.7, 0.3]))}",
+        parameters={"freq_hz": b.extra_frequency(), "amplitude_mm": 0.1, "phase_rad": b.psi},
+        plates=b.everyone,
+        axes=["z"],
+    )
+    e["parameters"]["mode"] = int(e["kind"][-1])
+    return b.sized(e, "amplitude_mm")
+
+
 ENTRY = Entry(
     id="mode_shape",
     meaning="the beam's n-th bending mode a sin(nπ x/L) cos(2π f t + ψ)",
@@ -42,4 +54,6 @@ ENTRY = Entry(
     from_diagnosis=from_diagnosis,
     locator=("mode", 1.0),
     example={"mode": 2, "freq_hz": 5.3, "amplitude_mm": 0.5, "phase_rad": 0.7},
+    draw=draw,
+    scored=lambda kind: {"mode": True, "freq_hz": True, "amplitude_mm": False},
 )

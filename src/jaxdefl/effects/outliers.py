@@ -45,6 +45,22 @@ def from_diagnosis(r: Report) -> tuple[dict, tuple[int, ...]]:
     return {"fraction": r.p["fraction"], "scale_mm": abs(r.per_range(scales, r.p["scale_mm"]))}, r.plates
 
 
+def draw(b) -> dict:
+    """The benchmark's outliers: 0.2-1 % of the samples of 1-3 plates at 4-12 σ."""
+    rng = b.rng
+    plates = sorted(rng.choice(b.everyone, size=int(rng.integers(1, 4)), replace=False).tolist())
+    frac = b.loguniform(0.002, 0.01)
+    sig = b.sigma_z(plates)
+    scale = float(np.clip(max(b.target, 0.15) * sig / math.sqrt(frac), 4 * sig, 12 * sig))
+    e = dict(
+        kind=str(rng.choice(["gaussian", "sign"])),
+        parameters={"fraction": frac, "scale_mm": round(scale, 4)},
+        plates=plates,
+        axes=["z"],
+    )
+    return e | {"id": ENTRY.id}
+
+
 ENTRY = Entry(
     id="outliers",
     meaning="that fraction of the frames read the plates N(0, scale²) off",
@@ -56,4 +72,6 @@ ENTRY = Entry(
     check=check,
     from_diagnosis=from_diagnosis,
     example={"fraction": 0.01, "scale_mm": 8.0},
+    draw=draw,
+    scored=lambda kind: {"fraction": True, "scale_mm": True},
 )

@@ -40,6 +40,20 @@ def from_diagnosis(r: Report) -> tuple[dict, tuple[int, ...]]:
     return {k: r.p[k] for k in ("t_s", "f0_change", "amplitude_change")}, ()
 
 
+def draw(b) -> dict:
+    """The benchmark's crack: at 20-80 % of the record, costing at most 30 % of the stiffness."""
+    e = dict(
+        kind="crack",
+        parameters={
+            "t_s": round(float(b.rng.uniform(0.2, 0.8)) * b.base.duration, 3),
+            "stiffness_change": -1e-4,
+        },
+        plates=b.everyone,
+        axes=list(b.axes),
+    )
+    return b.sized(e, "stiffness_change", (0.0, 0.3))
+
+
 ENTRY = Entry(
     id="stiffness_change",
     meaning="a crack: f0 × (1 + f0_change), the deflection amplitude × (1 + amplitude_change)",
@@ -57,4 +71,6 @@ ENTRY = Entry(
     from_diagnosis=from_diagnosis,
     locator=("t_s", 1.0),
     example={"t_s": 120.0, "stiffness_change": -0.0005},
+    draw=draw,
+    scored=lambda kind: {"stiffness_change": True, "t_s": True},
 )

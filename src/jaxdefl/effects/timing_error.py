@@ -14,6 +14,17 @@ def from_diagnosis(r: Report) -> tuple[dict, tuple[int, ...]]:
     return {k: r.p[k] for k in ("offset_s", "rate_ppm") if r.p.get(k) is not None}, ()
 
 
+def draw(b) -> dict:
+    """The benchmark's clock: late stamps of 2-10 ms, or a rate of 20-200 ppm sized to the target."""
+    e = {"id": ENTRY.id, "plates": b.everyone, "axes": list(b.axes)}
+    if b.rng.random() < 0.5:  # late timestamps (stamped on delivery): 2-10 ms
+        return e | dict(kind="offset", parameters={"offset_s": float(b.rng.uniform(0.002, 0.010))})
+    # a clock rate of 20-200 ppm, as small in that range as the noise target asks: over 15-20
+    # minutes a rate above ~40 ppm puts the camera-LDS mismatch above the raw noise
+    e |= dict(kind="rate", parameters={"rate_ppm": float(b.rng.choice([-1.0, 1.0])) * 20.0})
+    return b.sized(e, "rate_ppm", (20.0, 200.0))
+
+
 ENTRY = Entry(
     id="timing_error",
     meaning="the camera's clock: stamps = t + offset + rate·t_rel",
@@ -25,4 +36,6 @@ ENTRY = Entry(
     inject=inject,
     from_diagnosis=from_diagnosis,
     example={"offset_s": 0.01},
+    draw=draw,
+    scored=lambda kind: {"offset_s": True} if kind == "offset" else {"rate_ppm": True},
 )
