@@ -69,7 +69,10 @@ drawn apart from the series' noise: with σ = 1 mm and ≤ 5.2 mm of motion, the
 is ≥ 4.5 mm for P ≥ 20 and washes out every step that fits the motion, while P of 1-2 leaves
 readings on the lattice itself (a plate whose motion spans less than a step reads constant).
 
-Public surface: `EFFECT_IDS`, `RecordingSpec`, `CleanRecording`, `random_spec`, `draw_effect`,
+Each id's draw and the parameters it scores are its vocabulary module's (`jaxdefl.effects.<id>`:
+``draw``, ``scored``); `draw_effect` hands them the recording and the sizing (`Draw`).
+
+Public surface: `EFFECT_IDS`, `RecordingSpec`, `CleanRecording`, `Draw`, `random_spec`, `draw_effect`,
 `make_recording`, `make_case`, `primary_parameters`, `effect_strength`, `best_evidence`.
 """
 
