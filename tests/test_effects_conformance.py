@@ -286,7 +286,6 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "jaxdefl"
 # files that still spell ids, each with its reason (to be emptied: issue 24)
 SPELLED = {
     "simulate/effects.py": "the concealed benchmark's per-id draws and rendering (to move into the modules)",
-    "simulate/schedule.py": "the [[change]] kinds' aliases of the ids",
     "reconcile/twin.py": "the twin's line keys (edited by the integrator this session)",
     "diagnose/record_kind.py": "the ids each record kind searches (edited by the integrator this session)",
     "diagnose/_sensor_nominal.py": "a configured sensor's own effects (the integrator's this session)",
