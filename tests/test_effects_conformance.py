@@ -6,7 +6,8 @@ effect module is tested without new test code.
   parameter has a unit, an injectable entry has a level and a valid example;
 - the spec round-trips through its ``[[effect]]`` table (`EffectSpec.to_dict` -> `parse_effects`);
 - its injection's output has the shape its level declares, and the example changes something;
-- every detectable id goes simulate -> diagnose -> ``from_diagnosis`` -> simulate -> diagnose,
+- a control (no effect) is left clean for every detectable id, and every injectable detectable
+  id goes simulate -> diagnose -> ``from_diagnosis`` -> simulate -> diagnose,
   and the second diagnosis names it again where the first did (clipping included);
 - no effect id is spelled as a string literal in ``src/`` outside its own files (its vocabulary
   module and its detector), but for the few files listed with their reason.
@@ -271,6 +272,16 @@ def test_a_detectable_effect_goes_round_the_loop(eid):
         s1, s2 = (_sigma(r[0], name) for r in (reports, reports2))
         assert abs(first.p(name) - truth.p(name)) <= max(5 * step, 4 * s1)
         assert abs(specs2[0].p(name) - first.p(name)) <= max(5 * step, 4 * math.hypot(s1, s2))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("eid", EFFECT_IDS)
+def test_a_control_is_left_clean(eid):
+    """The recording of the round trip without any effect: the diagnosis, looking for ``eid``
+    alone, does not name it."""
+    traj, lds, duration = _recording((), seed=5)
+    reports, _ = _diagnosed(eid, traj, lds, duration)
+    assert not reports, reports
 
 
 def _sigma(report: dict, name: str) -> float:
