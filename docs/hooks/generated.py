@@ -4,8 +4,8 @@ A page asks for a generated block with an HTML comment on a line of its own:
 
 - ``<!-- generated: cli -->``: every command of ``jaxdefl`` with its usage, help and options,
   walked from the click command tree that typer builds (`jaxdefl.cli.app`);
-- ``<!-- generated: effects -->``: the effect vocabulary from the simulator's registry
-  (`jaxdefl.simulate.injection.REGISTRY`) and the diagnosis' ids (`jaxdefl._effect_ids`);
+- ``<!-- generated: effects -->``: the effect vocabulary from its registry
+  (`jaxdefl.effects.REGISTRY`: one module per id);
 - ``<!-- generated: schema NAME -->``: the fields of ``src/jaxdefl/schemas/NAME.schema.json``
   as a table, and the schema itself.
 
@@ -150,14 +150,11 @@ def _param_text(p) -> str:
 
 
 def effect_reference() -> str:
-    from jaxdefl._effect_ids import EFFECT_IDS
-    from jaxdefl.diagnose.effects import load_effects
-    from jaxdefl.simulate.injection import LEVELS, REGISTRY
+    from jaxdefl.effects import EFFECT_IDS, INJECTABLE, LEVELS, REGISTRY, SENSORS
 
-    diagnosed = load_effects()
     out = [
-        f"Generated from `jaxdefl.simulate.injection.REGISTRY` ({len(REGISTRY)} ids the simulator "
-        f"injects) and `jaxdefl._effect_ids.EFFECT_IDS` ({len(EFFECT_IDS)} ids the diagnosis "
+        f"Generated from the effect vocabulary `jaxdefl.effects.REGISTRY` ({len(REGISTRY)} ids, one "
+        f"module each: {len(INJECTABLE)} the simulator injects, {len(EFFECT_IDS)} the diagnosis "
         "names) at build time.",
         "",
         "## Simulated effects",
@@ -168,29 +165,32 @@ def effect_reference() -> str:
         "| id | level | parameters (unit; default) | meaning | diagnosed |",
         "| --- | --- | --- | --- | --- |",
     ]
-    for eid, entry in REGISTRY.items():
+    for eid in INJECTABLE:
+        entry = REGISTRY[eid]
         params = "<br>".join(_param_text(p) for p in entry.params)
-        d = diagnosed.get(eid)
-        told = "no" if d is None else ("yes, against an LDS" if d.needs_reference else "yes")
+        told = "no" if not entry.detectable else ("yes, against an LDS" if entry.needs_reference else "yes")
         out.append(f"| `{eid}` {{ #{eid} }} | {entry.level} | {params} | {_cell(entry.meaning)} | {told} |")
-    only = [eid for eid in EFFECT_IDS if eid not in REGISTRY]
     out += [
         "",
         "## Diagnosed effects",
         "",
-        "Every id `jaxdefl diagnose` can name (the `id` of an entry of `effects` in DIAG.json), "
-        "with the physics it stands for. Ids the simulator does not inject are marked.",
+        "Every id `jaxdefl diagnose` can name (the `id` of an entry of `effects` in DIAG.json): the "
+        "sensors that can produce it (on a record of another kind the diagnosis does not name it), "
+        "whether the structure itself can make it (else only a measurement does), and whether "
+        "`jaxdefl reconcile` can simulate it as reported. Ids the simulator does not inject are marked.",
         "",
-        "| id | meaning | needs an LDS | min. plates | simulated |",
-        "| --- | --- | --- | --- | --- |",
+        "| id | meaning | sensors | structural | needs an LDS | simulated |",
+        "| --- | --- | --- | --- | --- | --- |",
     ]
     for eid in EFFECT_IDS:
-        d = diagnosed[eid]
-        sim = f"[yes](#{eid})" if eid in REGISTRY else "**no**"
+        entry = REGISTRY[eid]
+        sim = f"[yes](#{eid})" if entry.injectable else "**no**"
+        sensors = "any" if set(entry.sensors) == set(SENSORS) else ", ".join(entry.sensors)
         out.append(
-            f"| `{eid}` | {_cell(d.meaning)} | {'yes' if d.needs_reference else 'no'} "
-            f"| {d.min_plates} | {sim} |"
+            f"| `{eid}` | {_cell(entry.meaning)} | {sensors} "
+            f"| {'yes' if entry.structural else 'no'} | {'yes' if entry.needs_reference else 'no'} | {sim} |"
         )
+    only = [eid for eid in EFFECT_IDS if not REGISTRY[eid].injectable]
     if only:
         out += ["", "Diagnosed only: " + ", ".join(f"`{e}`" for e in only) + "."]
     return "\n".join(out)

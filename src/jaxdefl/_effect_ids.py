@@ -1,21 +1,6 @@
-"""The effect ids of the DIAG.json contract (DESIGN.md), shared by the diagnosis and the
-concealed-effect generator without either importing the other."""
+"""The effect ids of the DIAG.json contract, derived from the vocabulary (`jaxdefl.effects`);
+kept for the modules that import them from here."""
 
-EFFECT_IDS = (
-    "motion_artefact",
-    "harmonic_distortion",
-    "drift",
-    "level_jump",
-    "amplitude_modulation",
-    "frequency_modulation",
-    "timing_error",
-    "extra_periodic",
-    "outliers",
-    "heteroscedastic_noise",
-    "quantization",
-    "mode_shape",
-    "clipping",
-    # issue 12's vocabulary (camera shake, crack)
-    "camera_shake",
-    "stiffness_change",
-)
+from .effects import EFFECT_IDS
+
+__all__ = ["EFFECT_IDS"]

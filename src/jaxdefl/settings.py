@@ -13,6 +13,8 @@ from dataclasses import dataclass, field, replace
 from typing import Any, Literal
 
 from ._errors import ConfigError, ParameterError
+from ._sensors import SENSORS
+from .effects import EFFECT_IDS
 
 __all__ = [
     "DIAGNOSE_FLAGS",
@@ -220,7 +222,6 @@ def check_scheduler(scheduler: str) -> str:
 
 
 AXES = ("z", "x", "y")
-SENSORS = ("tof", "structured_light", "lds", "accelerometer", "camera_tracking", "logger")
 
 
 def _names(v: tuple[str, ...] | str) -> tuple[str, ...]:
@@ -352,8 +353,6 @@ class DiagnoseSettings:
     open_world: bool = True
 
     def __post_init__(self):
-        from ._effect_ids import EFFECT_IDS
-
         if self.sensor is not None and self.sensor not in SENSORS:
             raise ParameterError("sensor", f"expected one of {', '.join(SENSORS)}, got {_got(self.sensor)}")
         _check_positive(self, ("frame_rate_hz",), "a positive rate in Hz")

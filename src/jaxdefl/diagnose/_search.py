@@ -34,6 +34,7 @@ from threadpoolctl import threadpool_limits
 from .._errors import InputError
 from .._numerics import DELTA_BIC_MAX
 from .._signals import check_interrupt
+from ..effects import quantization
 from ..settings import DiagnoseSettings
 from ._base import Context, Proposal, State, loglik, rms_equivalent
 from ._context import build_context
@@ -963,10 +964,13 @@ def run_diagnosis(
         if why is not None:
             configured.append((a, why))
     accepted = [a for a in accepted if all(a is not c for c, _ in configured)]
-    if any(a.proposal.effect == "quantization" for a, _ in configured) and record.resolution is not None:
+    if (
+        any(a.proposal.effect == quantization.ENTRY.id for a, _ in configured)
+        and record.resolution is not None
+    ):
         record.resolution["below_noise"] = False
         notes[:] = [n for n in notes if "the record's resolution" not in n]
-    if any(a.proposal.effect == "quantization" for a in accepted) and record.resolution is not None:
+    if any(a.proposal.effect == quantization.ENTRY.id for a in accepted) and record.resolution is not None:
         # the fine lattice is the staircase's own (a centroid of rounded pixels): not a resolution
         record.resolution["below_noise"] = False
         notes[:] = [n for n in notes if "the record's resolution" not in n]

@@ -30,8 +30,10 @@ import pandas as pd
 from .._errors import ConfigError
 from .._numerics import harmonic_design
 from .._signals import check_interrupt
+from ..effects import INJECTABLE, Report, drift, extra_periodic, harmonic_distortion, level_jump
+from ..effects import REGISTRY as VOCABULARY
 from ..settings import ReconcileSettings
-from ..simulate.injection import INJECTABLE, EffectSpec, make_spec
+from ..simulate.injection import EffectSpec, make_spec
 from .chain import apply_chain_null
 from .metrics import METRICS, TableStats, distance, null_95, null_family, table_stats
 from .twin import Twin, line_key
@@ -72,32 +74,6 @@ def _value(p) -> float | str | None:
     return p.get("value") if isinstance(p, dict) else p
 
 
-def _per_range(sizes: dict, value: float, calibration) -> float:
-    """A trajectory-level size as the range size that makes it: the median over the effect's
-    series ({"4z": size, ...}) of size / gain, where the range-to-centroid gain is large enough
-    to tell; ``value`` without a calibration or per-series sizes."""
-    if calibration is None or not sizes:
-        return value
-    ratios = []
-    for key, size in sizes.items():
-        plate, axis = int(key[:-1]), key[-1]
-        g = calibration.gain_of(plate, axis)
-        if abs(g) >= 0.5:
-            ratios.append(float(size) / g)
-    return float(np.median(ratios)) if ratios else value
-
-
-_LOCATOR = {  # what tells two injections of an id apart, and its resolution
-    "level_jump": ("t_jump_s", 1.0),
-    "extra_periodic": ("freq_hz", 1e-3),
-    "mode_shape": ("mode", 1.0),
-    "harmonic_distortion": ("order", 1.0),
-    "stiffness_change": ("t_s", 1.0),
-    "amplitude_modulation": ("freq_hz", 1e-3),
-    "frequency_modulation": ("freq_hz", 1e-3),
-}
-
-
 def _same_injection(a: tuple, b: tuple) -> bool:
     """Whether two reports (id, plates, locator, σ) are one injection: a range effect is one
     error of the pixels' ranges and a motion or clock effect one motion of the beam or one clock,
@@ -110,13 +86,13 @@ def _same_injection(a: tuple, b: tuple) -> bool:
         return False
     if x is None or y is None:
         return x is None and y is None
-    step = _LOCATOR[eid][1]
+    step = VOCABULARY[eid].locator[1]
     return abs(x - y) <= max(3.0 * math.hypot(sx, sy), 0.5 * step)
 
 
 def _report(eid: str, params: dict, plates: tuple, sigmas: dict) -> tuple:
     """(id, plates, locator, its σ) of a report (`_same_injection`)."""
-    name = _LOCATOR.get(eid, (None, 0.0))[0]
+    name = (VOCABULARY[eid].locator or (None, 0.0))[0]
     if name is None or name not in params:
         return (eid, plates, None, 0.0)
     sigma = sigmas.get(name)
@@ -148,65 +124,13 @@ def specs_from_diagnosis(
 
 
 def _spec_of(e: dict, duration_s: float, calibration, n_plates: int, ranges: list):
-    """One diagnosed effect as (spec or None, why); ``ranges``: the injections made so far."""
+    """One diagnosed effect as (spec or None, why): its vocabulary entry's ``from_diagnosis``;
+    ``ranges``: the injections made so far."""
     eid = e["id"]
-    p = {k: _value(v) for k, v in e.get("parameters", {}).items()}
-    detail = e.get("detail") or {}
-    kind = p.get("kind") or detail.get("kind")
-    plates = tuple(int(x) for x in e.get("plates", ()))
-    params: dict[str, float] = {}
     if eid not in INJECTABLE:
         return None, f"{eid} is not one of the effects the simulator injects ({', '.join(INJECTABLE)})"
-    whole = n_plates > 0 and len(plates) * 2 >= n_plates
-    if eid == "drift":
-        amp = _per_range(detail.get("amplitudes_mm") or {}, p["amplitude_mm"], calibration)
-        # a polynomial drift (slower than the record) is simulated as a warm-up whose time
-        # constant starts at the record's length (`refine_range_effects` fits it)
-        tau = p["tau_s"] if kind == "exponential" and p.get("tau_s") else duration_s
-        params = {"amplitude_mm": amp, "tau_s": tau}
-        plates = () if whole else plates
-    elif eid == "level_jump":
-        size = _per_range(detail.get("sizes_mm") or {}, p["size_mm"], calibration)
-        params = {"t_jump_s": p["t_jump_s"], "size_mm": size}
-        plates = () if whole else plates
-    elif eid == "outliers":
-        scales = {k: abs(float(v)) for k, v in (detail.get("scales_mm") or {}).items()}
-        scale = abs(_per_range(scales, p["scale_mm"], calibration))
-        params = {"fraction": p["fraction"], "scale_mm": scale}
-    elif eid == "timing_error":
-        params = {k: p[k] for k in ("offset_s", "rate_ppm") if p.get(k) is not None}
-        plates = ()
-    elif eid in ("amplitude_modulation", "frequency_modulation"):
-        linear, depth = (
-            ("relative_rate_per_s", "depth")
-            if eid == "amplitude_modulation"
-            else ("drift_hz_per_s", "depth_rad")
-        )
-        if linear in p:  # about the record's middle, as the diagnosis fits it
-            params = {linear: p[linear], "t_ref_s": duration_s / 2}
-        else:
-            phase = detail.get("phase_rad", 0.0)
-            params = {depth: p[depth], "freq_hz": p["freq_hz"], "phase_rad": phase}
-        plates = ()
-    elif eid == "extra_periodic":
-        params = {"freq_hz": p["freq_hz"], "amplitude_mm": p["amplitude_mm"]}
-        plates = ()
-    elif eid == "camera_shake":  # the camera moved: the whole image, a motion alike in law
-        params = {"rms_mm": p["rms_mm"], "corner_hz": p["corner_hz"]}
-        plates = ()
-    elif eid == "stiffness_change":
-        params = {k: p[k] for k in ("t_s", "f0_change", "amplitude_change")}
-        plates = ()
-    elif eid == "harmonic_distortion":
-        params = {
-            "order": p["order"],
-            "amplitude_mm": p["amplitude_mm"],
-            "phase_rad": p.get("phase_rad") or 0.0,
-        }
-        plates = ()
-    elif eid == "mode_shape":  # the diagnosis fits the injection's parameters
-        params = {k: p[k] for k in ("mode", "freq_hz", "amplitude_mm", "phase_rad")}
-        plates = ()
+    report = Report.of(e, duration_s, calibration, n_plates)
+    params, plates = VOCABULARY[eid].from_diagnosis(report)
     if any(v is None or not math.isfinite(float(v)) for v in params.values()):
         return None, f"{eid}: a parameter was not estimated"
     sigmas = {k: v.get("sigma") for k, v in e.get("parameters", {}).items() if isinstance(v, dict)}
@@ -215,13 +139,25 @@ def _spec_of(e: dict, duration_s: float, calibration, n_plates: int, ranges: lis
         return None, f"the same {eid} as one above, seen on other axes: simulated once"
     ranges.append(key)
     try:
-        return make_spec(eid, {k: float(v) for k, v in params.items()}, plates), "simulated"
+        return make_spec(eid, _spec_values(eid, params), plates), "simulated"
     except ConfigError as err:
         return None, f"{eid}: fitted parameters outside what can be simulated ({err})"
 
 
+def _spec_values(eid: str, params: dict) -> dict:
+    """Numbers as floats; a plate number as an int (what `make_spec` takes)."""
+    entry = VOCABULARY[eid]
+    return {
+        k: int(v) if (p := entry.param(k)) is not None and p.plate else float(v) for k, v in params.items()
+    }
+
+
+DRIFT, LINE = drift.ENTRY.id, extra_periodic.ENTRY.id
+_SIZED = (DRIFT, level_jump.ENTRY.id)  # the range effects whose size the recording refits
+
+
 def _range_columns(spec: EffectSpec, t: np.ndarray, tau: float | None = None) -> np.ndarray:
-    if spec.id == "drift":
+    if spec.id == DRIFT:
         return np.exp(-t / (spec.p("tau_s") if tau is None else tau))
     return (t >= spec.p("t_jump_s")).astype(float)
 
@@ -257,7 +193,7 @@ def refine_range_effects(twin: Twin, df: pd.DataFrame, specs: tuple[EffectSpec, 
     out = []
     for spec in specs:
         parts = [x for x in series if not spec.plates or x[0] in spec.plates]
-        if spec.id not in ("drift", "level_jump") or not parts:
+        if spec.id not in _SIZED or not parts:
             out.append(spec)
             continue
 
@@ -271,7 +207,7 @@ def refine_range_effects(twin: Twin, df: pd.DataFrame, specs: tuple[EffectSpec, 
             return (num / den if den > 0 else 0.0), (num * num / den if den > 0 else 0.0)
 
         params = dict(spec.parameters)
-        if spec.id == "drift":
+        if spec.id == DRIFT:
             taus = spec.p("tau_s") * np.geomspace(0.33, 3.0, 61)
             gains = [fit(tau)[1] for tau in taus]
             tau = float(taus[int(np.argmax(gains))])
@@ -287,7 +223,7 @@ def _joint_range_sizes(series: list, specs: tuple[EffectSpec, ...]):
     """The range effects' sizes fitted together (time constants kept): every pixel reads their
     sum, so two reports of one step (a jump seen on z and, a little later, on x) share it
     instead of each taking all of it (injected side by side they doubled the step)."""
-    idx = [j for j, sp in enumerate(specs) if sp.id in ("drift", "level_jump")]
+    idx = [j for j, sp in enumerate(specs) if sp.id in _SIZED]
     if len(idx) < 2:
         return specs
     ata = np.zeros((len(idx), len(idx)))
@@ -305,19 +241,19 @@ def _joint_range_sizes(series: list, specs: tuple[EffectSpec, ...]):
     size = np.linalg.lstsq(ata, atb, rcond=None)[0]
     out = list(specs)
     for k, j in enumerate(idx):
-        name = "amplitude_mm" if specs[j].id == "drift" else "size_mm"
+        name = "amplitude_mm" if specs[j].id == DRIFT else "size_mm"
         out[j] = make_spec(specs[j].id, {**dict(specs[j].parameters), name: float(size[k])}, specs[j].plates)
     return tuple(out)
 
 
-_LINES = ("extra_periodic", "harmonic_distortion")
+_LINES = (LINE, harmonic_distortion.ENTRY.id)
 
 
 def _line_columns(twin: Twin, spec: EffectSpec, t: np.ndarray) -> np.ndarray:
     """(t, 2) the cos and sin whose combination p cos + q sin is the spec's motion term as the
     twin renders it (`Twin.simulate`): an extra line at its frequency, a harmonic at its order
     of the simulator's phase θ."""
-    if spec.id == "extra_periodic":
+    if spec.id == LINE:
         arg = 2 * math.pi * spec.p("freq_hz") * t
     else:
         arg = spec.p("order") * (twin.omega * t - twin.phi_ref + math.pi / 2)
@@ -366,7 +302,7 @@ def refine_motion_lines(twin: Twin, df: pd.DataFrame, specs: tuple[EffectSpec, .
         params = dict(spec.parameters)
         params["amplitude_mm"] = float(math.hypot(p, qs))
         # a cos(2πft + ψ) = a cos ψ cos − a sin ψ sin; a cos(kθ − ψ) = a cos ψ cos + a sin ψ sin
-        params["phase_rad"] = float(math.atan2(-qs if spec.id == "extra_periodic" else qs, p))
+        params["phase_rad"] = float(math.atan2(-qs if spec.id == LINE else qs, p))
         out.append(make_spec(spec.id, params, spec.plates))
     return tuple(out)
 
@@ -477,7 +413,7 @@ def reconcile(
     twin = Twin(df, f0, calibration)
     specs = refine_motion_lines(twin, df, refine_range_effects(twin, df, specs, calibration))
     twin.noise_without_lines(
-        [s.p("freq_hz") if s.id == "extra_periodic" else s.p("order") * f0 for s in specs if s.id in _LINES]
+        [s.p("freq_hz") if s.id == LINE else s.p("order") * f0 for s in specs if s.id in _LINES]
     )
     refined = iter(specs)
     mapped = [(next(refined) if spec is not None else None, why) for spec, why in mapped]

@@ -37,6 +37,7 @@ import numpy as np
 import pandas as pd
 
 from .._numerics import harmonic_design, wls
+from ..effects import level_jump
 from ..simulate.config import SimConfig
 from ..simulate.injection import make_spec
 from .metrics import frame_common_correlation, outlier_sizes, series_residuals
@@ -121,7 +122,9 @@ def calibrate(
     if jumps[0] > 0:  # the twin draws them itself (`Twin.simulate`)
         cfg = dataclasses.replace(cfg, camera=dataclasses.replace(cfg.camera, jumps_per_minute=0.0))
     clean = dataclasses.replace(cfg, effects=())
-    shifted = dataclasses.replace(cfg, effects=(make_spec("level_jump", {"t_jump_s": 0.0, "size_mm": 1.0}),))
+    shifted = dataclasses.replace(
+        cfg, effects=(make_spec(level_jump.ENTRY.id, {"t_jump_s": 0.0, "size_mm": 1.0}),)
+    )
     a = _extract(clean, seconds, seed)
     b = _extract(shifted, seconds, seed)
     m = a.merge(b, on=["t", "plate"], suffixes=("", "_1"))

@@ -10,8 +10,9 @@ Public surface:
 - `camera_blocks(config, duration_s, seed)`: a live camera's measured centroids, block by block,
   with the scheduled effects (stiffness loss, debonding, sensor faults); `write_live` appends
   them to a growing trajectory table (``jaxdefl simulate --live``).
-- `REGISTRY`, `EffectSpec`: the effects the simulator injects (`jaxdefl.simulate.injection`),
-  spelled ``[[effect]]`` or, for the scheduled ones, ``[[change]]`` (`jaxdefl.simulate.schedule`).
+- `REGISTRY`, `EffectSpec`: the effects the simulator injects (the injectable entries of the
+  vocabulary `jaxdefl.effects`, injected by `jaxdefl.simulate.injection`), spelled ``[[effect]]``
+  or, for the scheduled ones, ``[[change]]`` (`jaxdefl.simulate.schedule`).
 - `measured_centroids(...)`: plate centroids measured from rendered ToF range frames.
 - physics helpers: `non_ambiguity_range_m`, `range_noise_mm`, `integration_time_ms`, `beam_shape`,
   `midspan_amplitude_mm`, `kinematics`.

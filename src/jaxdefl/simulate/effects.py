@@ -69,7 +69,10 @@ drawn apart from the series' noise: with σ = 1 mm and ≤ 5.2 mm of motion, the
 is ≥ 4.5 mm for P ≥ 20 and washes out every step that fits the motion, while P of 1-2 leaves
 readings on the lattice itself (a plate whose motion spans less than a step reads constant).
 
-Public surface: `EFFECT_IDS`, `RecordingSpec`, `CleanRecording`, `random_spec`, `draw_effect`,
+Each id's draw and the parameters it scores are its vocabulary module's (`jaxdefl.effects.<id>`:
+``draw``, ``scored``); `draw_effect` hands them the recording and the sizing (`Draw`).
+
+Public surface: `EFFECT_IDS`, `RecordingSpec`, `CleanRecording`, `Draw`, `random_spec`, `draw_effect`,
 `make_recording`, `make_case`, `primary_parameters`, `effect_strength`, `best_evidence`.
 """
 
@@ -85,12 +88,14 @@ import numpy as np
 import pandas as pd
 
 from .._lattice import smoothed_staircase
+from ..effects import EFFECT_IDS, REGISTRY, ids_where
 from .config import SimConfig, config_from_dict
 from .injection import make_spec, motion_modulations, shake_displacement
 from .lds import frame_clock, truth_table
 from .writer import simulate_trajectories
 
 __all__ = [
+    "Draw",
     "EFFECT_IDS",
     "NEEDS_REFERENCE",
     "STRUCTURED_LIGHT_ONLY",
@@ -109,17 +114,16 @@ __all__ = [
     "best_evidence",
 ]
 
-from .._effect_ids import EFFECT_IDS  # noqa: F401 (re-exported)
-
-NEEDS_REFERENCE = frozenset({"motion_artefact", "timing_error"})
-STRUCTURED_LIGHT_ONLY = frozenset({"quantization"})
-TOF_ONLY = frozenset({"motion_artefact"})  # four-phase sampling is a ToF property
+# the benchmark's two cameras: which effects need the LDS, and which one camera alone makes
+NEEDS_REFERENCE = ids_where(needs_reference=True)
+STRUCTURED_LIGHT_ONLY = frozenset(
+    e.id for e in REGISTRY.values() if "structured_light" in e.sensors and "tof" not in e.sensors
+)
+TOF_ONLY = frozenset(
+    e.id for e in REGISTRY.values() if "tof" in e.sensors and "structured_light" not in e.sensors
+)
 SIGNAL_MIN = 200.0  # Σ n rms²/σ² over the affected series (aim: >= ~150, with a margin)
 RMS_RATIO_RANGE = (0.1, 0.6)  # effect RMS / raw noise σ of the touched series
-MODULATION_RANGE = (0.15, 0.4)  # heteroscedastic noise
-# quantization: pixels averaged per reading (log-uniform), their noise before rounding σ_d / q
-PIXELS_RANGE = (20.0, 200.0)
-DITHER_RATIO_RANGE = (0.12, 0.25)
 
 # Experiment II's days at 3 Hz: (day, cycles at start, f0 Hz, mid-span amplitude mm) of Table 6.16
 # (ToF days, LDS) and Table 6.24 (Kinect days), as in configs/exp2_{tof,kinect}_3hz.toml
@@ -752,188 +756,66 @@ def draw_effect(
         raise ValueError(f"effect_id: expected one of {', '.join(EFFECT_IDS)}, got {effect_id!r}")
     if evidence not in ("white", "best"):
         raise ValueError(f"evidence: expected 'white' or 'best', got {evidence!r}")
-    strength = _strength_of(evidence)
-    spec, n_pl = base.spec, base.n_plates
-    everyone = list(range(1, n_pl + 1))
     target = target_ratio if target_ratio is not None else _loguniform(rng, *RMS_RATIO_RANGE)
     psi = round(float(rng.uniform(0, 2 * math.pi)), 4)
-    e: dict[str, Any]
-    if effect_id == "motion_artefact":
-        if spec.sensor != "tof":
-            raise ValueError("motion_artefact: only for ToF recordings (spec.sensor)")
-        t_span = float(rng.uniform(0.4, 1.0)) / spec.frame_rate_hz
-        e = dict(
-            kind="sequential_taps", parameters={"tap_spread_s": t_span}, plates=everyone, axes=list(_AXES)
-        )
-        return e | {"id": effect_id}
-    if effect_id == "timing_error":
-        e = {"id": effect_id, "plates": everyone, "axes": list(_AXES)}
-        if rng.random() < 0.5:  # late timestamps (stamped on delivery): 2-10 ms
-            return e | dict(kind="offset", parameters={"offset_s": float(rng.uniform(0.002, 0.010))})
-        # a clock rate of 20-200 ppm, as small in that range as the noise target asks: over 15-20
-        # minutes a rate above ~40 ppm puts the camera-LDS mismatch above the raw noise
-        e |= dict(kind="rate", parameters={"rate_ppm": float(rng.choice([-1.0, 1.0])) * 20.0})
-        return _fit_magnitude(base, e, "rate_ppm", target, signal_min, (20.0, 200.0), strength)
-    if effect_id == "harmonic_distortion":
-        plates = _adjacent(rng, n_pl, int(rng.integers(1, 4))) if rng.random() < 0.6 else everyone
-        e = dict(
-            kind="mixed_pixels" if len(plates) < n_pl else "cyclic_error",
-            parameters={"order": int(rng.choice([2, 3])), "amplitude_mm": 0.1, "phase_rad": psi},
-            plates=plates,
-            axes=["z"],
-        )
-        key = "amplitude_mm"
-    elif effect_id == "drift":
-        e = dict(
-            kind="exponential",
-            parameters={
-                "amplitude_mm": float(rng.choice([-1.0, 1.0])) * 0.1,
-                "tau_s": round(_loguniform(rng, 60.0, 400.0), 2),
-            },
-            plates=everyone,
-            axes=["z"],
-        )
-        key = "amplitude_mm"
-    elif effect_id == "level_jump":
-        plates = everyone if rng.random() < 0.6 else [int(rng.integers(1, n_pl + 1))]
-        t_j = round(float(rng.uniform(0.15, 0.85)) * base.duration, 3)
-        e = dict(
-            kind="all_plates" if len(plates) > 1 else "one_plate",
-            parameters={"t_jump_s": t_j, "size_mm": float(rng.choice([-1.0, 1.0])) * 0.1},
-            plates=plates,
-            axes=["z"],
-        )
-        key = "size_mm"
-    elif effect_id in ("amplitude_modulation", "frequency_modulation"):
-        am = effect_id == "amplitude_modulation"
-        rate, depth = ("relative_rate_per_s", "depth") if am else ("drift_hz_per_s", "depth_rad")
-        if rng.random() < 0.5:
-            e = dict(
-                kind="linear", parameters={rate: float(rng.choice([-1.0, 1.0])) * (1e-4 if am else 1e-7)}
-            )
-            key = rate
-        else:
-            pars = {depth: 0.05, "freq_hz": round(_loguniform(rng, 0.005, 0.05), 5), "phase_rad": psi}
-            e = dict(kind="sinusoidal", parameters=pars)
-            key = depth
-        e |= dict(plates=everyone, axes=["z", "x"] if am else list(_AXES))
-    elif effect_id == "extra_periodic":
-        axes = ["z", "x"] if rng.random() < 0.3 else ["z"]
-        fac = rng.uniform(0.8, 1.2, n_pl)
-        fac = fac / np.median(fac)
-        e = dict(
-            kind="vibration",
-            parameters={
-                "freq_hz": _extra_frequency(rng, base.f0, spec.frame_rate_hz),
-                "amplitude_mm": 0.1,
-                "phase_rad": psi,
-            },
-            plates=everyone,
-            axes=axes,
-            plate_factors={"z": fac.round(4).tolist()}
-            | ({"x": (0.5 * fac).round(4).tolist()} if "x" in axes else {}),
-        )
-        key = "amplitude_mm"
-    elif effect_id == "outliers":
-        plates = sorted(rng.choice(everyone, size=int(rng.integers(1, 4)), replace=False).tolist())
-        frac = _loguniform(rng, 0.002, 0.01)
-        sig = float(np.median(base.sigma[np.asarray(plates) - 1, 2]))
-        scale = float(np.clip(max(target, 0.15) * sig / math.sqrt(frac), 4 * sig, 12 * sig))
-        e = dict(
-            kind=str(rng.choice(["gaussian", "sign"])),
-            parameters={"fraction": frac, "scale_mm": round(scale, 4)},
-            plates=plates,
-            axes=["z"],
-        )
-        return e | {"id": effect_id}
-    elif effect_id == "heteroscedastic_noise":
-        plates = everyone if rng.random() < 0.5 else _adjacent(rng, n_pl, int(rng.integers(1, 4)))
-        kind = str(rng.choice(["phase", "time"]))
-        e = dict(
-            id=effect_id,
-            kind=kind,
-            parameters={"modulation": round(float(rng.uniform(*MODULATION_RANGE)), 4)}
-            | ({"phase_rad": psi} if kind == "phase" else {}),
-            plates=plates,
-            axes=["z"],
-        )
-        for _ in range(8):  # raise m (up to the range's top) until the signal is enough
-            _, s = strength(base, e)
-            if s >= signal_min or e["parameters"]["modulation"] >= MODULATION_RANGE[1]:
-                break
-            e["parameters"]["modulation"] = min(MODULATION_RANGE[1], e["parameters"]["modulation"] * 1.2)
-        return e
-    elif effect_id == "camera_shake":
-        e = dict(
-            kind="low_pass",
-            parameters={"rms_mm": 0.1, "corner_hz": round(_loguniform(rng, 0.003, 0.03), 5)},
-            plates=everyone,
-            axes=["z"],
-        )
-        key = "rms_mm"
-    elif effect_id == "stiffness_change":
-        e = dict(
-            kind="crack",
-            parameters={
-                "t_s": round(float(rng.uniform(0.2, 0.8)) * base.duration, 3),
-                "stiffness_change": -1e-4,
-            },
-            plates=everyone,
-            axes=list(_AXES),
-        )
-        key = "stiffness_change"
-    elif effect_id == "quantization":
-        if spec.sensor != "structured_light":
-            raise ValueError("quantization: only for structured-light recordings (spec.sensor)")
-        pixels = int(round(_loguniform(rng, *PIXELS_RANGE)))
-        ratio = float(rng.uniform(*DITHER_RATIO_RANGE))
-        e = dict(
-            id=effect_id,
-            kind="depth_steps",
-            parameters={"step_mm": 1.0, "offset_mm": 0.0, "pixels": pixels, "dither_mm": ratio},
-            plates=everyone,
-            axes=["z"],
-        )
-        q = _quantization_step(base, e, target, signal_min, ratio, strength)
-        e["parameters"] |= {"step_mm": q, "dither_mm": ratio * q, "offset_mm": float(rng.uniform(0, q))}
-        return e
-    elif effect_id == "mode_shape":
-        e = dict(
-            kind=f"mode_{int(rng.choice([2, 3], p=[0.7, 0.3]))}",
-            parameters={
-                "freq_hz": _extra_frequency(rng, base.f0, spec.frame_rate_hz),
-                "amplitude_mm": 0.1,
-                "phase_rad": psi,
-            },
-            plates=everyone,
-            axes=["z"],
-        )
-        e["parameters"]["mode"] = int(e["kind"][-1])
-        key = "amplitude_mm"
-    elif effect_id == "clipping":
-        mid = list(range(max(1, n_pl // 3), n_pl - n_pl // 3 + 1))  # the plates that move most
-        plates = _adjacent(rng, len(mid), int(rng.integers(1, 3)))
-        side = float(rng.choice([-1.0, 1.0]))
-        e = dict(
-            id=effect_id,
-            kind="far" if side > 0 else "near",
-            parameters={"level": 0.9, "side": side},
-            plates=[mid[k - 1] for k in plates],
-            axes=["z"],
-        )
-        return _clip_level(base, e, target, signal_min, strength)
-    e["id"] = effect_id
-    bounds = (0.0, math.inf)
-    if effect_id in ("drift", "level_jump", "camera_shake"):  # larger than σ would show by eye
-        bounds = (0.0, float(np.median(base.sigma[np.asarray(e["plates"]) - 1, 2])))
-    elif key in ("depth", "relative_rate_per_s"):  # an envelope changing by more than ±25 % too
-        bounds = (0.0, 0.25 if key == "depth" else 0.25 / (0.5 * base.duration))
-    elif key == "depth_rad":
-        bounds = (0.0, 0.5)
-    elif key == "stiffness_change":  # a crack costs at most 30 % of the stiffness
-        bounds = (0.0, 0.3)
-    _fit_magnitude(base, e, key, target, signal_min, bounds, strength)
-    return e
+    b = Draw(effect_id, base, rng, target, signal_min, _strength_of(evidence), psi)
+    return REGISTRY[effect_id].draw(b)
+
+
+@dataclass(frozen=True)
+class Draw:
+    """What an effect's benchmark draw (`jaxdefl.effects.Entry.draw`) gets from `draw_effect`: the
+    recording (its noise, duration, f0), the random stream, the RMS target and the likelihood
+    floor, a phase ``psi`` drawn for every effect, and the benchmark's sizing."""
+
+    effect_id: str
+    base: CleanRecording
+    rng: np.random.Generator
+    target: float
+    signal_min: float
+    strength: Callable[[CleanRecording, Mapping], tuple[float, float]]
+    psi: float
+    axes: tuple[str, ...] = _AXES
+
+    @property
+    def spec(self) -> RecordingSpec:
+        return self.base.spec
+
+    @property
+    def n_plates(self) -> int:
+        return self.base.n_plates
+
+    @property
+    def everyone(self) -> list[int]:
+        return list(range(1, self.base.n_plates + 1))
+
+    def loguniform(self, lo: float, hi: float) -> float:
+        return _loguniform(self.rng, lo, hi)
+
+    def adjacent(self, n_plates: int, k: int) -> list[int]:
+        return _adjacent(self.rng, n_plates, k)
+
+    def extra_frequency(self) -> float:
+        return _extra_frequency(self.rng, self.base.f0, self.spec.frame_rate_hz)
+
+    def sigma_z(self, plates) -> float:
+        """The median z noise σ (mm) of ``plates``."""
+        return float(np.median(self.base.sigma[np.asarray(plates) - 1, 2]))
+
+    def measure(self, e: Mapping) -> tuple[float, float]:
+        """(RMS ratio, likelihood signal S) of ``e`` as the draw counts them."""
+        return self.strength(self.base, e)
+
+    def sized(self, e: dict, key: str, bounds: tuple[float, float] = (0.0, math.inf)) -> dict:
+        """``e`` with its id and ``parameters[key]`` scaled to the target (`_fit_magnitude`)."""
+        e["id"] = self.effect_id
+        return _fit_magnitude(self.base, e, key, self.target, self.signal_min, bounds, self.strength)
+
+    def quantization_step(self, e: dict, dither_ratio: float) -> float:
+        return _quantization_step(self.base, e, self.target, self.signal_min, dither_ratio, self.strength)
+
+    def clip_level(self, e: dict) -> dict:
+        return _clip_level(self.base, e, self.target, self.signal_min, self.strength)
 
 
 def _quantization_step(
@@ -1020,39 +902,10 @@ def _plate_amplitudes(e: Mapping) -> dict[str, np.ndarray]:
 def primary_parameters(effect: Mapping) -> dict[str, tuple[float, bool]]:
     """{name: (true value, sign matters)} of the parameters the benchmark requires within 25 %."""
     eid, kind, p = effect["id"], effect.get("kind", ""), effect["parameters"]
-    names: dict[str, bool]
-    if eid == "motion_artefact":
-        names = {"tap_spread_s": True}
-    elif eid == "timing_error":
-        names = {"offset_s": True} if kind == "offset" else {"rate_ppm": True}
-    elif eid == "harmonic_distortion":
-        names = {"order": True, "amplitude_mm": False}
-    elif eid == "drift":
-        names = {"amplitude_mm": True, "tau_s": True}
-    elif eid == "level_jump":
-        names = {"size_mm": True}
-    elif eid == "amplitude_modulation":
-        names = {"relative_rate_per_s": True} if kind == "linear" else {"depth": False, "freq_hz": True}
-    elif eid == "frequency_modulation":
-        names = {"drift_hz_per_s": True} if kind == "linear" else {"depth_rad": False, "freq_hz": True}
-    elif eid == "extra_periodic":
-        names = {"freq_hz": True, "amplitude_mm": False}
-    elif eid == "outliers":
-        names = {"fraction": True, "scale_mm": True}
-    elif eid == "heteroscedastic_noise":
-        names = {"modulation": kind == "time"}  # growing noise; with the motion phase, ψ holds the sign
-    elif eid == "quantization":
-        names = {"step_mm": True}
-    elif eid == "mode_shape":
-        names = {"mode": True, "freq_hz": True, "amplitude_mm": False}
-    elif eid == "clipping":
-        names = {"level_mm": True}
-    elif eid == "camera_shake":
-        names = {"rms_mm": False}
-    elif eid == "stiffness_change":
-        names = {"stiffness_change": True, "t_s": True}
-    else:
+    entry = REGISTRY.get(eid)
+    if entry is None or entry.scored is None:
         raise ValueError(f"unknown effect id {eid!r}")
+    names = entry.scored(kind)
     return {k: (float(p[k]), sign) for k, sign in names.items()}
 
 

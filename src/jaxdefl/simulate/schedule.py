@@ -30,7 +30,8 @@ from typing import Any
 
 import numpy as np
 
-from .injection import REGISTRY, EffectSpec, motion_terms, parse_effects
+from ..effects import debond, sensor_fault, stiffness_change
+from .injection import EffectSpec, motion_terms, parse_effects
 
 __all__ = [
     "CHANGE_KINDS",
@@ -41,9 +42,12 @@ __all__ = [
     "amplitude_factor",
 ]
 
-CHANGE_IDS = {"stiffness": "stiffness_change", "debond": "debond", "sensor_fault": "sensor_fault"}
+# a [[change]]'s kind -> its id: a crack is spelled "stiffness", the others by their ids
+CHANGE_IDS = {"stiffness": stiffness_change.ENTRY.id} | {
+    e.id: e.id for e in (debond.ENTRY, sensor_fault.ENTRY)
+}
 CHANGE_KINDS = tuple(CHANGE_IDS)
-SENSOR_FAULTS = REGISTRY["sensor_fault"].param("fault").choices
+SENSOR_FAULTS = sensor_fault.ENTRY.param("fault").choices
 
 
 def parse_changes(src: str, raw: Any, n_plates: int) -> tuple[EffectSpec, ...]:

@@ -1,10 +1,11 @@
-"""The library of candidate effects: one module per effect, each exporting ``EFFECT``."""
+"""The library of candidate effects: one detector module per diagnosable id of the vocabulary
+(`jaxdefl.effects.EFFECT_IDS`), each exporting ``EFFECT``."""
 
 from __future__ import annotations
 
 import importlib
 
-from ..._effect_ids import EFFECT_IDS
+from ...effects import EFFECT_IDS
 from .._base import Detector
 
 __all__ = ["EFFECT_IDS", "load_effects"]

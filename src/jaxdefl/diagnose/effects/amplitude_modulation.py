@@ -29,6 +29,7 @@ import math
 
 import jax.numpy as jnp
 
+from ...effects.amplitude_modulation import ENTRY
 from ._modulation import ModulationEffect
 from .shared_fits import param
 
@@ -36,7 +37,8 @@ __all__ = ["AmplitudeModulation", "EFFECT"]
 
 
 class AmplitudeModulation(ModulationEffect):
-    id = "amplitude_modulation"
+    id = ENTRY.id
+    sensors, structural, needs_reference = ENTRY.sensors, ENTRY.structural, ENTRY.needs_reference
     meaning = (
         "the deflection amplitude changes during the record alike on every plate (fatigue, load controller)"
     )

@@ -42,6 +42,7 @@ import math
 import numpy as np
 from scipy.interpolate import BSpline
 
+from ...effects.camera_shake import ENTRY
 from .._base import Context, Detector, Proposal, State
 from .screening import bonferroni, chi2_sf, open_series, param, project_out, shared_amplitude, weights
 
@@ -73,10 +74,9 @@ def _long_run(e: np.ndarray, ok: np.ndarray) -> float:
 
 
 class CameraShake(Detector):
-    id = "camera_shake"
-    structural = False  # the camera moves, not the beam
+    id = ENTRY.id
+    sensors, structural, needs_reference = ENTRY.sensors, ENTRY.structural, ENTRY.needs_reference
     meaning = "the camera moves: a displacement common to every plate (and the static scene) on an axis"
-    sensors = ("tof", "structured_light", "camera_tracking")  # a sensor that sees every plate at once
     plausible, plausible_unit, gate_params = 0.1, "noise", 8
     min_plates = 2
 

@@ -27,6 +27,7 @@ import math
 import numpy as np
 
 from ..._numerics import wls
+from ...effects.clipping import ENTRY
 from .._base import Context, Detector, Proposal, State, keep_series
 from .screening import chi2_sf, combined_p, gain, param, residual, screen_columns, updated, weights
 
@@ -41,8 +42,8 @@ def clip_column(theta: np.ndarray, side: int, c: float) -> np.ndarray:
 
 
 class Clipping(Detector):
-    id = "clipping"
-    structural = False  # a depth band's or a converter's bound
+    id = ENTRY.id
+    sensors, structural, needs_reference = ENTRY.sensors, ENTRY.structural, ENTRY.needs_reference
     meaning = "a plate's reading saturating at the peaks of its motion (the depth band's bound)"
     plausible, plausible_unit, gate_params = 0.03, "motion", 2
 

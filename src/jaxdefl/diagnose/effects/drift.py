@@ -37,6 +37,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..._numerics import P_MAX, wls
+from ...effects.drift import ENTRY
 from .._base import Context, Detector, Proposal, State, keep_series, peak_offset
 from .._varpro import fit_shared
 from .screening import (
@@ -84,7 +85,8 @@ def _legendre(u: np.ndarray, degree: int) -> np.ndarray:
 
 
 class Drift(Detector):
-    id = "drift"
+    id = ENTRY.id
+    sensors, structural, needs_reference = ENTRY.sensors, ENTRY.structural, ENTRY.needs_reference
     meaning = "slow drift of the measured position (camera warm-up, settling): exponential or polynomial"
     plausible, plausible_unit, gate_params = 1.0 / 600, "mm_per_s", 2  # 1 mm in 10 minutes (warm-up)
 

@@ -34,6 +34,7 @@ import numpy as np
 from scipy import stats
 
 from ..._numerics import harmonic_design
+from ...effects.extra_periodic import ENTRY
 from .._base import (
     Context,
     Detector,
@@ -95,7 +96,8 @@ def _columns(theta, t, aux):
 
 
 class ExtraPeriodic(Detector):
-    id = "extra_periodic"
+    id = ENTRY.id
+    sensors, structural, needs_reference = ENTRY.sensors, ENTRY.structural, ENTRY.needs_reference
     meaning = "a vibration at a frequency unrelated to the loading (pump, mount, floor), common to the plates"
     plausible, plausible_unit, gate_params = 0.05, "mm", 3  # a 0.05-mm vibration (pump, mount)
     min_plates = 2  # "common to the plates" cannot be told on one

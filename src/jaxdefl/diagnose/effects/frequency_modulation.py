@@ -32,6 +32,7 @@ import math
 
 import jax.numpy as jnp
 
+from ...effects.frequency_modulation import ENTRY
 from ._modulation import ModulationEffect
 from .shared_fits import param
 
@@ -39,7 +40,8 @@ __all__ = ["FrequencyModulation", "EFFECT"]
 
 
 class FrequencyModulation(ModulationEffect):
-    id = "frequency_modulation"
+    id = ENTRY.id
+    sensors, structural, needs_reference = ENTRY.sensors, ENTRY.structural, ENTRY.needs_reference
     meaning = "the loading frequency wanders or drifts during the record alike on every plate"
     demodulation = "quadrature"
     trend = True

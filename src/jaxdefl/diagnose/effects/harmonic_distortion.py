@@ -38,6 +38,7 @@ import math
 import numpy as np
 
 from ..._numerics import P_MAX, wls
+from ...effects.harmonic_distortion import ENTRY
 from .._base import Context, Detector, Proposal, State, keep_series, masked_periodogram
 from .screening import (
     bonferroni,
@@ -95,7 +96,8 @@ def _columns(ctx: Context, i: int, omega: float | None = None, t_ref: float | No
 
 
 class HarmonicDistortion(Detector):
-    id = "harmonic_distortion"
+    id = ENTRY.id
+    sensors, structural, needs_reference = ENTRY.sensors, ENTRY.structural, ENTRY.needs_reference
     meaning = "motion not purely sinusoidal: components at 2-5 x f0 (support contact, cyclic range error)"
     plausible, plausible_unit, gate_params = 0.1, "mm", 2  # a 0.1-mm 2nd harmonic (mixed pixels)
     min_plates = 1

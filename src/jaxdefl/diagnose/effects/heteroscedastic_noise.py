@@ -31,6 +31,7 @@ import math
 import numpy as np
 
 from ..._numerics import harmonic_design, wls
+from ...effects.heteroscedastic_noise import ENTRY
 from .._base import Context, Detector, Proposal, State, keep_series
 from .screening import (
     combined_p,
@@ -128,7 +129,8 @@ def _binned(x: np.ndarray, v: np.ndarray, key: np.ndarray, n_bins: int):
 
 
 class HeteroscedasticNoise(Detector):
-    id = "heteroscedastic_noise"
+    id = ENTRY.id
+    sensors, structural, needs_reference = ENTRY.sensors, ENTRY.structural, ENTRY.needs_reference
     meaning = "noise level that depends on the motion's phase or changes over the record"
     plausible, plausible_unit, gate_params = 0.15, "noise", 2  # the variance ±30 % with the phase
     noise_structure = True

@@ -38,6 +38,7 @@ import math
 import numpy as np
 
 from ..._numerics import P_MAX, wls
+from ...effects.level_jump import ENTRY
 from .._base import Context, Detector, Proposal, State, keep_series
 from .screening import (
     bonferroni,
@@ -87,7 +88,8 @@ def _cusum(ctx: Context, i: int, st: State):
 
 
 class LevelJump(Detector):
-    id = "level_jump"
+    id = ENTRY.id
+    sensors, structural, needs_reference = ENTRY.sensors, ENTRY.structural, ENTRY.needs_reference
     meaning = "a step of the measured position (structured-light instability, integration-time change)"
     causes = {  # noqa: RUF012
         "structured_light": "a structured-light re-calibration or a knock",

@@ -42,6 +42,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from ..._numerics import harmonic_design
+from ...effects.mode_shape import ENTRY
 from .._base import Context, Detector, Proposal, State, loglik, masked_fourier
 from .._correlation import floored_inverse
 from .._varpro import fit_shared
@@ -94,7 +95,8 @@ def _weighted_residual(ctx: Context, states: list[State], i: int):
 
 
 class ModeShape(Detector):
-    id = "mode_shape"
+    id = ENTRY.id
+    sensors, structural, needs_reference = ENTRY.sensors, ENTRY.structural, ENTRY.needs_reference
     meaning = "another bending mode of the beam: every plate moving in the mode's shape sin(n pi x/L)"
     plausible, plausible_unit, gate_params = 0.1, "mm", 4  # 0.1 mm at the antinode
     min_plates = 3  # a shape across the plates

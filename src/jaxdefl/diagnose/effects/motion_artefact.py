@@ -29,6 +29,8 @@ import math
 import numpy as np
 
 from ..._numerics import P_MAX
+from ...effects import timing_error
+from ...effects.motion_artefact import ENTRY
 from .._base import Context, Proposal, State
 from .shared_fits import (
     AMBIGUOUS_CHI2,
@@ -44,15 +46,14 @@ __all__ = ["MotionArtefact", "EFFECT"]
 
 
 class MotionArtefact(TiedEffect):
-    id = "motion_artefact"
-    structural = False  # the four taps' sequence of a ToF camera
+    id = ENTRY.id
+    sensors, structural, needs_reference = ENTRY.sensors, ENTRY.structural, ENTRY.needs_reference
     meaning = "gain loss and lag of the camera against the LDS from its sequential four-phase sampling"
-    sensors = ("tof",)  # only a four-phase (ToF) camera samples its taps in sequence
     plausible, plausible_unit, gate_params = 0.001, "seconds", 1  # 1 ms of lag against the LDS
 
     def propose_tied(self, ctx: Context, states: list[State], model, period: float) -> list[Proposal]:
         idx = model.idx
-        free = [0] + ([1] if "timing_error" in model.accepted else [])
+        free = [0] + ([1] if timing_error.ENTRY.id in model.accepted else [])
         t_max = 3.0 * period
         bounds = [(0.0, t_max)] + [(-0.5 / ctx.f0_hz, 0.5 / ctx.f0_hz)] * (len(free) - 1)
 
@@ -114,7 +115,7 @@ class MotionArtefact(TiedEffect):
         }
         if len(free) > 1:  # the accepted clock offset, refitted jointly (the report may update it)
             detail["reestimated"] = {
-                "timing_error": {
+                timing_error.ENTRY.id: {
                     "offset_s": param(best.theta[1], math.sqrt(max(best.cov[1, 1], 0.0))),
                     "rate_ppm": param(best.theta[2], None),
                 }

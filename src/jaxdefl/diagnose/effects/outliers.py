@@ -27,6 +27,7 @@ import numpy as np
 from scipy import stats
 
 from ..._numerics import mad_sigma, wls
+from ...effects.outliers import ENTRY
 from .._base import Context, Detector, Proposal, State, keep_series
 from .screening import bonferroni, gain, param, residual, subset_trials, touched, updated
 
@@ -101,7 +102,8 @@ def _em(r: np.ndarray, scale: np.ndarray, sigma0: float, kind: str):
 
 
 class Outliers(Detector):
-    id = "outliers"
+    id = ENTRY.id
+    sensors, structural, needs_reference = ENTRY.sensors, ENTRY.structural, ENTRY.needs_reference
     meaning = "heavy-tailed residuals: single frames far off (mixed pixels, segmentation failures)"
     plausible, plausible_unit, gate_params = 0.5, "noise", 2  # 1 % of the frames 5 σ off
     noise_structure = True

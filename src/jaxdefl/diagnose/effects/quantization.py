@@ -62,6 +62,7 @@ import numpy as np
 from ..._lattice import dithered_round, dithered_round_var
 from ..._lattice import smoothed_staircase as staircase  # the mean reading (dither 0: hard steps)
 from ..._numerics import P_MAX, wls
+from ...effects.quantization import ENTRY
 from .._base import Context, Detector, Proposal, State, keep_series
 from ..record_kind import value_lattice
 from .screening import bonferroni, chi2_sf, gain, param, residual, touched, updated, weights
@@ -357,12 +358,11 @@ MIN_STEPS_ONE_SERIES = 10.0  # steps a single series' motion must span for its l
 
 
 class Quantization(Detector):
-    id = "quantization"
-    structural = False  # a converter's or a disparity's lattice
+    id = ENTRY.id
+    sensors, structural, needs_reference = ENTRY.sensors, ENTRY.structural, ENTRY.needs_reference
     meaning = "depth measured in steps (structured-light disparity quantisation, a logger's ADC)"
     # A ToF camera's range is a 14-bit phase (a lattice of ~0.3 mm per pixel, averaged away over
     # a plate's pixels): no lattice a plate's centroid can show. Disparity, ADCs and trackers do.
-    sensors = ("structured_light", "lds", "accelerometer", "camera_tracking", "logger")
     causes = {  # noqa: RUF012
         "structured_light": "the structured-light camera measures disparity in fractions of a pixel",
         "camera_tracking": "the tracker reports positions on a sub-pixel lattice",

@@ -30,6 +30,7 @@ import numpy as np
 from scipy import stats
 
 from ..._numerics import harmonic_design
+from ...effects import amplitude_modulation, frequency_modulation, motion_artefact, timing_error
 from .._base import Context, Detector, Proposal, State, keep_series, loglik
 from .._varpro import SharedFit, fit_shared
 from .screening import param, updated, weights
@@ -198,7 +199,7 @@ PPM = 1e-6
 # a tap spread's gain loss must beat a pure phase shift (a clock offset) by this much in χ² for
 # `motion_artefact` and `timing_error` to be told apart; below it the data cannot separate them
 AMBIGUOUS_CHI2 = 10.0
-TIED_EFFECTS = ("motion_artefact", "timing_error")
+TIED_EFFECTS = (motion_artefact.ENTRY.id, timing_error.ENTRY.id)  # needs_reference in the vocabulary
 NAMES = ("tap_spread_s", "offset_s", "rate_ppm")
 
 
@@ -282,10 +283,10 @@ class TiedModel:
         means = [states[i].mean for i in idx]
         cur = np.zeros(3)
         free = []
-        if "motion_artefact" in self.accepted:
+        if motion_artefact.ENTRY.id in self.accepted:
             free.append(0)
             cur[0] = 0.5 / ctx.frame_rate_hz if ctx.frame_rate_hz else ctx.dt_s / 2
-        if "timing_error" in self.accepted:
+        if timing_error.ENTRY.id in self.accepted:
             free += [1, 2]
         if free:  # the accepted reference effects' parameters, from the current means
             cur = self.fit(cur, free, data=means).theta
@@ -362,7 +363,7 @@ def tied_proposal_states(
 # ---------------------------------------------------------------------------------------------
 # carriers of the current motion (amplitude and phase modulation)
 
-MODULATIONS = ("amplitude_modulation", "frequency_modulation")
+MODULATIONS = (amplitude_modulation.ENTRY.id, frequency_modulation.ENTRY.id)
 
 
 def current_motion(ctx: Context, i: int, mean: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

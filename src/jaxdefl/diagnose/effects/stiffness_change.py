@@ -44,6 +44,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ...effects.stiffness_change import ENTRY
 from .._base import Context, Detector, Proposal, State
 from .screening import bonferroni, chi2_sf, scanned
 from .shared_fits import Carriers, param
@@ -99,7 +100,8 @@ def _long_run(g: np.ndarray) -> float:
 
 
 class StiffnessChange(Detector):
-    id = "stiffness_change"
+    id = ENTRY.id
+    sensors, structural, needs_reference = ENTRY.sensors, ENTRY.structural, ENTRY.needs_reference
     meaning = "a crack: the motion's amplitude steps (its frequency shifts) at one instant on every plate"
     plausible, plausible_unit, gate_params = 1e-3, "motion", 2  # 0.1 % of the stiffness at mid-record
 

@@ -32,6 +32,8 @@ import math
 import numpy as np
 
 from ..._numerics import P_MAX
+from ...effects import motion_artefact
+from ...effects.timing_error import ENTRY
 from .._base import Context, Proposal, State
 from .shared_fits import (
     AMBIGUOUS_CHI2,
@@ -50,14 +52,14 @@ VARIANTS = {"offset": [1], "rate": [2], "both": [1, 2]}
 
 
 class TimingError(TiedEffect):
-    id = "timing_error"
-    structural = False  # a clock's offset or rate: the measurement's
+    id = ENTRY.id
+    sensors, structural, needs_reference = ENTRY.sensors, ENTRY.structural, ENTRY.needs_reference
     meaning = "the camera's clock runs late or at another rate than the reference's"
     plausible, plausible_unit, gate_params = 0.002, "seconds", 1  # 2 ms late (stamped on delivery)
 
     def propose_tied(self, ctx: Context, states: list[State], model, period: float) -> list[Proposal]:
         idx = model.idx
-        extra = [0] if "motion_artefact" in model.accepted else []
+        extra = [0] if motion_artefact.ENTRY.id in model.accepted else []
         half = 0.5 / ctx.f0_hz
 
         # starts: the rate from the camera's own frequency against the LDS's, the offset from
@@ -117,7 +119,7 @@ class TimingError(TiedEffect):
             if extra:  # the accepted tap spread, refitted jointly (the report may update it)
                 t_sig = math.sqrt(max(res.cov[0, 0], 0.0))
                 detail["reestimated"] = {
-                    "motion_artefact": motion_parameters(ctx, float(res.theta[0]), t_sig)
+                    motion_artefact.ENTRY.id: motion_parameters(ctx, float(res.theta[0]), t_sig)
                 }
             out.append(
                 Proposal(

@@ -1,0 +1,256 @@
+"""What one effect module declares (`Entry`), the pieces its injection and translation share
+(`Param`, `Motion`, `Report`, the scheduled-effect helpers) and the parameter checks."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .._sensors import SENSORS
+
+__all__ = [
+    "FRAME_LEVELS",
+    "LEVELS",
+    "PHASE",
+    "SENSORS",
+    "WHEN",
+    "Entry",
+    "Motion",
+    "Param",
+    "Report",
+    "active",
+    "all_of",
+    "check_when",
+    "elapsed",
+    "modulation_params",
+    "non_negative",
+    "positive",
+    "relative",
+]
+
+LEVELS = ("range", "timestamps", "motion", "plate", "measurement")
+FRAME_LEVELS = ("range", "timestamps", "motion")  # what rendered frames can show
+
+
+@dataclass(frozen=True)
+class Param:
+    """One parameter of an effect: its name, unit (or meaning), default (None: required) and,
+    for a word parameter, its choices; ``plate``: a plate number 1..n."""
+
+    name: str
+    unit: str
+    default: float | str | None = None
+    choices: tuple[str, ...] = ()
+    plate: bool = False
+
+
+@dataclass
+class Motion:
+    """The beam's motion terms at times ``tau`` (s since the first frame), composed by the motion
+    effects: deflection = mean + A(cycles)·amplitude·gain·sin(θ + shift) + Σ extra(θ), with
+    θ = 2π f0 τ + load_phase + φ0 and cycles counted on the load's phase; the longitudinal motion
+    takes the gain (not the amplitude factor of a stiffness change, which is the deflection's)."""
+
+    tau: np.ndarray
+    f0_hz: float
+    load_phase: Any = 0.0  # rad added to the load's phase (counted in load cycles)
+    amplitude: Any = 1.0  # factor on the mid-span amplitude
+    gain: Any = 1.0  # factor on the response (deflection and longitudinal)
+    shift: Any = 0.0  # rad added to the response's phase (not counted in cycles)
+    extra: list[Callable[[np.ndarray], np.ndarray]] = field(default_factory=list)  # mm at mid-span
+    # other bending modes: (shape φ(x / L), displacement q(τ) mm at the antinode), each plate at
+    # x moving by φ(x / L) q(τ) (`jaxdefl.simulate.injection.mode_displacement`)
+    modes: list[tuple[Callable[[np.ndarray], np.ndarray], np.ndarray]] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class Report:
+    """A diagnosed effect (an entry of DIAG.json's ``effects``) as an entry's ``from_diagnosis``
+    reads it: the fitted values ``p`` (name -> value), ``detail``, ``kind``, ``plates``, the
+    record's ``duration_s``, whether it was seen on at least half of the plates (``whole``: a
+    camera effect) and the range-to-centroid ``calibration`` (or None)."""
+
+    p: dict[str, Any]
+    detail: dict[str, Any]
+    kind: str | None
+    plates: tuple[int, ...]
+    duration_s: float
+    whole: bool = False
+    calibration: Any = None
+
+    @classmethod
+    def of(cls, e: dict, duration_s: float, calibration=None, n_plates: int = 0) -> Report:
+        """The report of one DIAG.json effect entry (parameters as ``{"value": ...}`` or bare)."""
+        p = {k: (v.get("value") if isinstance(v, dict) else v) for k, v in e.get("parameters", {}).items()}
+        detail = e.get("detail") or {}
+        plates = tuple(int(x) for x in e.get("plates", ()))
+        whole = n_plates > 0 and len(plates) * 2 >= n_plates
+        return cls(
+            p, detail, p.get("kind") or detail.get("kind"), plates, float(duration_s), whole, calibration
+        )
+
+    def per_range(self, sizes: dict, value: float) -> float:
+        """A trajectory-level size as the range size that makes it: the median over the effect's
+        series ({"4z": size, ...}) of size / gain, where the range-to-centroid gain is large
+        enough to tell; ``value`` without a calibration or per-series sizes."""
+        if self.calibration is None or not sizes:
+            return value
+        ratios = []
+        for key, size in sizes.items():
+            plate, axis = int(key[:-1]), key[-1]
+            g = self.calibration.gain_of(plate, axis)
+            if abs(g) >= 0.5:
+                ratios.append(float(size) / g)
+        return float(np.median(ratios)) if ratios else value
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One effect id of the vocabulary (`jaxdefl.effects.REGISTRY`).
+
+    Attributes:
+        id: the DIAG.json / ``[[effect]]`` id (the module's name).
+        meaning: the physics it stands for (one line).
+        rank: its place in the vocabulary: the diagnosis proposes candidates in this order, and
+            the simulator lists its effects by level, then rank.
+        sensors: the sensor kinds (`SENSORS`) that can produce it.
+        structural: the beam itself can make it (its motion or its shape change), not only a
+            measurement (a noise structure, a clock, a camera's motion or bound).
+        needs_reference: it can only be told against an LDS reference.
+        detectable: ``jaxdefl diagnose`` names it (its detector is
+            ``jaxdefl.diagnose.effects.<id>``).
+        level, params, inject, check, resolve: its injection (None: the simulator does not
+            inject it). ``inject`` acts at ``level``:
+
+            - range: ``inject(e, t_rel, n_plates, seed) -> (columns, (frame, column) mm)``,
+              column 0 the pixels off the plates, p plate p's;
+            - timestamps: ``inject(e, t_rel) -> (frame,) s`` added to the written stamps;
+            - motion: ``inject(e, m: Motion)`` composes its terms into ``m``;
+            - plate: ``inject(e, t_rel, motion, dx, dy, rest)`` scales (frame, plate) motions in
+              place;
+            - measurement: ``inject(e, t_rel, xyz, noise)`` on (frame, plate, 3) centroids in
+              place.
+
+            ``check(e, bad)`` raises ``bad(name, expected)`` for an impossible value;
+            ``resolve(params, bad)`` fills defaults derived from other parameters
+            (``bad(name, expected, value)``).
+        from_diagnosis: ``from_diagnosis(report: Report) -> (parameters, plates)``: the
+            ``[[effect]]`` table that simulates a diagnosed effect as it was reported.
+        locator: (parameter, resolution): what tells two injections of the id apart (a jump's
+            time, a line's frequency), for reports of one effect seen on several axes.
+        example: the parameters of a valid ``[[effect]]`` table, large enough to be diagnosed on
+            a few minutes of an 11-plate ToF record (the conformance suite injects it).
+        draw: ``draw(b) -> effect`` the concealed benchmark's random draw of a detectable id
+            (`jaxdefl.simulate.effects.draw_effect`; ``b`` a `jaxdefl.simulate.effects.Draw`:
+            the recording, the random stream, the size target and the benchmark's sizing).
+        scored: ``scored(kind) -> {name: sign matters}``: the parameters the benchmark requires
+            within 25 % of their true values, by the drawn kind
+            (`jaxdefl.simulate.effects.primary_parameters`).
+    """
+
+    id: str
+    meaning: str
+    rank: int
+    sensors: tuple[str, ...] = SENSORS
+    structural: bool = True
+    needs_reference: bool = False
+    detectable: bool = True
+    level: str | None = None
+    params: tuple[Param, ...] = ()
+    inject: Callable | None = None
+    check: Callable | None = None
+    resolve: Callable | None = None
+    from_diagnosis: Callable[[Report], tuple[dict, tuple[int, ...]]] | None = None
+    locator: tuple[str, float] | None = None
+    example: dict[str, Any] = field(default_factory=dict)
+    draw: Callable[[Any], dict] | None = None
+    scored: Callable[[str], dict[str, bool]] | None = None
+
+    @property
+    def injectable(self) -> bool:
+        return self.inject is not None
+
+    def param(self, name: str) -> Param | None:
+        return next((p for p in self.params if p.name == name), None)
+
+
+# ---------------------------------------------------------------------------------------------
+# scheduled effects: from t_s, to the end or for duration_s
+
+
+def active(e, t_rel: np.ndarray) -> np.ndarray:
+    """Whether a scheduled effect acts at ``t_rel``."""
+    t_rel = np.asarray(t_rel, np.float64)
+    on = t_rel >= e.p("t_s")
+    if e.p("duration_s") > 0:
+        on &= t_rel < e.p("t_s") + e.p("duration_s")
+    return on
+
+
+def elapsed(e, t_rel: np.ndarray) -> np.ndarray:
+    """Time spent under a scheduled effect up to ``t_rel`` (0 before it)."""
+    t_rel = np.asarray(t_rel, np.float64)
+    end = e.p("t_s") + e.p("duration_s") if e.p("duration_s") > 0 else np.inf
+    return np.clip(np.minimum(t_rel, end) - e.p("t_s"), 0.0, None)
+
+
+WHEN = (Param("t_s", "s after the recording start"), Param("duration_s", "s (0: to the end)", 0.0))
+PHASE = Param("phase_rad", "rad", 0.0)
+
+
+def modulation_params(rate: str, rate_unit: str, depth: str, depth_unit: str) -> tuple[Param, ...]:
+    """A modulation's parameters: linear about t_ref_s, or sinusoidal (all default 0)."""
+    names = (
+        (rate, rate_unit),
+        ("t_ref_s", "s"),
+        (depth, depth_unit),
+        ("freq_hz", "Hz"),
+        ("phase_rad", "rad"),
+    )
+    return tuple(Param(n, u, 0.0) for n, u in names)
+
+
+# ---------------------------------------------------------------------------------------------
+# parameter checks: check(e, bad) raises bad(name, expected)
+
+
+def check_when(e, bad):
+    if not e.p("t_s") >= 0:
+        raise bad("t_s", "a time >= 0 s")
+    if not e.p("duration_s") >= 0:
+        raise bad("duration_s", "a duration >= 0 s")
+
+
+def relative(name: str):
+    def check(e, bad):
+        if not e.p(name) > -1.0:
+            raise bad(name, "a relative change > -1")
+
+    return check
+
+
+def positive(name: str, expected: str):
+    def check(e, bad):
+        if not e.p(name) > 0:
+            raise bad(name, expected)
+
+    return check
+
+
+def non_negative(name: str, expected: str):
+    def check(e, bad):
+        if not e.p(name) >= 0:
+            raise bad(name, expected)
+
+    return check
+
+
+def all_of(*fns):
+    def check(e, bad):
+        for f in fns:
+            f(e, bad)
+
+    return check
