@@ -274,14 +274,16 @@ def test_a_detectable_effect_goes_round_the_loop(eid):
         assert abs(specs2[0].p(name) - first.p(name)) <= max(5 * step, 4 * math.hypot(s1, s2))
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("eid", EFFECT_IDS)
-def test_a_control_is_left_clean(eid):
-    """The recording of the round trip without any effect: the diagnosis, looking for ``eid``
-    alone, does not name it."""
-    traj, lds, duration = _recording((), seed=5)
-    reports, _ = _diagnosed(eid, traj, lds, duration)
-    assert not reports, reports
+@pytest.mark.parametrize("seed", [5, 6])
+def test_a_control_is_left_clean(seed):
+    """The recordings of the round trip without any effect: the diagnosis with the whole
+    vocabulary names nothing (one search over every id, as a user runs it, rather than one per
+    id: the ids compete in it)."""
+    from jaxdefl.diagnose import diagnose
+
+    traj, lds, _ = _recording((), seed=seed)
+    diag = diagnose(traj, lds, sensor="tof")
+    assert not diag["effects"], [e["id"] for e in diag["effects"]]
 
 
 def _sigma(report: dict, name: str) -> float:
