@@ -72,6 +72,14 @@ def test_an_entry_is_well_formed(eid):
 
 
 @pytest.mark.parametrize("eid", IDS)
+def test_the_record_kinds_an_effect_is_searched_in_are_kinds_and_include_the_forced_harmonic(eid):
+    from jaxdefl.diagnose.record_kind import KINDS
+
+    kinds = REGISTRY[eid].record_kinds
+    assert kinds is None or (set(kinds) <= set(KINDS) and "forced_harmonic" in kinds), kinds
+
+
+@pytest.mark.parametrize("eid", IDS)
 def test_every_parameter_has_a_unit(eid):
     for p in REGISTRY[eid].params:
         assert p.unit.strip(), f"{eid}.{p.name} has no unit"
@@ -299,9 +307,6 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "jaxdefl"
 # files that still spell ids, each with its reason (to be emptied: issue 24)
 SPELLED = {
     "simulate/effects.py": "the concealed benchmark's per-id draws and rendering (to move into the modules)",
-    "reconcile/twin.py": "the twin's line keys (edited by the integrator this session)",
-    "diagnose/record_kind.py": "the ids each record kind searches (edited by the integrator this session)",
-    "diagnose/_sensor_nominal.py": "a configured sensor's own effects (the integrator's this session)",
 }
 
 

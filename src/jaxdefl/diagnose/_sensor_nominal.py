@@ -35,6 +35,7 @@ import numpy as np
 from scipy import stats
 
 from .._numerics import wls
+from ..effects import level_jump, quantization
 from ._base import Context, State
 from .record_kind import binary_steps
 
@@ -113,7 +114,7 @@ def within_configured(ctx: Context, effect: dict) -> str | None:
     params = {
         k: (v.get("value") if isinstance(v, dict) else v) for k, v in effect.get("parameters", {}).items()
     }
-    if eid == "quantization" and ctx.depth_step_mm_at_2m and params.get("step_mm") is not None:
+    if eid == quantization.ENTRY.id and ctx.depth_step_mm_at_2m and params.get("step_mm") is not None:
         depth = _depth_mm(ctx, effect.get("plates", ctx.plates))
         q_cfg = float(ctx.depth_step_mm_at_2m) * (depth / DEPTH_AT) ** 2
         q = float(params["step_mm"])
@@ -123,7 +124,7 @@ def within_configured(ctx: Context, effect: dict) -> str | None:
                 f"its {q_cfg:.3g} mm at the plates' {depth:.0f}-mm range ({ctx.depth_step_mm_at_2m:g} mm "
                 f"at 2 m, growing as z²; at most {LATTICE_FACTOR:g}× that is the camera's own)"
             )
-    if eid == "level_jump" and _configured_jumps(ctx) and params.get("size_mm") is not None:
+    if eid == level_jump.ENTRY.id and _configured_jumps(ctx) and params.get("size_mm") is not None:
         # the step on the depth series where known (the reported size is one over every axis;
         # a depth step moves x and y by x/z and y/z of it)
         size = effect.get("depth_step_mm")

@@ -49,6 +49,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._numerics import difference_sigma
+from ..effects import EFFECT_IDS, REGISTRY
 from ._base import Context, State
 
 __all__ = [
@@ -64,29 +65,16 @@ __all__ = [
 
 KINDS = ("forced_harmonic", "multi_tone", "free_decay", "broadband", "quasi_static")
 # Effects defined against one steady loading harmonic: under another kind of record they
-# cannot be told from the record's own motion (`cannot_tell`).
-HARMONIC_LOCKED = (
-    "harmonic_distortion",
-    "amplitude_modulation",
-    "frequency_modulation",
-    "stiffness_change",
-    "clipping",
-    "motion_artefact",
-    "timing_error",
-    "mode_shape",
-    "heteroscedastic_noise",
-    "extra_periodic",
-    "camera_shake",
-)
+# cannot be told from the record's own motion (`cannot_tell`). Each effect says where it is
+# searched (`jaxdefl.effects` ``Entry.record_kinds``; a damped-mode model leaves its largest
+# misfit where the motion is largest, which a mixture would read as outliers).
+HARMONIC_LOCKED = tuple(e for e in EFFECT_IDS if REGISTRY[e].record_kinds == ("forced_harmonic",))
 # what remains searched, per kind (None: everything)
 SEARCHED = {
-    "forced_harmonic": None,
-    "multi_tone": ("drift", "level_jump", "outliers", "quantization"),
-    # a damped-mode model leaves its largest misfit where the motion is largest: a mixture
-    # would read that as outliers
-    "free_decay": ("level_jump", "quantization"),
-    "broadband": ("quantization",),
-    "quasi_static": ("quantization",),
+    kind: None
+    if kind == "forced_harmonic"
+    else tuple(e for e in EFFECT_IDS if REGISTRY[e].record_kinds is None or kind in REGISTRY[e].record_kinds)
+    for kind in KINDS
 }
 LINE_SHARE = 0.03  # a line carries at least this share of the record's variance
 # multi-tone: a second line, not a harmonic of the strongest, carries this share (an extra

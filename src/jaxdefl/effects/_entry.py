@@ -122,6 +122,9 @@ class Entry:
         needs_reference: it can only be told against an LDS reference.
         detectable: ``jaxdefl diagnose`` names it (its detector is
             ``jaxdefl.diagnose.effects.<id>``).
+        record_kinds: the kinds of record (`jaxdefl.diagnose.record_kind.KINDS`) in which the
+            diagnosis searches it, None for every kind: an effect defined against one steady
+            loading harmonic cannot be told from the motion of a record of another kind.
         level, params, inject, check, resolve: its injection (None: the simulator does not
             inject it). ``inject`` acts at ``level``:
 
@@ -158,6 +161,7 @@ class Entry:
     structural: bool = True
     needs_reference: bool = False
     detectable: bool = True
+    record_kinds: tuple[str, ...] | None = None
     level: str | None = None
     params: tuple[Param, ...] = ()
     inject: Callable | None = None

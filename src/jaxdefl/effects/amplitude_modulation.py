@@ -45,6 +45,7 @@ def draw(b) -> dict:
 
 ENTRY = Entry(
     id="amplitude_modulation",
+    record_kinds=("forced_harmonic",),
     meaning="the load's amplitude A·(1 + r (t_rel − t_ref) + m cos(2π f_m t_rel + ψ))",
     rank=5,
     level="motion",

@@ -67,6 +67,7 @@ def draw(b) -> dict:
 
 ENTRY = Entry(
     id="camera_shake",
+    record_kinds=("forced_harmonic",),
     meaning="the camera moves along its optical axis: every pixel reads the same displacement",
     rank=14,
     sensors=("tof", "structured_light", "camera_tracking"),  # a sensor that sees every plate at once

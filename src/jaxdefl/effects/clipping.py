@@ -48,6 +48,7 @@ def draw(b) -> dict:
 
 ENTRY = Entry(
     id="clipping",
+    record_kinds=("forced_harmonic",),
     meaning="a plate's reading saturating at level_mm from its rest position (the depth band's bound)",
     rank=13,
     structural=False,  # a depth band's or a converter's bound

@@ -42,6 +42,7 @@ def draw(b) -> dict:
 
 ENTRY = Entry(
     id="drift",
+    record_kinds=("forced_harmonic", "multi_tone"),
     meaning="a camera warming up: every pixel reads a·exp(−t_rel/τ) farther",
     rank=3,
     level="range",

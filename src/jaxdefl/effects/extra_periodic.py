@@ -41,6 +41,7 @@ def draw(b) -> dict:
 
 ENTRY = Entry(
     id="extra_periodic",
+    record_kinds=("forced_harmonic",),
     meaning="a second motion of the beam in its deflection shape",
     rank=8,
     level="motion",

@@ -47,6 +47,7 @@ def draw(b) -> dict:
 
 ENTRY = Entry(
     id="frequency_modulation",
+    record_kinds=("forced_harmonic",),
     meaning="the load's phase + π d (t_rel − t_ref)² + β sin(2π f_m t_rel + ψ)",
     rank=6,
     level="motion",

@@ -43,6 +43,7 @@ def draw(b) -> dict:
 
 ENTRY = Entry(
     id="harmonic_distortion",
+    record_kinds=("forced_harmonic",),
     meaning="the load's k-th harmonic a cos(k θ − ψ)",
     rank=2,
     level="motion",

@@ -31,6 +31,7 @@ def draw(b) -> dict:
 
 ENTRY = Entry(
     id="heteroscedastic_noise",
+    record_kinds=("forced_harmonic",),
     meaning="noise level that depends on the motion's phase or changes over the record",
     rank=10,
     structural=False,  # a noise structure: the measurement's

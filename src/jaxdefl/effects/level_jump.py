@@ -34,6 +34,7 @@ def draw(b) -> dict:
 
 ENTRY = Entry(
     id="level_jump",
+    record_kinds=("forced_harmonic", "multi_tone", "free_decay"),
     meaning="a range offset from t_jump_s on",
     rank=4,
     level="range",

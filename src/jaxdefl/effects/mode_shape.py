@@ -45,6 +45,7 @@ def draw(b) -> dict:
 
 ENTRY = Entry(
     id="mode_shape",
+    record_kinds=("forced_harmonic",),
     meaning="the beam's n-th bending mode a sin(nπ x/L) cos(2π f t + ψ)",
     rank=12,
     level="motion",

@@ -19,6 +19,7 @@ def draw(b) -> dict:
 
 ENTRY = Entry(
     id="motion_artefact",
+    record_kinds=("forced_harmonic",),
     meaning="gain loss and lag of the camera against the LDS from its sequential four-phase sampling",
     rank=1,
     sensors=("tof",),  # only a four-phase (ToF) camera samples its taps in sequence

@@ -63,6 +63,7 @@ def draw(b) -> dict:
 
 ENTRY = Entry(
     id="outliers",
+    record_kinds=("forced_harmonic", "multi_tone"),
     meaning="that fraction of the frames read the plates N(0, scale²) off",
     rank=9,
     structural=False,  # a noise structure: the measurement's

@@ -56,6 +56,7 @@ def draw(b) -> dict:
 
 ENTRY = Entry(
     id="stiffness_change",
+    record_kinds=("forced_harmonic",),
     meaning="a crack: f0 × (1 + f0_change), the deflection amplitude × (1 + amplitude_change)",
     rank=15,
     level="motion",

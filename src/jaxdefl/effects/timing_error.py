@@ -27,6 +27,7 @@ def draw(b) -> dict:
 
 ENTRY = Entry(
     id="timing_error",
+    record_kinds=("forced_harmonic",),
     meaning="the camera's clock: stamps = t + offset + rate·t_rel",
     rank=7,
     structural=False,  # a clock's offset or rate: the measurement's

@@ -32,6 +32,7 @@ import numpy as np
 import pandas as pd
 
 from .._numerics import harmonic_design, wls
+from ..effects import REGISTRY
 from ..simulate.injection import (
     EffectSpec,
     mode_displacement,
@@ -57,12 +58,12 @@ class _Series:
 
 
 def line_key(spec: EffectSpec) -> tuple:
-    """What tells an additive motion term apart: its id and its frequency (or order)."""
-    if spec.id == "extra_periodic":
-        return (spec.id, round(spec.p("freq_hz"), 9))
-    if spec.id == "harmonic_distortion":
-        return (spec.id, int(spec.p("order")))
-    return (spec.id,)
+    """What tells an additive motion term apart: its id and its locator (a line's frequency, a
+    harmonic's order: `jaxdefl.effects` ``Entry.locator``)."""
+    locator = REGISTRY[spec.id].locator
+    if locator is None:
+        return (spec.id,)
+    return (spec.id, round(float(spec.p(locator[0])), 9))
 
 
 class Twin:
