@@ -1,3 +1,5 @@
+import ast
+
 import jax
 import numpy as np
 import pandas as pd
@@ -37,3 +39,15 @@ def harmonic_table(
 @pytest.fixture
 def make_table():
     return harmonic_table
+
+
+def docstring_ids(tree: ast.AST) -> set[int]:
+    """``id()`` of every docstring constant in a parsed module (literal checks skip them)."""
+    return {
+        id(n.body[0].value)
+        for n in ast.walk(tree)
+        if isinstance(n, (ast.Module, ast.FunctionDef, ast.ClassDef, ast.AsyncFunctionDef))
+        and n.body
+        and isinstance(n.body[0], ast.Expr)
+        and isinstance(n.body[0].value, ast.Constant)
+    }

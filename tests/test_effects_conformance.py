@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from conftest import docstring_ids
 
 from jaxdefl._sensors import SENSORS
 from jaxdefl.effects import EFFECT_IDS, INJECTABLE, LEVELS, REGISTRY, Motion, Report
@@ -325,14 +326,7 @@ def test_no_effect_id_is_spelled_outside_its_own_files():
         if rel in SPELLED:
             continue
         tree = ast.parse(path.read_text())
-        docstrings = {
-            id(n.body[0].value)
-            for n in ast.walk(tree)
-            if isinstance(n, (ast.Module, ast.FunctionDef, ast.ClassDef, ast.AsyncFunctionDef))
-            and n.body
-            and isinstance(n.body[0], ast.Expr)
-            and isinstance(n.body[0].value, ast.Constant)
-        }
+        docstrings = docstring_ids(tree)
         for n in ast.walk(tree):
             if isinstance(n, ast.Constant) and n.value in ids and id(n) not in docstrings:
                 if not _own(path, n.value):

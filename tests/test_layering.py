@@ -17,6 +17,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from conftest import docstring_ids
 
 SRC = Path(__file__).resolve().parents[1] / "src" / "jaxdefl"
 STAGES = (
@@ -118,14 +119,7 @@ def test_statuses_are_named_not_spelled(path):
     if path.name == "status.py":
         return
     tree = ast.parse(path.read_text())
-    docstrings = {
-        id(n.body[0].value)
-        for n in ast.walk(tree)
-        if isinstance(n, (ast.Module, ast.FunctionDef, ast.ClassDef, ast.AsyncFunctionDef))
-        and n.body
-        and isinstance(n.body[0], ast.Expr)
-        and isinstance(n.body[0].value, ast.Constant)
-    }
+    docstrings = docstring_ids(tree)
     spelled = [
         f"line {n.lineno}: {n.value!r}"
         for n in ast.walk(tree)
