@@ -179,9 +179,11 @@ def test_concealed_effect_is_named_and_its_simulation_comes_back_inside_the_null
     rec = reconcile(df, lds, ReconcileSettings(diagnosis=DiagnoseSettings(sensor="tof")))
     assert eid in [e["id"] for e in rec.effects]
     row = next(r for r in rec.levels if r["metric"] == metric)
-    assert row["before"] > row["null_95"], row
-    assert row["after"] <= row["null_95"], row
-    assert rec.verdict(row) == "reconciled"
+    assert row["before"] > row["null_95"], row  # the metric sees the effect at its 95 % band
+    assert row["after"] <= row["null_95"], row  # and the simulation with it comes back inside
+    # the verdict reads the wider family band (8 metrics at once): a small effect (the outliers
+    # of seed 23) can lie between the two bands, where it "agreed already"; never still apart
+    assert rec.verdict(row) == ("reconciled" if row["before"] > row["null_family"] else "agreed already")
 
 
 @pytest.mark.slow
