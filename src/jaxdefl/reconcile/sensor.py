@@ -149,5 +149,5 @@ def calibrate(
         float(np.sqrt(np.mean(np.square(se)))) if se else 0.0,
         {i + 1: float(x) / cfg.beam.span_mm for i, x in enumerate(cfg.plate_x_mm())},
         outliers,
-        *(jumps if jumps[0] > 0 and jumps[1] > 0 else (0.0, 0.0)),
+        *jumps,
     )

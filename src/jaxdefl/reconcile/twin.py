@@ -40,6 +40,7 @@ from ..simulate.injection import (
     range_offset,
     stamp_times,
 )
+from ..simulate.structured_light import level_jump_path
 from .metrics import short_term_noise
 
 __all__ = ["AXES", "Twin", "line_key"]
@@ -169,17 +170,13 @@ class Twin:
 
     def _configured_jumps(self, frame_t: np.ndarray, seed: int) -> np.ndarray | None:
         """(frame,) mm: a structured-light camera's level jumps as the frame simulator draws
-        them (`simulate.structured_light.session_offsets_mm`: a Poisson count at the configured
-        rate, uniform times, N(0, jump_mm) sizes, cumulated), or None without configured jumps."""
+        them (`simulate.structured_light.level_jump_path`), or None without configured jumps."""
         cal = self.calibration
         if cal is None or not (cal.jumps_per_minute > 0 and cal.jump_mm > 0) or not frame_t.size:
             return None
         rng = np.random.default_rng([int(seed), 9303])
         duration = float(frame_t[-1] - frame_t[0])
-        n = rng.poisson(cal.jumps_per_minute * duration / 60.0)
-        t_j = frame_t[0] + np.sort(rng.uniform(0.0, max(duration, 1e-9), n))
-        cum = np.concatenate([[0.0], np.cumsum(rng.normal(0.0, cal.jump_mm, n))])
-        return cum[np.searchsorted(t_j, frame_t, side="right")]
+        return level_jump_path(rng, cal.jumps_per_minute, cal.jump_mm, frame_t, frame_t[0], duration)
 
     def shows(self, effect: EffectSpec, seed: int = 0) -> bool:
         """Whether ``effect`` changes the simulated table (same seed, with and without it)."""

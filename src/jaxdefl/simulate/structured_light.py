@@ -17,7 +17,14 @@ import numpy as np
 from .config import SimConfig
 from .scene import KIND_BEAM_TOP, KIND_SPREADER, KIND_STATIC, PixelModel
 
-__all__ = ["KinectModel", "kinect_model", "render_kinect", "session_offsets_mm", "quantisation_step_px"]
+__all__ = [
+    "KinectModel",
+    "kinect_model",
+    "level_jump_path",
+    "render_kinect",
+    "session_offsets_mm",
+    "quantisation_step_px",
+]
 
 _KINDS = (KIND_STATIC, KIND_BEAM_TOP, KIND_SPREADER)
 
@@ -78,11 +85,18 @@ def session_offsets_mm(cfg: SimConfig, t_s: np.ndarray, seed: int, duration_s: f
     cam = cfg.camera
     rng = np.random.default_rng([seed, 31])
     shift = rng.normal(0.0, cam.session_shift_mm / np.sqrt(2.0))
-    n_jumps = rng.poisson(cam.jumps_per_minute * max(duration_s, 0.0) / 60.0)
-    t_j = cfg.t0_s + np.sort(rng.uniform(0, max(duration_s, 1e-9), n_jumps))
-    size = rng.normal(0.0, cam.jump_mm, n_jumps)
-    cum = np.concatenate([[0.0], np.cumsum(size)])
-    return shift + cum[np.searchsorted(t_j, np.asarray(t_s), side="right")]
+    return shift + level_jump_path(rng, cam.jumps_per_minute, cam.jump_mm, t_s, cfg.t0_s, duration_s)
+
+
+def level_jump_path(
+    rng: np.random.Generator, per_minute: float, jump_mm: float, t_s, t0_s: float, duration_s: float
+) -> np.ndarray:
+    """The depth image's level jumps at times ``t_s``: a Poisson count at ``per_minute`` over
+    ``duration_s`` from ``t0_s``, uniform times, N(0, ``jump_mm``) sizes, cumulated (mm)."""
+    n_jumps = rng.poisson(per_minute * max(duration_s, 0.0) / 60.0)
+    t_j = t0_s + np.sort(rng.uniform(0, max(duration_s, 1e-9), n_jumps))
+    cum = np.concatenate([[0.0], np.cumsum(rng.normal(0.0, jump_mm, n_jumps))])
+    return cum[np.searchsorted(t_j, np.asarray(t_s), side="right")]
 
 
 def render_kinect(
