@@ -37,7 +37,7 @@ def main() -> None:
 
     from threadpoolctl import threadpool_limits
 
-    from jaxdefl.diagnose import build_context, load_effects, run_diagnosis
+    from jaxdefl.diagnose import build_context, load_detectors, run_diagnosis
     from jaxdefl.fit import estimate_windows
     from jaxdefl.io import validate_trajectory
     from jaxdefl.series import make_windows
@@ -82,7 +82,7 @@ def main() -> None:
         t = time.perf_counter()
         ctx, states, _ = build_context(traj, lds, settings)
         print(f"  context (validation, nominal and reference fits): {time.perf_counter() - t:.2f} s")
-        for eid, eff in load_effects().items():
+        for eid, eff in load_detectors().items():
             if eff.cannot_tell(ctx):
                 continue
             t = time.perf_counter()

@@ -14,7 +14,7 @@ from jaxdefl._errors import InputError, ParameterError
 from jaxdefl.cli import main
 from jaxdefl.diagnose import EFFECT_IDS, State, diagnose, loglik, rms_equivalent, run_diagnosis
 from jaxdefl.diagnose._varpro import fit_shared
-from jaxdefl.diagnose.effects.extra_periodic import _columns as line_columns
+from jaxdefl.diagnose.detectors.extra_periodic import _columns as line_columns
 from jaxdefl.settings import DiagnoseSettings
 
 F0 = 3.0672
@@ -388,9 +388,9 @@ def test_config_supplies_the_camera_facts(tmp_path):
 
 
 def test_every_effect_id_is_in_the_library():
-    from jaxdefl.diagnose import load_effects
+    from jaxdefl.diagnose import load_detectors
 
-    assert set(load_effects()) == set(EFFECT_IDS)
+    assert set(load_detectors()) == set(EFFECT_IDS)
 
 
 def test_generator_frame_common_noise_is_recovered_and_comes_back_clean():

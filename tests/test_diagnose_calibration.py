@@ -9,7 +9,7 @@ from scipy import stats
 
 from jaxdefl.diagnose import Proposal
 from jaxdefl.diagnose._search import ALPHA_NAMED, Calibration
-from jaxdefl.diagnose.effects.screening import changepoint_trials
+from jaxdefl.diagnose.detectors.screening import changepoint_trials
 
 
 def _proposal(n_params: int, scan_params: int, trials: float) -> Proposal:

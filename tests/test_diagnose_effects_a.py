@@ -112,7 +112,7 @@ def close(a, b, tol=0.25):
 
 
 def test_harmonic_distortion_found_on_its_plates():
-    from jaxdefl.diagnose.effects.harmonic_distortion import EFFECT
+    from jaxdefl.diagnose.detectors.harmonic_distortion import EFFECT
 
     def inject(t, p, axis, clean, eps, sig):
         y = clean + sig * eps
@@ -131,7 +131,7 @@ def test_harmonic_distortion_found_on_its_plates():
 
 
 def test_harmonic_distortion_common_to_all_plates():
-    from jaxdefl.diagnose.effects.harmonic_distortion import EFFECT
+    from jaxdefl.diagnose.detectors.harmonic_distortion import EFFECT
 
     def inject(t, p, axis, clean, eps, sig):
         y = clean + sig * eps
@@ -148,7 +148,7 @@ def test_harmonic_distortion_common_to_all_plates():
 
 
 def test_harmonic_distortion_clean():
-    from jaxdefl.diagnose.effects.harmonic_distortion import EFFECT
+    from jaxdefl.diagnose.detectors.harmonic_distortion import EFFECT
 
     for seed in range(3):
         ctx, states = make_case(seed=10 + seed, n_plates=5)
@@ -161,7 +161,7 @@ def test_harmonic_distortion_clean():
 
 @pytest.mark.parametrize("amp, tau", [(0.25, 120.0), (-0.4, 300.0)])
 def test_drift_exponential(amp, tau):
-    from jaxdefl.diagnose.effects.drift import EFFECT
+    from jaxdefl.diagnose.detectors.drift import EFFECT
 
     def inject(t, p, axis, clean, eps, sig):
         y = clean + sig * eps
@@ -182,7 +182,7 @@ def test_drift_exponential(amp, tau):
 
 
 def test_drift_clean():
-    from jaxdefl.diagnose.effects.drift import EFFECT
+    from jaxdefl.diagnose.detectors.drift import EFFECT
 
     for seed in range(3):
         ctx, states = make_case(seed=20 + seed, n_plates=5)
@@ -195,7 +195,7 @@ def test_drift_clean():
 
 @pytest.mark.parametrize("plates, size, t_j", [((1, 2, 3, 4, 5), 0.15, 250.0), ((3,), -0.3, 420.0)])
 def test_level_jump(plates, size, t_j):
-    from jaxdefl.diagnose.effects.level_jump import EFFECT
+    from jaxdefl.diagnose.detectors.level_jump import EFFECT
 
     def inject(t, p, axis, clean, eps, sig):
         y = clean + sig * eps
@@ -215,7 +215,7 @@ def test_level_jump_on_one_plate_among_many_stays_there(seed):
     """A 0.25-mm jump on one plate of twelve (24 series): the other series, fitted at its split,
     pass the plain BIC now and then (χ²₁ > log n: 0.2 % each); paying for being chosen among
     the series keeps the jump on its plate and its size that plate's."""
-    from jaxdefl.diagnose.effects.level_jump import EFFECT
+    from jaxdefl.diagnose.detectors.level_jump import EFFECT
 
     def inject(t, p, axis, clean, eps, sig):
         y = clean + sig * eps
@@ -230,7 +230,7 @@ def test_level_jump_on_one_plate_among_many_stays_there(seed):
 
 def test_level_jump_common_below_each_plate():
     """0.06 mm on every plate: ~12 χ² units each, too little alone, plenty together."""
-    from jaxdefl.diagnose.effects.level_jump import EFFECT
+    from jaxdefl.diagnose.detectors.level_jump import EFFECT
 
     def inject(t, p, axis, clean, eps, sig):
         y = clean + sig * eps
@@ -247,7 +247,7 @@ def test_level_jump_common_below_each_plate():
 
 
 def test_level_jump_clean():
-    from jaxdefl.diagnose.effects.level_jump import EFFECT
+    from jaxdefl.diagnose.detectors.level_jump import EFFECT
 
     for seed in range(3):
         ctx, states = make_case(seed=30 + seed, n_plates=5)
@@ -261,7 +261,7 @@ def test_level_jump_clean():
 def test_extra_periodic_amplitude_is_the_depth_axis():
     """A vibration at 4.1 Hz, 0.3 mm along z and 0.1 mm along x on every plate: the reported
     amplitude is the z series' (a median over both axes, 0.2 mm, described neither)."""
-    from jaxdefl.diagnose.effects.extra_periodic import EFFECT
+    from jaxdefl.diagnose.detectors.extra_periodic import EFFECT
 
     def inject(t, p, axis, clean, eps, sig):
         a = 0.3 if axis == "z" else 0.1
@@ -287,7 +287,7 @@ def test_extra_periodic_amplitude_is_the_depth_axis():
 
 @pytest.mark.parametrize("kind", ["gaussian", "sign"])
 def test_outliers(kind):
-    from jaxdefl.diagnose.effects.outliers import EFFECT
+    from jaxdefl.diagnose.detectors.outliers import EFFECT
 
     frac, scale = 0.005, 5.0 * 0.76
     hit = {}
@@ -315,7 +315,7 @@ def test_outliers(kind):
 
 
 def test_outliers_clean():
-    from jaxdefl.diagnose.effects.outliers import EFFECT
+    from jaxdefl.diagnose.detectors.outliers import EFFECT
 
     for seed in range(3):
         ctx, states = make_case(seed=40 + seed, n_plates=5)
@@ -328,7 +328,7 @@ def test_outliers_clean():
 
 @pytest.mark.parametrize("kind, m, plates", [("phase", 0.3, (2, 3)), ("time", -0.25, (1, 2, 3, 4, 5))])
 def test_heteroscedastic_noise(kind, m, plates):
-    from jaxdefl.diagnose.effects.heteroscedastic_noise import EFFECT
+    from jaxdefl.diagnose.detectors.heteroscedastic_noise import EFFECT
 
     psi = 0.8
 
@@ -353,7 +353,7 @@ def test_heteroscedastic_noise(kind, m, plates):
 
 
 def test_heteroscedastic_noise_clean():
-    from jaxdefl.diagnose.effects.heteroscedastic_noise import EFFECT
+    from jaxdefl.diagnose.detectors.heteroscedastic_noise import EFFECT
 
     for seed in range(3):
         ctx, states = make_case(seed=50 + seed, n_plates=5)
@@ -366,7 +366,7 @@ def test_heteroscedastic_noise_clean():
 
 @pytest.mark.parametrize("q, o", [(1.0, 0.37), (0.45, 0.1)])
 def test_quantization(q, o):
-    from jaxdefl.diagnose.effects.quantization import EFFECT
+    from jaxdefl.diagnose.detectors.quantization import EFFECT
 
     def inject(t, p, axis, clean, eps, sig):
         if axis == "z":
@@ -384,7 +384,7 @@ def test_quantization(q, o):
 
 
 def test_quantization_clean():
-    from jaxdefl.diagnose.effects.quantization import EFFECT
+    from jaxdefl.diagnose.detectors.quantization import EFFECT
 
     for seed in range(3):
         ctx, states = make_case(seed=60 + seed, n_plates=5)
@@ -432,7 +432,7 @@ def test_quantization_with_noise_before_rounding():
     30 % of the hard staircase's, so the hard model is far off. The smoothed staircase is found on
     every z series, its step and dither recovered, and it fits better than the best hard
     staircase (which the search would not even propose)."""
-    from jaxdefl.diagnose.effects.quantization import EFFECT, Quantization, staircase
+    from jaxdefl.diagnose.detectors.quantization import EFFECT, Quantization, staircase
 
     q, o, pixels = 6.0, 0.37, 4
     dither = 0.76 * math.sqrt(pixels)
@@ -463,7 +463,7 @@ def test_quantization_does_not_depend_on_the_sensor_hint():
     """The same pixel-quantised data with the hint saying ToF: still found, alike."""
     import dataclasses
 
-    from jaxdefl.diagnose.effects.quantization import EFFECT
+    from jaxdefl.diagnose.detectors.quantization import EFFECT
 
     ctx, states = make_case(_pixel_readings(6.0, 0.37, 4, 3), seed=7, n_plates=5, amplitude=6.0)
     ref = EFFECT.propose(ctx, states)
@@ -476,7 +476,7 @@ def test_quantization_does_not_depend_on_the_sensor_hint():
 
 def test_quantization_not_taken_from_coloured_noise():
     """Smooth data, AR(1) noise (ρ 0.3-0.8), no quantization: nothing passes."""
-    from jaxdefl.diagnose.effects.quantization import EFFECT
+    from jaxdefl.diagnose.detectors.quantization import EFFECT
 
     for seed, rho in enumerate((0.3, 0.6, 0.8)):
 
@@ -496,7 +496,7 @@ def test_strided_running_median_follows_the_exact_one_on_a_coloured_spectrum():
     difference stays within the median's own sampling noise (~9 % for 201 Exp(1) values)."""
     import warnings
 
-    from jaxdefl.diagnose.effects.extra_periodic import local_median
+    from jaxdefl.diagnose.detectors.extra_periodic import local_median
 
     def exact(x, width=201):
         pad = width // 2

@@ -11,7 +11,7 @@ import pytest
 
 from jaxdefl.diagnose import Context, Harmonic, Series, State, loglik
 from jaxdefl.diagnose._search import Calibration
-from jaxdefl.diagnose.effects.shared_fits import tap_response
+from jaxdefl.diagnose.detectors.shared_fits import tap_response
 from jaxdefl.fit.motion import motion_artefact_response
 
 F0 = 3.0672
@@ -167,7 +167,7 @@ def test_tap_response_matches_fit_motion():
 
 def test_motion_artefact_found():
     """Taps over 0.4 of a 20-Hz frame: 0.5 % gain loss and an 8° lag, 0.3-0.45 σ of effect."""
-    from jaxdefl.diagnose.effects.motion_artefact import EFFECT
+    from jaxdefl.diagnose.detectors.motion_artefact import EFFECT
 
     ctx, states = make_case(seed=1, lds_plates=(2, 3, 4), axes=("z", "x"), tap_spread=0.02)
     props = passing(ctx, states, EFFECT.propose(ctx, states))
@@ -184,8 +184,8 @@ def test_motion_artefact_found():
 
 
 def test_timing_offset_found_and_not_a_motion_artefact():
-    from jaxdefl.diagnose.effects.motion_artefact import EFFECT as MOTION
-    from jaxdefl.diagnose.effects.timing_error import EFFECT
+    from jaxdefl.diagnose.detectors.motion_artefact import EFFECT as MOTION
+    from jaxdefl.diagnose.detectors.timing_error import EFFECT
 
     # late: the opposite phase of the taps, no T fits; early: the same phase, only the gain loss
     # (1 % at 10 ms early and 3 Hz: 25-37 µm on these plates, σ_A 10 µm) tells them apart
@@ -203,7 +203,7 @@ def test_timing_offset_found_and_not_a_motion_artefact():
 
 def test_unresolved_gain_loss_is_said():
     """6 ms early at 3 Hz: T = 16 ms would bring a 0.4 % gain loss, within the noise: ambiguous."""
-    from jaxdefl.diagnose.effects.motion_artefact import EFFECT as MOTION
+    from jaxdefl.diagnose.detectors.motion_artefact import EFFECT as MOTION
 
     ctx, states = make_case(seed=8, lds_plates=(2, 3, 4), clock_offset=-0.006)
     (p,) = MOTION.propose(ctx, states)
@@ -216,8 +216,8 @@ def test_unresolved_tap_lead_is_one_effect_not_a_clock(seed):
     which early timestamps would give alike (on these seeds the noise even favours them by a
     χ² unit or two). The camera's own mechanism is chosen, saying that a clock would do alike,
     and no clock error is left after it."""
-    from jaxdefl.diagnose.effects.motion_artefact import EFFECT as MOTION
-    from jaxdefl.diagnose.effects.timing_error import EFFECT as TIMING
+    from jaxdefl.diagnose.detectors.motion_artefact import EFFECT as MOTION
+    from jaxdefl.diagnose.detectors.timing_error import EFFECT as TIMING
 
     ctx, states = make_case(seed=seed, lds_plates=(2, 3, 4), tap_spread=0.3 / FS)
     p = passing(ctx, states, MOTION.propose(ctx, states) + TIMING.propose(ctx, states))[0]
@@ -228,7 +228,7 @@ def test_unresolved_tap_lead_is_one_effect_not_a_clock(seed):
 
 
 def test_timing_rate_found():
-    from jaxdefl.diagnose.effects.timing_error import EFFECT
+    from jaxdefl.diagnose.detectors.timing_error import EFFECT
 
     ctx, states = make_case(seed=4, lds_plates=(2, 4), clock_ppm=-80.0)
     props = passing(ctx, states, EFFECT.propose(ctx, states))
@@ -239,8 +239,8 @@ def test_timing_rate_found():
 
 def test_motion_artefact_and_timing_offset_together():
     """Both at once: the first accepted absorbs the net phase, the second refits the first jointly."""
-    from jaxdefl.diagnose.effects.motion_artefact import EFFECT as MOTION
-    from jaxdefl.diagnose.effects.timing_error import EFFECT as TIMING
+    from jaxdefl.diagnose.detectors.motion_artefact import EFFECT as MOTION
+    from jaxdefl.diagnose.detectors.timing_error import EFFECT as TIMING
 
     ctx, states = make_case(seed=5, lds_plates=(2, 3, 4), tap_spread=0.035, clock_offset=0.005)
     found = {}
@@ -259,8 +259,8 @@ def test_motion_artefact_and_timing_offset_together():
 
 
 def test_reference_effects_need_the_reference():
-    from jaxdefl.diagnose.effects.motion_artefact import EFFECT as MOTION
-    from jaxdefl.diagnose.effects.timing_error import EFFECT as TIMING
+    from jaxdefl.diagnose.detectors.motion_artefact import EFFECT as MOTION
+    from jaxdefl.diagnose.detectors.timing_error import EFFECT as TIMING
 
     ctx, states = make_case(seed=6, tap_spread=0.05, clock_offset=0.005)
     assert "reference" in MOTION.cannot_tell(ctx)
@@ -285,8 +285,8 @@ TRUTH = {
 
 @pytest.mark.parametrize("case", list(MODULATIONS))
 def test_modulation_found_and_not_its_twin(case):
-    from jaxdefl.diagnose.effects.amplitude_modulation import EFFECT as AM
-    from jaxdefl.diagnose.effects.frequency_modulation import EFFECT as FM
+    from jaxdefl.diagnose.detectors.amplitude_modulation import EFFECT as AM
+    from jaxdefl.diagnose.detectors.frequency_modulation import EFFECT as FM
 
     eid, truth = TRUTH[case]
     # the sinusoidal cases with an LDS: the load's modulation is in the reference too
@@ -312,8 +312,8 @@ def test_modulation_with_a_reference_leaves_no_clock_offset(depth, cycles, phase
     """A phase modulation of a few cycles (and a half) over the record: its mean phase is in the
     LDS's harmonic already. Counted again on the tied series it was a phase offset against the
     LDS, taken up as a clock offset (ms, ΔBIC −40 to −340) once the modulation was accepted."""
-    from jaxdefl.diagnose.effects.frequency_modulation import EFFECT as FM
-    from jaxdefl.diagnose.effects.timing_error import EFFECT as TIMING
+    from jaxdefl.diagnose.detectors.frequency_modulation import EFFECT as FM
+    from jaxdefl.diagnose.detectors.timing_error import EFFECT as TIMING
 
     f_m = cycles / 600.0
     ctx, states = make_case(
@@ -333,9 +333,9 @@ def test_amplitude_and_phase_modulation_together(am_depth, fm_depth, lds):
     """Both at once: the load is a (1 + u) cos(arg + δφ). The second one accepted modulates the
     motion the first left in the model; on the nominal harmonic the product u δφ was left out,
     and taken as further phase-modulation lines at f_AM ± f_FM."""
-    from jaxdefl.diagnose.effects.amplitude_modulation import EFFECT as AM
-    from jaxdefl.diagnose.effects.extra_periodic import EFFECT as EXTRA
-    from jaxdefl.diagnose.effects.frequency_modulation import EFFECT as FM
+    from jaxdefl.diagnose.detectors.amplitude_modulation import EFFECT as AM
+    from jaxdefl.diagnose.detectors.extra_periodic import EFFECT as EXTRA
+    from jaxdefl.diagnose.detectors.frequency_modulation import EFFECT as FM
 
     ctx, states = make_case(
         seed=3,
@@ -362,10 +362,10 @@ def test_amplitude_and_phase_modulation_together(am_depth, fm_depth, lds):
 
 @pytest.mark.parametrize("seed", [11, 12, 13])
 def test_clean_recordings_stay_clean(seed):
-    from jaxdefl.diagnose.effects.amplitude_modulation import EFFECT as AM
-    from jaxdefl.diagnose.effects.frequency_modulation import EFFECT as FM
-    from jaxdefl.diagnose.effects.motion_artefact import EFFECT as MOTION
-    from jaxdefl.diagnose.effects.timing_error import EFFECT as TIMING
+    from jaxdefl.diagnose.detectors.amplitude_modulation import EFFECT as AM
+    from jaxdefl.diagnose.detectors.frequency_modulation import EFFECT as FM
+    from jaxdefl.diagnose.detectors.motion_artefact import EFFECT as MOTION
+    from jaxdefl.diagnose.detectors.timing_error import EFFECT as TIMING
 
     ctx, states = make_case(seed=seed, axes=("z", "x"), lds_plates=(2, 4))
     for eff in (MOTION, TIMING, AM, FM):
@@ -374,8 +374,8 @@ def test_clean_recordings_stay_clean(seed):
 
 def test_a_line_beside_the_loading_frequency_is_no_modulation():
     """A vibration at f0 + 0.03 Hz sits in both demodulations alike: left to extra_periodic."""
-    from jaxdefl.diagnose.effects.amplitude_modulation import EFFECT as AM
-    from jaxdefl.diagnose.effects.frequency_modulation import EFFECT as FM
+    from jaxdefl.diagnose.detectors.amplitude_modulation import EFFECT as AM
+    from jaxdefl.diagnose.detectors.frequency_modulation import EFFECT as FM
 
     ctx, states = make_case(seed=9, extra=lambda t: 0.12 * np.cos(2 * np.pi * (F0 + 0.03) * t + 0.3))
     assert not passing(ctx, states, AM.propose(ctx, states))

@@ -15,14 +15,14 @@ from scipy.signal import lfilter
 from jaxdefl.diagnose import build_context
 from jaxdefl.diagnose._correlation import frame_correlation
 from jaxdefl.diagnose._search import ALPHA, DELTA_BIC_MAX, _score
-from jaxdefl.diagnose.effects import EFFECT_IDS, load_effects
+from jaxdefl.diagnose.detectors import EFFECT_IDS, load_detectors
 from jaxdefl.settings import DiagnoseSettings
 from jaxdefl.simulate.effects import CleanRecording, RecordingSpec, make_recording
 
 SPEC = RecordingSpec(
     sensor="tof", frame_rate_hz=20.0, duration_s=180.0, n_plates=11, dropout_prob=0.05, reference=False
 )
-EFFECTS = load_effects()
+EFFECTS = load_detectors()
 
 
 def _context(effects, seed=3, spec=SPEC, rho=0.0):

@@ -20,7 +20,7 @@ import pytest
 from jaxdefl.diagnose import build_context, diagnose
 from jaxdefl.diagnose._correlation import frame_correlation
 from jaxdefl.diagnose._search import Accepted, Calibration, _backward, _flexible_alternative, _score
-from jaxdefl.diagnose.effects import load_effects
+from jaxdefl.diagnose.detectors import load_detectors
 from jaxdefl.diagnose.record_kind import recognise, value_lattice
 
 F0 = 2.3
@@ -51,7 +51,7 @@ def _search_parts(traj):
     ctx, nominal, _ = build_context(traj)
     corr = frame_correlation(ctx, nominal)
     n_total = sum(s.n for s in ctx.series)
-    lib = load_effects()
+    lib = load_detectors()
     calib = Calibration(len(lib))
     return ctx, nominal, corr, n_total, lib, calib
 
@@ -161,7 +161,7 @@ def test_a_smooth_misfit_is_not_called_level_jumps():
     assert acc, "the envelope misfit must pass a jump's own test (the failure being guarded)"
     dropped = []
     _, kept, terms = _flexible_alternative(
-        ctx, states, acc, dropped, [], calib, corr, n_total, load_effects(), {}
+        ctx, states, acc, dropped, [], calib, corr, n_total, load_detectors(), {}
     )
     assert kept == []
     assert {d.effect for d in dropped} == {"level_jump"}

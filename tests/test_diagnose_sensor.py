@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from jaxdefl.diagnose import run_diagnosis
-from jaxdefl.diagnose.effects import load_effects
+from jaxdefl.diagnose.detectors import load_detectors
 from jaxdefl.reconcile.chain import ChainNull, apply_chain_null
 from jaxdefl.settings import SENSORS as SENSOR_KINDS
 from jaxdefl.settings import DiagnoseSettings
@@ -18,7 +18,7 @@ from jaxdefl.simulate.effects import make_case
 
 
 def test_every_effect_declares_sensors_of_the_known_kinds():
-    effects = load_effects()
+    effects = load_detectors()
     for eid, eff in effects.items():
         assert eff.sensors and set(eff.sensors) <= set(SENSOR_KINDS), eid
         assert all(k == "*" or k in SENSOR_KINDS for k in eff.causes), eid

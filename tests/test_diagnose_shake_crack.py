@@ -16,14 +16,14 @@ from test_diagnose_effects_a import make_case as make_plates
 from test_diagnose_effects_b import F0, accept, make_case, passing, value, within
 from test_diagnose_effects_b import delta_bic as dbic
 
-from jaxdefl.diagnose.effects.amplitude_modulation import EFFECT as AM
-from jaxdefl.diagnose.effects.camera_shake import EFFECT as SHAKE
-from jaxdefl.diagnose.effects.extra_periodic import EFFECT as EXTRA
-from jaxdefl.diagnose.effects.frequency_modulation import EFFECT as FM
-from jaxdefl.diagnose.effects.level_jump import EFFECT as JUMP
-from jaxdefl.diagnose.effects.motion_artefact import EFFECT as MOTION
-from jaxdefl.diagnose.effects.stiffness_change import EFFECT as CRACK
-from jaxdefl.diagnose.effects.timing_error import EFFECT as TIMING
+from jaxdefl.diagnose.detectors.amplitude_modulation import EFFECT as AM
+from jaxdefl.diagnose.detectors.camera_shake import EFFECT as SHAKE
+from jaxdefl.diagnose.detectors.extra_periodic import EFFECT as EXTRA
+from jaxdefl.diagnose.detectors.frequency_modulation import EFFECT as FM
+from jaxdefl.diagnose.detectors.level_jump import EFFECT as JUMP
+from jaxdefl.diagnose.detectors.motion_artefact import EFFECT as MOTION
+from jaxdefl.diagnose.detectors.stiffness_change import EFFECT as CRACK
+from jaxdefl.diagnose.detectors.timing_error import EFFECT as TIMING
 from jaxdefl.simulate import config_from_dict, pixel_model, render_frames
 from jaxdefl.simulate.injection import make_spec, shake_displacement
 
@@ -122,7 +122,7 @@ def test_controls_name_neither(kind):
 def test_a_warm_up_or_a_jump_is_not_a_shake():
     """An exponential warm-up and a step common to the plates: drift's and level_jump's shapes with
     2 parameters; the shake's spline, if it passes at all, is worse by BIC."""
-    from jaxdefl.diagnose.effects.drift import EFFECT as DRIFT
+    from jaxdefl.diagnose.detectors.drift import EFFECT as DRIFT
 
     for extra, named in ((lambda t: 0.3 * np.exp(-t / 120.0), DRIFT), (lambda t: 0.12 * (t >= 250.0), JUMP)):
         ctx, states = make_case(seed=6, axes=("z",), extra=extra)

@@ -18,7 +18,7 @@ from scipy import stats
 from scipy.signal import lfilter
 
 from jaxdefl.diagnose import build_context, diagnose
-from jaxdefl.diagnose.effects import load_effects
+from jaxdefl.diagnose.detectors import load_detectors
 from jaxdefl.diagnose.unnamed import ar1_loglik, ar1_rho
 
 T0 = 1.7e9
@@ -131,7 +131,7 @@ def test_gates_follow_snr_and_samples_not_cycles():
     # in 10 minutes) is out of reach at 0.5 mm of noise and told at 0.02 mm
     rng = np.random.default_rng(9)
     t = np.arange(0.0, 12.0, 1.0 / 30)
-    effects = load_effects()
+    effects = load_detectors()
     why = {}
     for sigma in (0.5, 0.02):
         rows = [
@@ -261,7 +261,7 @@ def test_a_held_out_jump_under_common_noise_is_modelled_unnamed_not_named_a_drif
     # out of the registry, the step is an unnamed trend common to the plates, with its σ's, and
     # drift (which can bend an exponential into a step) claims nothing; with level_jump in the
     # registry the generic step (the same fit, the same parameters) does not take it first
-    from jaxdefl.diagnose.effects import EFFECT_IDS
+    from jaxdefl.diagnose.detectors import EFFECT_IDS
 
     rng = np.random.default_rng(21)
     t = np.arange(0.0, 150.0, 1.0 / 20)
@@ -288,7 +288,7 @@ def test_a_held_out_camera_shake_is_one_common_trend_at_fine_knots_not_named_lin
     # plates, 150 s at 20 Hz: with camera_shake out of the registry it is one unnamed trend common
     # to the plates at knots finer than the per-series grid (12 knots left its faster part to
     # named extra_periodic lines, level jumps and a drift), and no vocabulary name
-    from jaxdefl.diagnose.effects import EFFECT_IDS
+    from jaxdefl.diagnose.detectors import EFFECT_IDS
     from jaxdefl.diagnose.unnamed import KNOTS
 
     rng = np.random.default_rng(1)

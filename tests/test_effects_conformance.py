@@ -89,7 +89,7 @@ def test_every_parameter_has_a_unit(eid):
 def test_the_vocabulary_lists_the_diagnosis_and_the_simulator():
     """EFFECT_IDS: the detectable ids in rank order (the diagnosis' search order); INJECTABLE:
     the injectable ones by level; each detectable id has its detector module."""
-    from jaxdefl.diagnose.effects import load_effects
+    from jaxdefl.diagnose.detectors import load_detectors
 
     ranks = [REGISTRY[e].rank for e in IDS]
     assert ranks == sorted(ranks) and len(set(ranks)) == len(ranks)
@@ -98,7 +98,7 @@ def test_the_vocabulary_lists_the_diagnosis_and_the_simulator():
     assert [LEVELS.index(REGISTRY[e].level) for e in INJECTABLE] == sorted(
         LEVELS.index(REGISTRY[e].level) for e in INJECTABLE
     )
-    library = load_effects()
+    library = load_detectors()
     assert tuple(library) == EFFECT_IDS
     for eid, detector in library.items():  # the detectors read their metadata from the entry
         entry = REGISTRY[eid]
@@ -313,7 +313,7 @@ SPELLED = {
 
 def _own(path: Path, eid: str) -> bool:
     rel = path.relative_to(SRC).as_posix()
-    return rel in (f"effects/{eid}.py", f"diagnose/effects/{eid}.py")
+    return rel in (f"effects/{eid}.py", f"diagnose/detectors/{eid}.py")
 
 
 def test_no_effect_id_is_spelled_outside_its_own_files():

@@ -14,7 +14,7 @@ import pandas as pd
 import pytest
 
 from jaxdefl.diagnose import build_context
-from jaxdefl.diagnose.effects.shared_fits import quadrature_weight, tap_response
+from jaxdefl.diagnose.detectors.shared_fits import quadrature_weight, tap_response
 from jaxdefl.settings import DiagnoseSettings
 
 C_MM_S = 299_792_458.0e3

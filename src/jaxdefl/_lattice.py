@@ -9,7 +9,7 @@ with e ~ N(0, σ_d²) (σ_d the noise before rounding, the "dither"). The mean o
 which is the hard staircase for σ_d = 0 and tends to h as σ_d grows: the sawtooth m(h) − h has the
 Fourier series −q Σ_k (−1)^(k+1) exp(−2π²k²σ_d²/q²) sin(2πk x)/(πk), x = (h − o)/q, so its first
 harmonic falls as exp(−2π²σ_d²/q²). Used by the simulator's quantization effect
-(`jaxdefl.simulate.effects`) and by the diagnosis' model term (`jaxdefl.diagnose.effects.quantization`).
+(`jaxdefl.simulate.effects`) and by the diagnosis' model term (`jaxdefl.diagnose.detectors.quantization`).
 """
 
 from __future__ import annotations

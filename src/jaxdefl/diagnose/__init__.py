@@ -7,7 +7,7 @@ Public surface:
   for figures and reports); ``settings`` a `jaxdefl.settings.DiagnoseSettings`.
 - `diagnose(traj, reference=None, **settings)` -> the DIAG.json dict (DESIGN.md contract), with
   the settings' fields as keywords (``sensor="tof", frame_rate_hz=20.0``).
-- `EFFECT_IDS`, `load_effects()`: the library of candidate effects ({id: its `Detector`}).
+- `EFFECT_IDS`, `load_detectors()`: the library of candidate effects ({id: its `Detector`}).
 - `attribute(traj, reference=None, settings=None)` -> `Attribution`: a registered multi-camera
   table diagnosed camera by camera, each finding said to be a camera's or the structure's
   (``jaxdefl attribute``).
@@ -44,7 +44,7 @@ from ._base import (
 from ._context import build_context
 from ._search import ALPHA, ALPHA_NAMED, DELTA_BIC_MAX, Diagnosis, diagnose, run_diagnosis
 from .attribution import Attribution, attribute
-from .effects import EFFECT_IDS, load_effects
+from .detectors import EFFECT_IDS, load_detectors
 
 __all__ = [
     "ALPHA",
@@ -63,7 +63,7 @@ __all__ = [
     "build_context",
     "diagnose",
     "keep_series",
-    "load_effects",
+    "load_detectors",
     "loglik",
     "masked_fourier",
     "masked_periodogram",

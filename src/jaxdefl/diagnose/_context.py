@@ -19,7 +19,7 @@ from ..settings import DiagnoseSettings
 from ..spectral import lomb_peaks
 from ..status import Status
 from ._base import Context, Harmonic, Series, State
-from .effects.shared_fits import quadrature_weight, tap_response
+from .detectors.shared_fits import quadrature_weight, tap_response
 
 __all__ = ["build_context"]
 

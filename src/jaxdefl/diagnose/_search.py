@@ -41,7 +41,7 @@ from ._context import build_context
 from ._correlation import FrameCorrelation, frame_correlation, gls_gain
 from ._sensor_nominal import nominal_level_jumps, within_configured
 from ._whiteness import residual_tests, series_whiteness_p
-from .effects import load_effects
+from .detectors import load_detectors
 from .record_kind import SEARCHED, RecordKind, kind_nominal, recognise, value_lattice
 from .unnamed import MAX_TERMS, UnnamedTerm, apply_term, best_term, colored_gain, search_unnamed
 
@@ -686,7 +686,7 @@ def run_diagnosis(
     """
     start = time.perf_counter()
     settings = settings if settings is not None else DiagnoseSettings()
-    library = load_effects()
+    library = load_detectors()
     if settings.effects is not None:
         library = {k: v for k, v in library.items() if k in settings.effects}
     ctx, nominal, notes = build_context(

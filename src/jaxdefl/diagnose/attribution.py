@@ -33,7 +33,7 @@ import pandas as pd
 from .._errors import InputError
 from ..settings import DiagnoseSettings
 from ._search import run_diagnosis
-from .effects import load_effects
+from .detectors import load_detectors
 
 __all__ = ["NOISIER", "Attribution", "Finding", "attribute", "on_frame_clock"]
 
@@ -254,7 +254,7 @@ def attribute(
             tests[c, eid] = _test(per[c], [p for p in seen[c] if p in shared], eid, reference, own[c])
         return tests[c, eid]
 
-    library = load_effects()
+    library = load_detectors()
     findings: list[Finding] = []
     for c in per:
         for e in diag[c]["effects"]:

@@ -6,7 +6,7 @@ the sensors that can produce it, whether the structure itself can make it, its p
 their units, its injection at the level where its physics acts and ``from_diagnosis`` (a DIAG.json
 report -> the ``[[effect]]`` table that simulates it). The modules are discovered at import into
 `REGISTRY` (id -> entry, in rank order). Adding an effect = its module here (+ its detector in
-``jaxdefl.diagnose.effects``, + its test in the conformance suite's cases when it is detectable).
+``jaxdefl.diagnose.detectors``, + its test in the conformance suite's cases when it is detectable).
 
 - `EFFECT_IDS`: the ids ``jaxdefl diagnose`` names (the DIAG.json vocabulary), in rank order;
 - `INJECTABLE`: the ids the simulator injects, by level, then rank.

@@ -121,7 +121,7 @@ class Entry:
             measurement (a noise structure, a clock, a camera's motion or bound).
         needs_reference: it can only be told against an LDS reference.
         detectable: ``jaxdefl diagnose`` names it (its detector is
-            ``jaxdefl.diagnose.effects.<id>``).
+            ``jaxdefl.diagnose.detectors.<id>``).
         record_kinds: the kinds of record (`jaxdefl.diagnose.record_kind.KINDS`) in which the
             diagnosis searches it, None for every kind: an effect defined against one steady
             loading harmonic cannot be told from the motion of a record of another kind.
