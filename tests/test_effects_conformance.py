@@ -35,6 +35,8 @@ from jaxdefl.simulate.injection import (
     parse_effects,
     plate_motion,
     range_offset,
+    sampled,
+    sampling_offsets,
     stamp_times,
 )
 
@@ -166,12 +168,23 @@ def test_the_injection_has_the_shape_of_its_level(eid):
         assert motion.shape == (n, N_PLATES) and dx.shape == dy.shape == (n, N_PLATES)
         changed = np.flatnonzero(np.any(motion != before, axis=0))
         assert changed.tolist() == [spec.p("plate") - 1]  # one plate's motion
+    elif entry.level == "sampling":
+        offs = sampling_offsets((spec,), t)
+        assert offs.shape[0] == n and offs.ndim == 2 and np.all(offs >= 0)
+        assert np.shape(entry.inject(spec, t))[-1] == offs.shape[1]
+        moved = sampled((spec,), t, 0.0, lambda tt: np.sin(3.0 * tt)[:, None] * np.ones(N_PLATES))
+        assert moved.shape == (n, N_PLATES) and np.any(moved != np.sin(3.0 * t)[:, None])
+        # a camera reads the mean of the positions: a constant stays, a line is delayed alike
+        assert np.allclose(sampled((spec,), t, 0.0, lambda tt: np.full(tt.shape, 2.0)), 2.0)
     else:
         assert entry.level == "measurement"
-        xyz, noise = np.zeros((n, N_PLATES, 3)), np.ones((n, N_PLATES, 3))
-        measurement_faults((spec,), t, xyz, noise)
+        rng = np.random.default_rng(1)
+        xyz, noise = 3.0 * rng.random((n, N_PLATES, 3)), rng.standard_normal((n, N_PLATES, 3))
+        before = xyz + noise
+        arg = np.repeat((2 * math.pi * 0.7 * t)[:, None], N_PLATES, 1)
+        measurement_faults((spec,), t, xyz, noise, sigma=1.0, arg=arg, seed=3)
         assert xyz.shape == noise.shape == (n, N_PLATES, 3)
-        assert np.any(xyz != 0) or np.any(noise != 1)
+        assert np.any(xyz + noise != before)
 
 
 @pytest.mark.parametrize("eid", [e for e in INJECTED if REGISTRY[e].detectable])
@@ -202,11 +215,13 @@ def test_from_diagnosis_speaks_the_entry_s_parameters(eid):
             assert got.p(name) == pytest.approx(example[name]), name
 
 
-@pytest.mark.parametrize("eid", [e for e in EFFECT_IDS if not REGISTRY[e].injectable])
-def test_an_id_the_simulator_does_not_inject_is_said_so(eid):
+def test_every_id_the_diagnosis_names_is_injected_and_any_other_said_so():
+    """Issue 24: every detectable id can be simulated as reported; an id the simulator does not
+    inject (a report of another version's vocabulary) is said so, not dropped silently."""
     from jaxdefl.reconcile.engine import specs_from_diagnosis
 
-    ((got, why),) = specs_from_diagnosis([{"id": eid, "parameters": {}, "plates": [1]}], 300.0)
+    assert set(EFFECT_IDS) <= set(INJECTABLE)
+    ((got, why),) = specs_from_diagnosis([{"id": "no_such_effect", "parameters": {}, "plates": [1]}], 300.0)
     assert got is None and "not one of the effects the simulator injects" in why
 
 
@@ -214,22 +229,34 @@ def test_an_id_the_simulator_does_not_inject_is_said_so(eid):
 # simulate -> diagnose -> from_diagnosis -> simulate -> diagnose
 
 
-def _recording(specs, seed: int, minutes: float = 4.0):
-    """A ToF recording of the concealed benchmark's beam (`jaxdefl.simulate.effects`: fatigue off,
-    its noise) with ``specs`` injected by the simulator's registry: motion and plate effects in
-    the trajectories (`simulate_trajectories`, LDS included), range effects on z (a plate's range
-    is its depth, gain 1), timing errors on the stamps."""
+def _recording(specs, seed: int, minutes: float = 4.0, sensor: str = "tof"):
+    """A recording of the concealed benchmark's beam (`jaxdefl.simulate.effects`: fatigue off, its
+    noise; ToF at 20 Hz or structured light at 30 Hz) with ``specs`` injected by the simulator's
+    registry: motion and plate effects in the trajectories (`simulate_trajectories`, LDS
+    included), read over the sampling effects' instants (`sampled`), range effects on z (a
+    plate's range is its depth, gain 1), then the noise and the measurement effects on it
+    (`measurement_faults`), timing errors on the stamps."""
     from jaxdefl.simulate.effects import CleanRecording, RecordingSpec
+    from jaxdefl.simulate.lds import truth_table
     from jaxdefl.simulate.writer import simulate_trajectories
 
-    rec = RecordingSpec(sensor="tof", frame_rate_hz=20.0, duration_s=60.0 * minutes, n_plates=N_PLATES)
+    rate = 20.0 if sensor == "tof" else 30.0
+    rec = RecordingSpec(sensor=sensor, frame_rate_hz=rate, duration_s=60.0 * minutes, n_plates=N_PLATES)
     base = CleanRecording(rec, seed)
     cfg = dataclasses.replace(base.cfg, effects=tuple(specs))
     truth, lds = simulate_trajectories(cfg, rec.duration_s, seed)
     n, m = base.t.size, rec.n_plates
     t = truth["t"].to_numpy()[::m]
-    pos = truth[["x", "y", "z"]].to_numpy().reshape(n, m, 3) + base.sigma[None] * base.eps
-    pos[..., 2] += range_offset(specs, t, t[0], m, seed)[:, 1:]
+
+    def centroids(tt):
+        return truth_table(cfg, tt)[["x", "y", "z"]].to_numpy(copy=True).reshape(tt.size, m, 3)
+
+    xyz = sampled(specs, t, t[0], centroids)
+    xyz[..., 2] += range_offset(specs, t, t[0], m, seed)[:, 1:]
+    noise = base.sigma[None] * base.eps
+    arg = np.repeat((base.omega * (t - base.t_first) - base.phase)[:, None], m, 1)  # 0 at z's peak
+    measurement_faults(specs, t - t[0], xyz, noise, sigma=base.sigma[None], arg=arg, seed=seed)
+    pos = xyz + noise
     stamps = stamp_times(specs, t, t[0])
     traj = pd.DataFrame(
         {
@@ -244,12 +271,17 @@ def _recording(specs, seed: int, minutes: float = 4.0):
     return traj, lds.reset_index(drop=True), float(stamps[-1] - stamps[0])
 
 
+def _sensor(eid: str) -> str:
+    """The camera of an id's round trip: ToF, else structured light (a lattice is not a ToF's)."""
+    return "tof" if "tof" in REGISTRY[eid].sensors else "structured_light"
+
+
 def _diagnosed(eid: str, traj, lds, duration_s: float):
     """(the diagnosis' reports of ``eid``, its specs as reconcile makes them)."""
     from jaxdefl.diagnose import diagnose
     from jaxdefl.reconcile.engine import specs_from_diagnosis
 
-    diag = diagnose(traj, lds, sensor="tof", effects=(eid,))
+    diag = diagnose(traj, lds, sensor=_sensor(eid), effects=(eid,))
     reports = [e for e in diag["effects"] if e["id"] == eid]
     specs = [s for s, _ in specs_from_diagnosis(reports, duration_s, None, N_PLATES) if s is not None]
     return reports, specs
@@ -267,12 +299,12 @@ def test_a_detectable_effect_goes_round_the_loop(eid):
     the second diagnosis names the id again, and the translated specs agree with what was
     injected and with each other where they locate the effect (a time, a frequency, an order)."""
     truth = _example(eid)
-    traj, lds, duration = _recording((truth,), seed=5)
+    traj, lds, duration = _recording((truth,), seed=5, sensor=_sensor(eid))
     reports, specs = _diagnosed(eid, traj, lds, duration)
     assert reports, f"{eid}: not diagnosed on its example"
     assert specs, f"{eid}: diagnosed but not translated into a spec"
     first = specs[0]
-    traj2, lds2, duration2 = _recording((first,), seed=6)
+    traj2, lds2, duration2 = _recording((first,), seed=6, sensor=_sensor(eid))
     reports2, specs2 = _diagnosed(eid, traj2, lds2, duration2)
     assert reports2 and specs2, f"{eid}: the simulation of its report is not diagnosed again"
     locator = REGISTRY[eid].locator

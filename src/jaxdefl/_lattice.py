@@ -9,7 +9,9 @@ with e ~ N(0, σ_d²) (σ_d the noise before rounding, the "dither"). The mean o
 which is the hard staircase for σ_d = 0 and tends to h as σ_d grows: the sawtooth m(h) − h has the
 Fourier series −q Σ_k (−1)^(k+1) exp(−2π²k²σ_d²/q²) sin(2πk x)/(πk), x = (h − o)/q, so its first
 harmonic falls as exp(−2π²σ_d²/q²). Used by the simulator's quantization effect
-(`jaxdefl.simulate.effects`) and by the diagnosis' model term (`jaxdefl.diagnose.detectors.quantization`).
+(`quantised_readings`: the concealed benchmark's `jaxdefl.simulate.effects` and the registry's
+`jaxdefl.effects.quantization`) and by the diagnosis' model term
+(`jaxdefl.diagnose.detectors.quantization`).
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ import math
 import numpy as np
 from scipy.special import ndtr
 
-__all__ = ["dithered_round", "dithered_round_var", "smoothed_staircase"]
+__all__ = ["dithered_round", "dithered_round_var", "quantised_readings", "smoothed_staircase"]
 
 S_HARD = 1e-3  # below: the hard round (the smoothing is < Φ(−500) away from a step's edge)
 S_SMOOTH = 2.0  # above: x itself (the first harmonic is exp(−2π²·4) ≈ 6e-35 of q/π)
@@ -91,3 +93,47 @@ def smoothed_staircase(h: np.ndarray, q: float, o: float, dither: float) -> np.n
         dither: the noise's standard deviation before rounding (>= 0, units of h).
     """
     return q * dithered_round((np.asarray(h, dtype=float) - o) / q, dither / q) + o
+
+
+def quantised_readings(
+    z_clean: np.ndarray,
+    noise: np.ndarray,
+    sig_f: np.ndarray,
+    eps: np.ndarray,
+    q: float,
+    o: float,
+    n_px: int,
+    dither: float,
+    rng: np.random.Generator,
+) -> np.ndarray:
+    """(frame,) the readings of a quantising sensor: the mean of P pixel readings
+    o + q·round((z_clean + e_i − o)/q), the pixels' noise e_i ~ N(0, σ_d²) before the rounding,
+    plus the rest of the reading's noise after it (none when σ_d = σ_f √P).
+
+    ``noise`` = σ_f ε is the reading's noise as drawn without the rounding (σ_f ``sig_f``, the
+    frame's level, ε ``eps``). It is split into independent parts before and after the rounding,
+    with ρ = σ_d²/(P σ_f²) (at most 1): the pixels' mean m = √ρ σ_f (√ρ ε + √(1 − ρ) u) and the
+    rest σ_f ε − m (uncorrelated with m: both variances add to σ_f²); then e_i = m + σ_d (g_i − ḡ),
+    u and g_i iid N(0, 1) from ``rng``, has exactly the law of P iid N(0, σ_d²) with mean m. So
+    the unrounded reading has the noise as drawn, and a reading with and without the rounding
+    differ by the rounding alone.
+
+    Args:
+        z_clean: (frame,) the values before noise (mm).
+        noise, sig_f, eps: (frame,) the noise drawn, its standard deviation and its unit draw.
+        q, o: the lattice's step (> 0) and a level (mm).
+        n_px: P, the readings averaged (>= 1).
+        dither: σ_d, a pixel's noise before the rounding (mm, >= 0).
+        rng: the stream of u and g.
+    """
+    if n_px < 1:
+        raise ValueError(f"pixels: expected a count >= 1, got {n_px}")
+    u = rng.standard_normal(z_clean.size)
+    g = rng.standard_normal((z_clean.size, n_px))
+    g -= g.mean(axis=1, keepdims=True)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rho = np.where(sig_f > 0, np.minimum(dither**2 / (n_px * sig_f**2), 1.0), 1.0)
+    m = np.sqrt(rho) * sig_f * (np.sqrt(rho) * eps + np.sqrt(1.0 - rho) * u)
+    e_px = m[:, None] + dither * g
+    readings = np.mean(q * np.round((z_clean[:, None] + e_px - o) / q) + o, axis=1)
+    return readings + (noise - m)

@@ -17,7 +17,7 @@ from __future__ import annotations
 import importlib
 import pkgutil
 
-from ._entry import FRAME_LEVELS, LEVELS, SENSORS, Entry, Motion, Param, Report
+from ._entry import FRAME_LEVELS, LEVELS, SENSORS, Entry, Motion, Param, Reading, Report
 
 __all__ = [
     "EFFECT_IDS",
@@ -29,6 +29,7 @@ __all__ = [
     "Entry",
     "Motion",
     "Param",
+    "Reading",
     "Report",
     "ids_where",
 ]

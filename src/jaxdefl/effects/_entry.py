@@ -20,6 +20,7 @@ __all__ = [
     "Entry",
     "Motion",
     "Param",
+    "Reading",
     "Report",
     "active",
     "all_of",
@@ -31,20 +32,22 @@ __all__ = [
     "relative",
 ]
 
-LEVELS = ("range", "timestamps", "motion", "plate", "measurement")
+LEVELS = ("range", "timestamps", "motion", "plate", "measurement", "sampling")
 FRAME_LEVELS = ("range", "timestamps", "motion")  # what rendered frames can show
 
 
 @dataclass(frozen=True)
 class Param:
-    """One parameter of an effect: its name, unit (or meaning), default (None: required) and,
-    for a word parameter, its choices; ``plate``: a plate number 1..n."""
+    """One parameter of an effect: its name, unit (or meaning), default (None: required, unless
+    ``optional``: then left out of the spec, and the injection says what stands for it) and, for
+    a word parameter, its choices; ``plate``: a plate number 1..n."""
 
     name: str
     unit: str
     default: float | str | None = None
     choices: tuple[str, ...] = ()
     plate: bool = False
+    optional: bool = False
 
 
 @dataclass
@@ -64,6 +67,43 @@ class Motion:
     # other bending modes: (shape φ(x / L), displacement q(τ) mm at the antinode), each plate at
     # x moving by φ(x / L) q(τ) (`jaxdefl.simulate.injection.mode_displacement`)
     modes: list[tuple[Callable[[np.ndarray], np.ndarray], np.ndarray]] = field(default_factory=list)
+
+
+@dataclass
+class Reading:
+    """What the measurement-level effects act on, in place: a camera's plate centroids before
+    their noise and the noise drawn for them (the reading is ``xyz + noise``).
+
+    Attributes:
+        t_rel: (frame,) s since the first frame.
+        xyz: (frame, plate, 3) mm, the centroids (x, y, z) before the noise.
+        noise: (frame, plate, 3) mm, the noise drawn for them.
+        plates: (plate,) the 1-based plate numbers of the columns.
+        sigma: the noise's standard deviation (mm), broadcastable to ``noise``; None: not known.
+        arg: (frame, plate) rad, each plate's motion angle (0 at the peak of its z, growing with
+            time: z = mean + A cos(arg)); None: not known.
+        seed: the simulation's seed (the effects' own draws).
+    """
+
+    t_rel: np.ndarray
+    xyz: np.ndarray
+    noise: np.ndarray
+    plates: np.ndarray
+    sigma: np.ndarray | None = None
+    arg: np.ndarray | None = None
+    seed: int = 0
+
+    def columns(self, plates: tuple[int, ...]) -> np.ndarray:
+        """The columns of ``plates`` (all of them for none) that the reading holds."""
+        if not plates:
+            return np.arange(self.plates.size)
+        return np.flatnonzero(np.isin(self.plates, plates))
+
+    def noise_sigma(self, col: int, axis: int) -> np.ndarray | None:
+        """(frame,) the noise's standard deviation of one column and axis, or None."""
+        if self.sigma is None:
+            return None
+        return np.broadcast_to(np.asarray(self.sigma, np.float64), self.noise.shape)[:, col, axis]
 
 
 @dataclass(frozen=True)
@@ -134,14 +174,20 @@ class Entry:
             - motion: ``inject(e, m: Motion)`` composes its terms into ``m``;
             - plate: ``inject(e, t_rel, motion, dx, dy, rest)`` scales (frame, plate) motions in
               place;
-            - measurement: ``inject(e, t_rel, xyz, noise)`` on (frame, plate, 3) centroids in
-              place.
+            - measurement: ``inject(e, r: Reading)`` on a camera's centroids and their noise, in
+              place (after the range effects, before the reading is ``xyz + noise``), in the
+              order of ``order``;
+            - sampling: ``inject(e, t_rel) -> (k,) or (frame, k) s``: the instants after each
+              frame's time whose true positions the camera's reading averages.
 
             ``check(e, bad)`` raises ``bad(name, expected)`` for an impossible value;
             ``resolve(params, bad)`` fills defaults derived from other parameters
             (``bad(name, expected, value)``).
         from_diagnosis: ``from_diagnosis(report: Report) -> (parameters, plates)``: the
             ``[[effect]]`` table that simulates a diagnosed effect as it was reported.
+        plated: whether a ``plates`` list restricts it to those plates (None: for the range level).
+        order: within its level, the order in which the effects act (then the config's order): a
+            reading is rounded after its noise has been shaped.
         locator: (parameter, resolution): what tells two injections of the id apart (a jump's
             time, a line's frequency), for reports of one effect seen on several axes.
         example: the parameters of a valid ``[[effect]]`` table, large enough to be diagnosed on
@@ -168,6 +214,8 @@ class Entry:
     check: Callable | None = None
     resolve: Callable | None = None
     from_diagnosis: Callable[[Report], tuple[dict, tuple[int, ...]]] | None = None
+    plated: bool | None = None
+    order: int = 0
     locator: tuple[str, float] | None = None
     example: dict[str, Any] = field(default_factory=dict)
     draw: Callable[[Any], dict] | None = None
@@ -176,6 +224,11 @@ class Entry:
     @property
     def injectable(self) -> bool:
         return self.inject is not None
+
+    @property
+    def takes_plates(self) -> bool:
+        """Whether an ``[[effect]]`` table of it may list ``plates``."""
+        return self.level == "range" if self.plated is None else self.plated
 
     def param(self, name: str) -> Param | None:
         return next((p for p in self.params if p.name == name), None)

@@ -1,10 +1,52 @@
 """``heteroscedastic_noise``: a noise level that depends on the motion's phase or changes over the
-record. A noise structure, not a mean: the simulator's registry does not inject it (the concealed
-benchmark scales its noise, `jaxdefl.simulate.effects`)."""
+record. A measurement effect: the z noise of the listed plates (default: all) is scaled by
+1 + m·cos(arg − ψ) + r·(t_rel − t_ref), arg each plate's motion angle (0 at the peak of its z),
+the diagnosis' model σ_i = σ0 (1 + θ·x_i) of either kind."""
 
-from ._entry import Entry
+from __future__ import annotations
+
+import numpy as np
+
+from ._entry import Entry, Param, Reading, Report, non_negative
 
 MODULATION_RANGE = (0.15, 0.4)  # the benchmark's modulation m
+
+
+def factor(e, t_rel: np.ndarray, arg: np.ndarray | None) -> np.ndarray:
+    """(frame, plate) the noise level's factor (at least 0) at ``t_rel`` and motion angles ``arg``
+    ((frame, plate); needed only for a modulation with the motion's phase)."""
+    t_rel = np.asarray(t_rel, np.float64)
+    f = 1.0 + e.p("rate_per_s") * (t_rel - e.p("t_ref_s"))[:, None]
+    if e.p("modulation"):
+        if arg is None:
+            raise ValueError(f"{e.id}: the motion's phase is needed for a modulation with it")
+        f = f + e.p("modulation") * np.cos(np.asarray(arg, np.float64) - e.p("phase_rad"))
+    return np.maximum(f, 0.0)
+
+
+def inject(e, r: Reading) -> None:
+    cols = r.columns(e.plates)
+    arg = None if r.arg is None else np.asarray(r.arg)[:, cols]
+    r.noise[:, cols, 2] *= factor(e, r.t_rel, arg)
+
+
+def check(e, bad):
+    non_negative("modulation", "a modulation >= 0 (ψ holds its sign)")(e, bad)
+    if not e.p("modulation") < 1:
+        raise bad("modulation", "a modulation < 1 (the noise level stays > 0)")
+    if e.p("modulation") == 0 and e.p("rate_per_s") == 0:
+        raise bad("modulation", "a modulation or a rate_per_s != 0")
+
+
+def from_diagnosis(r: Report) -> tuple[dict, tuple[int, ...]]:
+    """Kind "phase": the modulation and its phase after the motion's peak; kind "time": the
+    modulation over the record's half (m at its ends, about its middle) as a rate about the
+    middle. On its plates."""
+    m = float(r.p["modulation"])
+    if r.kind == "time":
+        half = 0.5 * r.duration_s
+        return {"rate_per_s": m / half, "t_ref_s": half}, r.plates
+    return {"modulation": abs(m), "phase_rad": float(r.p.get("phase_rad") or 0.0)}, r.plates
 
 
 def draw(b) -> dict:
@@ -35,6 +77,18 @@ ENTRY = Entry(
     meaning="noise level that depends on the motion's phase or changes over the record",
     rank=10,
     structural=False,  # a noise structure: the measurement's
+    level="measurement",
+    params=(
+        Param("modulation", "relative, the noise level's swing with the motion's phase", 0.0),
+        Param("phase_rad", "rad after the peak of the motion, where the noise is largest", 0.0),
+        Param("rate_per_s", "1/s, the noise level's relative change per second", 0.0),
+        Param("t_ref_s", "s after the recording start, where the rate's term is 0", 0.0),
+    ),
+    inject=inject,
+    check=check,
+    from_diagnosis=from_diagnosis,
+    plated=True,
+    example={"modulation": 0.4, "phase_rad": 0.8},
     draw=draw,
     # growing noise has a sign; with the motion's phase, ψ holds the sign
     scored=lambda kind: {"modulation": kind == "time"},

@@ -1,12 +1,72 @@
 """``quantization``: depth read in steps (a structured-light camera's disparity lattice, a
-logger's ADC). Not injected by the simulator's registry (the concealed benchmark rounds its
-readings, `jaxdefl.simulate.effects`)."""
+logger's ADC): each reading is the mean of ``pixels`` readings rounded to the lattice
+``offset_mm`` + k·``step_mm`` after their noise (`jaxdefl._lattice.quantised_readings`, which
+the concealed benchmark renders too). A measurement effect: the readings of z, last (after the
+noise's other effects)."""
 
-from ._entry import Entry
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from .._lattice import quantised_readings
+from ._entry import Entry, Param, Reading, Report
 
 # the benchmark's pixels averaged per reading (log-uniform) and their noise before rounding σ_d / q
 PIXELS_RANGE = (20.0, 200.0)
 DITHER_RATIO_RANGE = (0.12, 0.25)
+
+
+def inject(e, r: Reading) -> None:
+    """Plate by plate, z rounded with its noise: the reading's noise σ is split into the pixels'
+    part before the rounding and the rest after it (`quantised_readings`); σ_d (``dither_mm``)
+    defaults to σ√P (the whole noise before the rounding), P (``pixels``) to the fewest readings
+    whose mean noise σ_d/√P fits in σ (1 without ``dither_mm``). σ is the reading's (its
+    median over the frames), or the drawn noise's RMS where the reading does not say."""
+    given = dict(e.parameters)
+    q, o = e.p("step_mm"), e.p("offset_mm")
+    salt = int(round(abs(float(r.t_rel[0])) * 1e3)) if r.t_rel.size else 0  # a block's own stream
+    for col in r.columns(e.plates):
+        noise = r.noise[:, col, 2]
+        sig_f = r.noise_sigma(col, 2)
+        if sig_f is None:
+            sig_f = np.full(noise.shape, math.sqrt(float(np.mean(noise * noise))) if noise.size else 0.0)
+        sigma = float(np.median(sig_f)) if sig_f.size else 0.0
+        if "pixels" in given:
+            n_px = int(round(e.p("pixels")))
+        elif "dither_mm" in given and sigma > 0:
+            n_px = max(1, math.ceil((e.p("dither_mm") / sigma) ** 2 - 1e-9))
+        else:
+            n_px = 1
+        dither = e.p("dither_mm") if "dither_mm" in given else sigma * math.sqrt(n_px)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            eps = np.where(sig_f > 0, noise / sig_f, 0.0)
+        rng = np.random.default_rng([int(r.seed), 7005, int(r.plates[col]), salt])
+        z = r.xyz[:, col, 2]
+        r.xyz[:, col, 2] = quantised_readings(z, noise, sig_f, eps, q, o, n_px, dither, rng)
+        r.noise[:, col, 2] = 0.0
+
+
+def check(e, bad):
+    if not e.p("step_mm") > 0:
+        raise bad("step_mm", "a step > 0 mm")
+    given = dict(e.parameters)
+    if "pixels" in given and not (e.p("pixels") >= 1 and float(e.p("pixels")).is_integer()):
+        raise bad("pixels", "a whole count >= 1")
+    if "dither_mm" in given and not e.p("dither_mm") >= 0:
+        raise bad("dither_mm", "a noise >= 0 mm")
+
+
+def from_diagnosis(r: Report) -> tuple[dict, tuple[int, ...]]:
+    """The step, its levels and the noise before the rounding as reported (the pixels: the
+    fewest that carry it, `inject`); on its plates, or every plate when seen on at least half
+    of them (one camera, one lattice)."""
+    p = r.p
+    out = {"step_mm": p["step_mm"], "offset_mm": p.get("offset_mm") or 0.0}
+    if p.get("dither_mm") is not None:
+        out["dither_mm"] = p["dither_mm"]
+    return out, () if r.whole else r.plates
 
 
 def draw(b) -> dict:
@@ -36,6 +96,27 @@ ENTRY = Entry(
     # a disparity or a converter's lattice; a ToF camera's phase is not read in steps
     sensors=("structured_light", "lds", "accelerometer", "camera_tracking", "logger"),
     structural=False,
+    level="measurement",
+    params=(
+        Param("step_mm", "mm, the lattice's step"),
+        Param("offset_mm", "mm, a level of the lattice", 0.0),
+        Param(
+            "dither_mm",
+            "mm, a pixel's noise before the rounding; optional: the reading's × √pixels",
+            optional=True,
+        ),
+        Param(
+            "pixels",
+            "readings averaged per centroid; optional: the fewest that carry dither_mm",
+            optional=True,
+        ),
+    ),
+    inject=inject,
+    check=check,
+    from_diagnosis=from_diagnosis,
+    plated=True,
+    order=1,  # the reading's last step: whatever shaped its noise, it is rounded
+    example={"step_mm": 1.5, "offset_mm": 0.4, "dither_mm": 0.3},
     draw=draw,
     scored=lambda kind: {"step_mm": True},
 )

@@ -5,18 +5,18 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._entry import WHEN, Entry, Param, active, check_when
+from ._entry import WHEN, Entry, Param, Reading, active, check_when
 
 
-def inject(e, trel, xyz, noise):
-    on = active(e, trel)
-    j = e.p("plate") - 1
-    if e.p("fault") == "noise":
-        noise[on, j, :] *= e.p("size")
-    elif e.p("fault") == "jump":
-        xyz[on, j, 2] += e.p("size")
-    else:
-        xyz[on, j, :] = np.nan
+def inject(e, r: Reading) -> None:
+    on = active(e, r.t_rel)
+    for j in r.columns((e.p("plate"),)):
+        if e.p("fault") == "noise":
+            r.noise[on, j, :] *= e.p("size")
+        elif e.p("fault") == "jump":
+            r.xyz[on, j, 2] += e.p("size")
+        else:
+            r.xyz[on, j, :] = np.nan
 
 
 def resolve(p: dict, bad) -> dict:

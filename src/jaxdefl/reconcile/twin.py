@@ -35,9 +35,11 @@ from .._numerics import harmonic_design, wls
 from ..effects import REGISTRY
 from ..simulate.injection import (
     EffectSpec,
+    measurement_faults,
     mode_displacement,
     motion_modulations,
     range_offset,
+    sampled,
     stamp_times,
 )
 from ..simulate.structured_light import level_jump_path
@@ -216,22 +218,27 @@ class Twin:
         jumps = self._configured_jumps(frame_t, seed)
         if jumps is not None:  # the whole depth image steps: every plate's range, column 0 off
             off = (off if off is not None else 0.0) + jumps[:, None] * np.ones(max(self.plates) + 1)
+        measuring = any(e.level == "measurement" for e in effects)
         for s in self.series:
             t = s.t
             c, a, b = s.coef
             amp, phi = math.hypot(a, b), math.atan2(b, a)  # a cos + b sin = amp cos(ωt − φ)
-            theta = self.omega * t - phi
-            g = gain(t) if gain is not None else 1.0
-            dphi = shift(t) if shift is not None else 0.0
-            y = c + amp * g * np.cos(theta + dphi)
             k = self.transfer.get((s.plate, s.axis), 0.0)
-            for f, by_axis in extra:  # the simulator's phase θ is the twin's + π/2 (sin against cos)
-                y = y + k * by_axis.get(s.axis, 1.0) * f(t, self.omega * t - self.phi_ref + math.pi / 2)
-            if s.axis == "z":
-                xi = cal.plate_xi.get(s.plate) if cal is not None else None
-                modal = mode_displacement(effects, t, np.array([xi])) if xi is not None else None
+            xi = cal.plate_xi.get(s.plate) if cal is not None and s.axis == "z" else None
+
+            def motion(tt, c=c, amp=amp, phi=phi, k=k, xi=xi, axis=s.axis):
+                theta = self.omega * tt - phi
+                g = gain(tt) if gain is not None else 1.0
+                dphi = shift(tt) if shift is not None else 0.0
+                y = c + amp * g * np.cos(theta + dphi)
+                for f, by_axis in extra:  # the simulator's phase θ is the twin's + π/2 (sin against cos)
+                    y = y + k * by_axis.get(axis, 1.0) * f(tt, self.omega * tt - self.phi_ref + math.pi / 2)
+                modal = mode_displacement(effects, tt, np.array([xi])) if xi is not None else None
                 if modal is not None:  # another bending mode, in its own shape at the plate
                     y = y + modal[:, 0]
+                return y
+
+            y = sampled(effects, t, 0.0, motion)  # a camera's taps spread in time
             if off is not None:
                 g_range = cal.gain_of(s.plate, s.axis) if cal is not None else float(s.axis == "z")
                 y = y + g_range * off[self.frame[s.rows], s.plate]
@@ -244,7 +251,15 @@ class Twin:
                 rate = rng_far.gamma(len(sizes) + 0.5) / n_clip
                 hit = rng_far.random(t.size) < rate
                 eps[hit] = rng_far.choice(np.asarray(sizes), int(hit.sum()))
-            y = y + s.sigma * eps
+            noise = s.sigma * eps
+            if measuring:  # the reading's noise and lattice, on the series' own axis
+                ax = "xyz".index(s.axis)
+                xyz, nz = np.zeros((t.size, 1, 3)), np.zeros((t.size, 1, 3))
+                xyz[:, 0, ax], nz[:, 0, ax] = y, noise
+                arg = (self.omega * t - phi)[:, None]  # 0 at the peak of the series' harmonic
+                measurement_faults(effects, t, xyz, nz, plates=[s.plate], sigma=s.sigma, arg=arg, seed=seed)
+                y, noise = xyz[:, 0, ax], nz[:, 0, ax]
+            y = y + noise
             out.loc[s.rows, s.axis] = y
         out["t"] = stamps
         return out

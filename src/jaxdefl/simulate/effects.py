@@ -87,7 +87,7 @@ from typing import Any, Literal
 import numpy as np
 import pandas as pd
 
-from .._lattice import smoothed_staircase
+from .._lattice import quantised_readings, smoothed_staircase
 from ..effects import EFFECT_IDS, REGISTRY, ids_where
 from .config import SimConfig, config_from_dict
 from .injection import make_spec, motion_modulations, shake_displacement
@@ -494,35 +494,19 @@ def _pixel_dither(base: CleanRecording, e: Mapping, j: int) -> float:
 def _quantised_readings(
     base: CleanRecording, e: Mapping, j: int, z_clean: np.ndarray, sig_f: np.ndarray, noise: np.ndarray
 ) -> np.ndarray:
-    """(frame,) plate j's z as a disparity camera reads it: the mean of P pixel readings
-    o + q·round((z_clean + e_i − o)/q), the pixels' noise e_i ~ N(0, σ_d²) before the rounding,
-    plus the rest of the series' noise after it (none when σ_d = σ√P, the default).
-
+    """(frame,) plate j's z as a disparity camera reads it (`jaxdefl._lattice.quantised_readings`):
     ``noise`` = σ_f ε is the draw of the recording without quantisation (σ_f ``sig_f``, the
-    frame's level). It is split into independent parts before and after the rounding, with
-    ρ = σ_d²/(P σ_f²) (at most 1): the pixels' mean m = √ρ σ_f (√ρ ε + √(1 − ρ) u) and the rest
-    σ_f ε − m (uncorrelated with m: both variances add to σ_f²); then e_i = m + σ_d (g_i − ḡ),
-    u and g_i iid N(0, 1) from a stream of the recording's seed and the plate (`CleanRecording`
-    keeps its own draws), has exactly the law of P iid N(0, σ_d²) with mean m. So the unrounded
-    reading has the noise of the recording without quantisation (frame-common and line-of-sight
-    parts included), and a control and a quantised case differ by the rounding alone.
-    """
+    frame's level, ε the recording's own draw `CleanRecording.eps`, frame-common and
+    line-of-sight parts included), split before and after the rounding with a stream of the
+    recording's seed and the plate, so that a control and a quantised case differ by the
+    rounding alone."""
     p = e["parameters"]
     q, o, n_px = float(p["step_mm"]), float(p["offset_mm"]), int(p.get("pixels", 1))
     if n_px < 1:
         raise ValueError(f"quantization: pixels must be >= 1, got {n_px}")
-    dither = _pixel_dither(base, e, j)
     rng = np.random.default_rng([base.seed, 7004, j])
-    u = rng.standard_normal(z_clean.size)
-    g = rng.standard_normal((z_clean.size, n_px))
-    g -= g.mean(axis=1, keepdims=True)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        rho = np.where(sig_f > 0, np.minimum(dither**2 / (n_px * sig_f**2), 1.0), 1.0)
     eps = base.eps[:, j, 2]
-    m = np.sqrt(rho) * sig_f * (np.sqrt(rho) * eps + np.sqrt(1.0 - rho) * u)
-    e_px = m[:, None] + dither * g
-    readings = np.mean(q * np.round((z_clean[:, None] + e_px - o) / q) + o, axis=1)
-    return readings + (noise - m)
+    return quantised_readings(z_clean, noise, sig_f, eps, q, o, n_px, _pixel_dither(base, e, j), rng)
 
 
 def _het_u(base: CleanRecording, e: Mapping, t_tab: np.ndarray) -> np.ndarray:

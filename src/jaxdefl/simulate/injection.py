@@ -12,11 +12,15 @@ simulated as it was reported (each entry's ``from_diagnosis``; ``jaxdefl reconci
 into ``reconciled.toml``). ``t_rel`` is the time since the start of the recording (the first
 frame).
 
-``plates`` (1-based) restricts a range effect to those plates' pixels (default: the whole image).
+``plates`` (1-based) restricts a range effect to those plates' pixels (default: the whole image),
+and a measurement effect that takes them to those plates' centroids.
 A scheduled effect (``t_s``) acts from ``t_s`` to the end, or for ``duration_s`` when > 0.
 Levels: ``range`` and ``timestamps`` are the camera's (frames), ``motion`` moves the beam (so
 the LDS, the trajectories and the frames), ``plate`` one plate's motion (trajectories, LDS),
-``measurement`` the live camera's centroids only.
+``sampling`` the instants a camera's reading averages the true positions over (`sampled`) and
+``measurement`` a camera's centroids and their noise (`measurement_faults`): these two act where
+trajectories are measured without frames (the live camera, reconcile's twin), not in rendered
+frames.
 """
 
 from __future__ import annotations
@@ -29,7 +33,7 @@ from typing import Any
 import numpy as np
 
 from .._errors import ConfigError
-from ..effects import FRAME_LEVELS, INJECTABLE, LEVELS, Entry, Motion, Param
+from ..effects import FRAME_LEVELS, INJECTABLE, LEVELS, Entry, Motion, Param, Reading
 from ..effects import REGISTRY as VOCABULARY
 from ..effects._entry import active, elapsed
 from ..effects.camera_shake import displacement as shake_displacement
@@ -53,6 +57,8 @@ __all__ = [
     "stamp_times",
     "plate_motion",
     "measurement_faults",
+    "sampling_offsets",
+    "sampled",
     "mode_displacement",
     "active",
     "elapsed",
@@ -136,7 +142,7 @@ def parse_table(src: str, key: str, eid: str, raw: dict, n_plates: int) -> Effec
     params: dict[str, Any] = {}
     plates: tuple[int, ...] = ()
     for name, value in raw.items():
-        if name == "plates" and entry.level == "range":
+        if name == "plates" and entry.takes_plates:
             if not isinstance(value, list) or not all(_is_plate(v, n_plates) for v in value):
                 raise ConfigError(
                     f"{src}: key '{key}.plates': expected a list of plate numbers 1..{n_plates}, "
@@ -146,7 +152,7 @@ def parse_table(src: str, key: str, eid: str, raw: dict, n_plates: int) -> Effec
             continue
         p = entry.param(name)
         if p is None:
-            names = ", ".join([q.name for q in entry.params] + (["plates"] if entry.level == "range" else []))
+            names = ", ".join([q.name for q in entry.params] + (["plates"] if entry.takes_plates else []))
             raise ConfigError(
                 f"{src}: unknown key '{key}.{name}': not a parameter of {eid}; expected one of {names}"
             )
@@ -191,7 +197,7 @@ def make_spec(
         full[k] = v if p is not None and (p.plate or p.choices) else float(v)
     if entry.resolve:
         full = entry.resolve(full, bad)
-    missing = [p for p in entry.params if p.default is None and p.name not in full]
+    missing = [p for p in entry.params if p.default is None and not p.optional and p.name not in full]
     if missing:
         p = missing[0]
         raise ConfigError(f"{src}: key '{key}.{p.name}': {eid} needs {p.name} ({p.unit})")
@@ -284,7 +290,50 @@ def plate_motion(effects, t_rel: np.ndarray, motion, dx, dy, rest) -> None:
         REGISTRY[e.id].inject(e, np.asarray(t_rel, np.float64), motion, dx, dy, rest)
 
 
-def measurement_faults(effects, t_rel: np.ndarray, xyz, noise) -> None:
-    """Sensor faults on the live camera's (frame, plate, 3) centroids and noise, in place."""
-    for e in _of(effects, "measurement"):
-        REGISTRY[e.id].inject(e, np.asarray(t_rel, np.float64), xyz, noise)
+def measurement_faults(
+    effects,
+    t_rel: np.ndarray,
+    xyz,
+    noise,
+    *,
+    plates=None,
+    sigma=None,
+    arg=None,
+    seed: int = 0,
+) -> None:
+    """The measurement effects (a noise level with the motion, a lattice, sensor faults) on a
+    camera's (frame, plate, 3) centroids before noise and their noise draw, in place (the
+    reading is ``xyz + noise``), in their entries' ``order``: see `jaxdefl.effects.Reading`
+    (``plates``: the columns' plate numbers, default 1..n; ``sigma``: the noise's standard
+    deviation; ``arg``: (frame, plate) each plate's motion angle, 0 at the peak of its z)."""
+    acting = sorted(_of(effects, "measurement"), key=lambda e: REGISTRY[e.id].order)
+    if not acting:
+        return
+    cols = np.arange(1, np.shape(xyz)[1] + 1) if plates is None else np.asarray(plates, int)
+    r = Reading(np.asarray(t_rel, np.float64), xyz, noise, cols, sigma, arg, int(seed))
+    for e in acting:
+        REGISTRY[e.id].inject(e, r)
+
+
+def sampling_offsets(effects, t_rel: np.ndarray) -> np.ndarray | None:
+    """(frame, k) s: the instants after each frame's time whose true positions a camera's
+    reading averages (every sum of one instant of each sampling effect), or None when none
+    acts."""
+    t_rel = np.asarray(t_rel, np.float64)
+    out = None
+    for e in _of(effects, "sampling"):
+        d = np.asarray(REGISTRY[e.id].inject(e, t_rel), np.float64)
+        d = np.broadcast_to(d, (t_rel.size, d.shape[-1]))
+        out = d if out is None else (out[:, :, None] + d[:, None, :]).reshape(t_rel.size, -1)
+    return out
+
+
+def sampled(effects, t_s: np.ndarray, t0_s: float, positions: Callable[[np.ndarray], np.ndarray]):
+    """``positions(t_s)`` (frame first) as a camera reads them: the mean over the sampling
+    effects' instants after each frame's time (`sampling_offsets`); ``positions(t_s)`` itself
+    when none acts."""
+    t_s = np.asarray(t_s, np.float64)
+    offs = sampling_offsets(effects, t_s - t0_s)
+    if offs is None:
+        return positions(t_s)
+    return sum(positions(t_s + offs[:, k]) for k in range(offs.shape[1])) / offs.shape[1]

@@ -2,8 +2,9 @@
 
 `camera_blocks` yields what the tracked extraction would deliver, without rendering frames: the
 true centroids (`truth_table`, with the config's scheduled changes) at the delivered frame times
-(drop-outs and jitter of `frame_clock`) plus the camera's centroid noise, and the scheduled sensor
-faults. The noise follows the frame renderer's calibration: z has the plate-centroid residual of
+(drop-outs and jitter of `frame_clock`, read over the sampling effects' instants) plus the
+camera's centroid noise, and the measurement effects (scheduled sensor faults, a noise level with
+the motion, a lattice). The noise follows the frame renderer's calibration: z has the plate-centroid residual of
 the thesis for the camera unit (``camera.centroid_residual_mm`` or the unit's table value, see
 `jaxdefl.simulate.tof`; structured light: ``camera.frame_noise_mm``), of which
 `COMMON_FRACTION` of the variance is shared by the plates of a frame (the ToF per-frame range
@@ -27,7 +28,7 @@ from .._errors import ConfigError, ParameterError
 from .._resources import check_disk
 from .._signals import check_interrupt
 from .config import SimConfig, load_config
-from .injection import measurement_faults
+from .injection import measurement_faults, sampled
 from .lds import frame_clock, truth_table
 
 __all__ = ["COMMON_FRACTION", "AXIS_NOISE_RATIO", "centroid_noise_mm", "camera_blocks", "write_live"]
@@ -59,15 +60,25 @@ def camera_blocks(
     sz = centroid_noise_mm(cfg)
     sig = np.array([AXIS_NOISE_RATIO[a] for a in ("x", "y", "z")]) * sz
     common = COMMON_FRACTION if cfg.camera.sensor == "sr4000" else 0.3
+    ld = cfg.loading
+
+    def centroids(tt: np.ndarray) -> np.ndarray:
+        tr = truth_table(cfg, tt)
+        return tr[["x", "y", "z"]].to_numpy(dtype=np.float64, copy=True).reshape(len(tt), n_pl, 3)
+
     for b, s in enumerate(range(0, len(t_all), block_frames)):
         t = t_all[s : s + block_frames]
-        tr = truth_table(cfg, t)
-        xyz = tr[["x", "y", "z"]].to_numpy(dtype=np.float64, copy=True).reshape(len(t), n_pl, 3)
+        xyz = sampled(cfg.effects, t, cfg.t0_s, centroids)  # a camera's taps spread in time
         rng = np.random.default_rng([seed, 23, b])
         noise = rng.standard_normal((len(t), n_pl, 3)) * sig
         shared = rng.standard_normal((len(t), 1)) * sz * np.sqrt(common)
         noise[..., 2] = noise[..., 2] * np.sqrt(1 - common) + shared
-        measurement_faults(cfg.effects, t - cfg.t0_s, xyz, noise)  # scheduled sensor faults
+        # the load's angle, 0 at the peak of the deflection (z down: the plates' z alike)
+        arg = 2 * np.pi * ld.frequency_hz * (t - cfg.t0_s) + ld.phase_rad - np.pi / 2
+        # sensor faults, a noise level with the motion, a lattice
+        measurement_faults(
+            cfg.effects, t - cfg.t0_s, xyz, noise, sigma=sig, arg=np.repeat(arg[:, None], n_pl, 1), seed=seed
+        )
         yield t, xyz + noise
 
 
