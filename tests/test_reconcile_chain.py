@@ -33,6 +33,9 @@ SPECS = {
     "harmonic_distortion": {"order": 2, "amplitude_mm": 0.2},
     "mode_shape": {"mode": 2, "freq_hz": 4.1, "amplitude_mm": 0.3, "phase_rad": 0.0},
     "stiffness_change": {"t_s": 20.0, "f0_change": 0.01, "amplitude_change": 0.02},
+    "heteroscedastic_noise": {"modulation": 0.3, "phase_rad": 1.0},
+    "quantization": {"step_mm": 1.0, "offset_mm": 0.2, "dither_mm": 0.2},
+    "motion_artefact": {"tap_spread_s": 0.05},
 }
 
 

@@ -172,6 +172,9 @@ EXAMPLES = {
     "sensor_fault": {"t_s": 2.0, "plate": 3, "fault": "jump", "size": 2.0},
     "mode_shape": {"mode": 2, "freq_hz": 4.1, "amplitude_mm": 0.5, "phase_rad": 0.3},
     "clipping": {"plate": 7, "level_mm": 0.5},
+    "heteroscedastic_noise": {"modulation": 0.5, "phase_rad": 0.3, "plates": [3, 4]},
+    "quantization": {"step_mm": 1.0, "offset_mm": 0.2, "plates": [5]},
+    "motion_artefact": {"tap_spread_s": 0.1},
 }
 
 

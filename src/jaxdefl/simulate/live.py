@@ -4,10 +4,10 @@
 true centroids (`truth_table`, with the config's scheduled changes) at the delivered frame times
 (drop-outs and jitter of `frame_clock`, read over the sampling effects' instants) plus the
 camera's centroid noise, and the measurement effects (scheduled sensor faults, a noise level with
-the motion, a lattice). The noise follows the frame renderer's calibration: z has the plate-centroid residual of
-the thesis for the camera unit (``camera.centroid_residual_mm`` or the unit's table value, see
-`jaxdefl.simulate.tof`; structured light: ``camera.frame_noise_mm``), of which
-`COMMON_FRACTION` of the variance is shared by the plates of a frame (the ToF per-frame range
+the motion, a lattice). The noise follows the frame renderer's calibration: z has the
+plate-centroid residual of the thesis for the camera unit (``camera.centroid_residual_mm`` or the
+unit's table value, see `jaxdefl.simulate.tof`; structured light: ``camera.frame_noise_mm``), of
+which `COMMON_FRACTION` of the variance is shared by the plates of a frame (the ToF per-frame range
 error); x and y get the ratios of the thesis' residuals (0.39 and 0.13 of z), independent.
 
 `write_live` appends the blocks to ``DIR/trajectory.csv`` (the trajectory-table schema) at the
