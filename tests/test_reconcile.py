@@ -81,7 +81,8 @@ def test_diagnosed_effects_become_effect_tables_the_simulator_accepts():
         specs[1].id == "drift" and specs[1].plates == (1,) and specs[1].p("tau_s") == 300.0
     )  # refitted later
     assert specs[2].p("t_ref_s") == 150.0  # the diagnosis' linear modulation is about the middle
-    assert specs[3] is None and "not one of the effects" in mapped[3][1]
+    # a lattice is simulated as reported (issue 24), on its plates
+    assert specs[3].id == "quantization" and specs[3].plates == (3,) and specs[3].p("step_mm") == 1.0
     from jaxdefl.reconcile import effect_tables_toml
 
     raw = tomllib.loads(effect_tables_toml(tuple(s for s in specs if s is not None)))
