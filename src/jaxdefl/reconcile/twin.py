@@ -11,7 +11,10 @@ harmonic (AM, FM) and, on every series, in the way the series carries the beam's
 lines, harmonics: the series' harmonic over the largest z harmonic, signed by their phases — a
 plate's x and y see the beam's motion through the camera's geometry as they see the load), other
 bending modes on z in their own shape at each plate's place along the span (known from the
-config's calibration only). A plate's axes share their noise as the recording's do (their
+config's calibration only); a camera's sampling effects (a ToF camera's taps spread in time) read
+each series' motion over their instants, and the measurement effects (a noise level with the
+motion, a lattice) act on each series' reading and its noise, the series' own harmonic giving
+the motion's angle. A plate's axes share their noise as the recording's do (their
 correlation from the residuals' frame-to-frame changes: a ToF camera's range noise moves a
 centroid along its line of sight). With a calibration, each series also has the extraction's outliers
 at the rate and size the calibration clip shows them (`SensorCalibration.outliers`; the rate drawn
