@@ -12,6 +12,7 @@ import numpy as np
 from .._sensors import SENSORS
 
 __all__ = [
+    "Bench",
     "FRAME_LEVELS",
     "LEVELS",
     "PHASE",
@@ -24,12 +25,15 @@ __all__ = [
     "Report",
     "active",
     "all_of",
+    "bench_load",
+    "bench_plates",
     "check_when",
     "elapsed",
     "modulation_params",
     "non_negative",
     "positive",
     "relative",
+    "spec_values",
 ]
 
 LEVELS = ("range", "timestamps", "motion", "plate", "measurement", "sampling")
@@ -148,6 +152,80 @@ class Report:
 
 
 @dataclass(frozen=True)
+class Bench:
+    """How the concealed benchmark (`jaxdefl.simulate.effects`) renders one drawn effect ``e`` (a
+    dict: id, kind, parameters, plates, axes) into a recording ``base`` (its `CleanRecording`:
+    the clean motion ``base.motion``, noise ``base.sigma`` and ``base.eps``, the beam's shape and
+    statics, f0, phase, seed). Every hook is optional and acts at its stage, in this order:
+
+    - ``load(base, e) -> params``: the load's modulation it is, as the registry's parameters
+      (`jaxdefl.simulate.injection.motion_modulations`: the beam moves, the LDS sees it);
+    - ``taps(base, e) -> offsets``: s after each frame's time; the camera reads the mean of the
+      positions at them;
+    - ``clock(base, e, t) -> t_tab``: the table's stamps for true frame times ``t``;
+    - ``camera(base, e, pos, trel)``: on the clean camera positions (frame, plate, axis) in
+      place, by ``stage`` (then the effects' order: a saturation last);
+    - ``noise_scale(base, e, t_tab, scale)``: the noise's scale (frame, plate, axis) in place;
+    - ``readings(base, e, pos, noise, scale)``: the clean positions and their noise, in place,
+      as the camera reads them (a lattice);
+    - ``after_noise(base, e, pos, t_tab, extras)``: on the noisy positions in place, what it
+      drew in ``extras`` (outliers);
+    - ``mean_reading(base, e, pos) -> pos``: the camera's mean reading of clean positions where
+      it is not they themselves (a lattice smoothed by its noise);
+    - ``strength(base, e) -> (r, S)``: its RMS ratio and likelihood signal where they are not
+      those of its mean reading's difference (a noise structure);
+    - ``truth(base, e, p, out, t_tab, extras)``: its truth entry (its parameters ``p``, its
+      times and bands in ``out``) in place.
+    """
+
+    stage: int = 0
+    load: Callable | None = None
+    taps: Callable | None = None
+    clock: Callable | None = None
+    camera: Callable | None = None
+    noise_scale: Callable | None = None
+    readings: Callable | None = None
+    after_noise: Callable | None = None
+    mean_reading: Callable | None = None
+    strength: Callable | None = None
+    truth: Callable | None = None
+
+
+def bench_plates(e) -> np.ndarray:
+    """The 0-based plate indices of a drawn effect (the benchmark's ``plates`` are 1-based)."""
+    return np.asarray(e.get("plates", []), int) - 1
+
+
+def bench_load(base, e) -> dict:
+    """A load modulation's registry parameters from its draw: a linear kind about the record's
+    middle (``t_ref_s``, s since the first frame)."""
+    params = {k: float(v) for k, v in e["parameters"].items()}
+    if e["kind"] == "linear":
+        params["t_ref_s"] = base.t_mid - base.t_first
+    return params
+
+
+@dataclass(frozen=True)
+class _Values:
+    """Parameters read as a spec's (``p(name)``)."""
+
+    values: dict
+
+    def p(self, name: str) -> Any:
+        return self.values[name]
+
+
+def spec_values(entry: Entry, params: dict) -> _Values:
+    """``params`` with the entry's defaults filled in, numbers as floats, read as a spec's
+    (``.p(name)``): a drawn effect's parameters for the entry's own functions."""
+    full = {p.name: p.default for p in entry.params if p.default is not None}
+    for k, v in params.items():
+        q = entry.param(k)
+        full[k] = v if q is not None and (q.plate or q.choices) else float(v)
+    return _Values(full)
+
+
+@dataclass(frozen=True)
 class Entry:
     """One effect id of the vocabulary (`jaxdefl.effects.REGISTRY`).
 
@@ -198,6 +276,7 @@ class Entry:
         scored: ``scored(kind) -> {name: sign matters}``: the parameters the benchmark requires
             within 25 % of their true values, by the drawn kind
             (`jaxdefl.simulate.effects.primary_parameters`).
+        bench: how the concealed benchmark renders its draw (`Bench`).
     """
 
     id: str
@@ -220,6 +299,7 @@ class Entry:
     example: dict[str, Any] = field(default_factory=dict)
     draw: Callable[[Any], dict] | None = None
     scored: Callable[[str], dict[str, bool]] | None = None
+    bench: Bench = field(default_factory=Bench)
 
     @property
     def injectable(self) -> bool:

@@ -9,7 +9,7 @@ import math
 
 import numpy as np
 
-from ._entry import PHASE, Entry, Param, Report
+from ._entry import PHASE, Bench, Entry, Param, Report, bench_plates, spec_values
 
 # the camera's random low-pass motion: a sum of sinusoids (spectral representation of a
 # first-order low-pass process, S(f) ∝ 1/(1 + (f/f_c)²) on [f_c/20, 10 f_c]), so that its value at
@@ -65,6 +65,13 @@ def draw(b) -> dict:
     return b.sized(e, "rms_mm", (0.0, b.sigma_z(e["plates"])))
 
 
+def _camera(base, e, pos, trel):
+    """The same displacement on every listed axis of its plates (`displacement`)."""
+    shake = displacement(spec_values(ENTRY, e["parameters"]), trel, base.seed)
+    for a in e["axes"]:
+        pos[:, bench_plates(e), "xyz".index(a)] += shake[:, None]
+
+
 ENTRY = Entry(
     id="camera_shake",
     record_kinds=("forced_harmonic",),
@@ -86,4 +93,5 @@ ENTRY = Entry(
     example={"rms_mm": 0.5, "corner_hz": 0.02},
     draw=draw,
     scored=lambda kind: {"rms_mm": False},
+    bench=Bench(camera=_camera),
 )

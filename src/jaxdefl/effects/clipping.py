@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._entry import Entry, Param, Report
+from ._entry import Bench, Entry, Param, Report, bench_plates
 
 
 def inject(e, trel, motion, dx, dy, rest):
@@ -46,6 +46,16 @@ def draw(b) -> dict:
     return b.clip_level(e)
 
 
+def _camera(base, e, pos, trel):
+    """Last: the reading saturates at c A_p from the plate's offset on its side, whatever moved
+    the plate (before the noise: the pixels read the bound each with its own noise)."""
+    side, c = float(e["parameters"]["side"]), float(e["parameters"]["level"])
+    for j in bench_plates(e):
+        off = base.static[j, 2] + base.shape[j] * base.cfg.loading.mean_mm
+        bound = c * base.amp0 * abs(base.shape[j])
+        pos[:, j, 2] = off + side * np.minimum(side * (pos[:, j, 2] - off), bound)
+
+
 ENTRY = Entry(
     id="clipping",
     record_kinds=("forced_harmonic",),
@@ -60,4 +70,5 @@ ENTRY = Entry(
     example={"plate": 6, "level_mm": 1.5},
     draw=draw,
     scored=lambda kind: {"level_mm": True},
+    bench=Bench(stage=2, camera=_camera),
 )

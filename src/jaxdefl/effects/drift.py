@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._entry import Entry, Param, Report, positive
+from ._entry import Bench, Entry, Param, Report, bench_plates, positive
 from ._range import columns
 
 
@@ -40,6 +40,16 @@ def draw(b) -> dict:
     return b.sized(e, "amplitude_mm", (0.0, b.sigma_z(e["plates"])))
 
 
+def _camera(base, e, pos, trel):
+    p = e["parameters"]
+    pos[:, bench_plates(e), 2] += (float(p["amplitude_mm"]) * np.exp(-trel / float(p["tau_s"])))[:, None]
+
+
+def _truth(base, e, p, out, t_tab, extras):
+    """A warm-up is over after three time constants."""
+    out["t_end"] = min(float(t_tab[-1]), float(t_tab[0]) + 3.0 * float(p["tau_s"]))
+
+
 ENTRY = Entry(
     id="drift",
     record_kinds=("forced_harmonic", "multi_tone"),
@@ -53,4 +63,5 @@ ENTRY = Entry(
     example={"amplitude_mm": 1.5, "tau_s": 60.0},
     draw=draw,
     scored=lambda kind: {"amplitude_mm": True, "tau_s": True},
+    bench=Bench(camera=_camera, truth=_truth),
 )

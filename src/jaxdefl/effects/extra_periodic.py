@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from ._entry import PHASE, Entry, Motion, Param, Report, positive
+from ._entry import PHASE, Bench, Entry, Motion, Param, Report, bench_plates, positive
 
 
 def inject(e, m: Motion):
@@ -39,6 +39,29 @@ def draw(b) -> dict:
     return b.sized(e, "amplitude_mm")
 
 
+def plate_amplitudes(e) -> dict[str, np.ndarray]:
+    """Per-plate amplitudes (mm) of a drawn line by axis: ``amplitude_mm`` times the plate
+    factors (``plate_factors`` {axis: [per plate]}; default 1 on z); ``amplitude_mm`` is the
+    median over z."""
+    a = float(e["parameters"]["amplitude_mm"])
+    factors = e.get("plate_factors") or {"z": [1.0] * len(e["plates"])}
+    return {ax: a * np.asarray(f, float) for ax, f in factors.items()}
+
+
+def _camera(base, e, pos, trel):
+    p = e["parameters"]
+    c = np.cos(2 * math.pi * float(p["freq_hz"]) * trel + float(p["phase_rad"]))
+    for a, amps in plate_amplitudes(e).items():
+        pos[:, bench_plates(e), "xyz".index(a)] += c[:, None] * amps[None, :]
+
+
+def _truth(base, e, p, out, t_tab, extras):
+    """The realised amplitude per plate and axis; ``amplitude_mm`` their median over z."""
+    amps = plate_amplitudes(e)
+    out["plate_amplitudes_mm"] = {k: [round(float(v), 6) for v in a] for k, a in amps.items()}
+    p["amplitude_mm"] = float(np.median(amps["z"]))
+
+
 ENTRY = Entry(
     id="extra_periodic",
     record_kinds=("forced_harmonic",),
@@ -53,4 +76,5 @@ ENTRY = Entry(
     example={"freq_hz": 4.2, "amplitude_mm": 0.3, "phase_rad": 0.4},
     draw=draw,
     scored=lambda kind: {"freq_hz": True, "amplitude_mm": False},
+    bench=Bench(camera=_camera, truth=_truth),
 )

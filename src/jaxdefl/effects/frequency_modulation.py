@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from ._entry import Entry, Motion, Report, modulation_params
+from ._entry import Bench, Entry, Motion, Report, bench_load, modulation_params
 
 
 def inject(e, m: Motion):
@@ -45,6 +45,11 @@ def draw(b) -> dict:
     return b.sized(e, key, bounds)
 
 
+def _truth(base, e, p, out, t_tab, extras):
+    """The load's modulation is told within ±0.1 Hz of f0."""
+    out["band_hz"] = [base.f0 - 0.1, base.f0 + 0.1]
+
+
 ENTRY = Entry(
     id="frequency_modulation",
     record_kinds=("forced_harmonic",),
@@ -60,4 +65,5 @@ ENTRY = Entry(
     scored=lambda kind: (
         {"drift_hz_per_s": True} if kind == "linear" else {"depth_rad": False, "freq_hz": True}
     ),
+    bench=Bench(load=bench_load, truth=_truth),
 )

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._entry import PHASE, Entry, Motion, Param, Report
+from ._entry import PHASE, Bench, Entry, Motion, Param, Report, bench_plates
 
 
 def inject(e, m: Motion):
@@ -41,6 +41,17 @@ def draw(b) -> dict:
     return b.sized(e, "amplitude_mm")
 
 
+def _camera(base, e, pos, trel):
+    """z += a cos(k ω t_rel − ψ) on its plates (the camera's: the LDS does not see it)."""
+    p = e["parameters"]
+    k, a, psi = int(p["order"]), float(p["amplitude_mm"]), float(p["phase_rad"])
+    pos[:, bench_plates(e), 2] += (a * np.cos(k * base.omega * trel - psi))[:, None]
+
+
+def _truth(base, e, p, out, t_tab, extras):
+    p["order"] = int(p["order"])
+
+
 ENTRY = Entry(
     id="harmonic_distortion",
     record_kinds=("forced_harmonic",),
@@ -55,4 +66,5 @@ ENTRY = Entry(
     example={"order": 2, "amplitude_mm": 0.3, "phase_rad": 0.5},
     draw=draw,
     scored=lambda kind: {"order": True, "amplitude_mm": False},
+    bench=Bench(camera=_camera, truth=_truth),
 )

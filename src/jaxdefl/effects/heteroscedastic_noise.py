@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._entry import Entry, Param, Reading, Report, non_negative
+from ._entry import Bench, Entry, Param, Reading, Report, bench_plates, non_negative
 
 MODULATION_RANGE = (0.15, 0.4)  # the benchmark's modulation m
 
@@ -71,6 +71,28 @@ def draw(b) -> dict:
     return e
 
 
+def _u(base, e, t_tab: np.ndarray) -> np.ndarray:
+    """The benchmark's u: cos(ω t_rel − φ − ψ) (kind "phase"), or the time from the middle over
+    the half record (kind "time")."""
+    if e["kind"] == "phase":
+        trel = t_tab - t_tab[0]
+        return np.cos(base.omega * trel - base.phase - float(e["parameters"]["phase_rad"]))
+    mid = 0.5 * (t_tab[0] + t_tab[-1])
+    return (t_tab - mid) / (0.5 * (t_tab[-1] - t_tab[0]))
+
+
+def _noise_scale(base, e, t_tab, scale):
+    """σ_i = σ0 (1 + m u_i) on z of its plates."""
+    scale[:, bench_plates(e), 2] = 1.0 + float(e["parameters"]["modulation"]) * _u(base, e, t_tab)[:, None]
+
+
+def _strength(base, e):
+    """(m, S = 2 n Var[log(1 + m u)] × the series touched): the likelihood signal of a scale."""
+    m = float(e["parameters"]["modulation"])
+    v = np.log1p(m * _u(base, e, base.t))
+    return m, float(2.0 * base.t.size * np.var(v) * (len(e["plates"]) * len(e["axes"])))
+
+
 ENTRY = Entry(
     id="heteroscedastic_noise",
     record_kinds=("forced_harmonic",),
@@ -92,4 +114,5 @@ ENTRY = Entry(
     draw=draw,
     # growing noise has a sign; with the motion's phase, ψ holds the sign
     scored=lambda kind: {"modulation": kind == "time"},
+    bench=Bench(noise_scale=_noise_scale, strength=_strength),
 )

@@ -3,7 +3,7 @@ integration-time change)."""
 
 from __future__ import annotations
 
-from ._entry import Entry, Param, Report, non_negative
+from ._entry import Bench, Entry, Param, Report, bench_plates, non_negative
 from ._range import columns
 
 
@@ -32,6 +32,15 @@ def draw(b) -> dict:
     return b.sized(e, "size_mm", (0.0, b.sigma_z(e["plates"])))
 
 
+def _camera(base, e, pos, trel):
+    p = e["parameters"]
+    pos[:, bench_plates(e), 2] += (float(p["size_mm"]) * (trel >= float(p["t_jump_s"])))[:, None]
+
+
+def _truth(base, e, p, out, t_tab, extras):
+    out["t_start"] = out["t_end"] = float(t_tab[0]) + float(p["t_jump_s"])
+
+
 ENTRY = Entry(
     id="level_jump",
     record_kinds=("forced_harmonic", "multi_tone", "free_decay"),
@@ -46,4 +55,5 @@ ENTRY = Entry(
     example={"t_jump_s": 90.0, "size_mm": 1.0},
     draw=draw,
     scored=lambda kind: {"size_mm": True},
+    bench=Bench(camera=_camera, truth=_truth),
 )

@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 
-from ._entry import PHASE, Entry, Motion, Param, Report, positive
+from ._entry import PHASE, Bench, Entry, Motion, Param, Report, bench_plates, positive
 
 
 def inject(e, m: Motion):
@@ -43,6 +43,17 @@ def draw(b) -> dict:
     return b.sized(e, "amplitude_mm")
 
 
+def _camera(base, e, pos, trel):
+    """z_p += a sin(nπ x_p/L) cos(2π f t_rel + ψ), x_p the plate's place on the span L (after
+    the other additive terms)."""
+    p = e["parameters"]
+    idx = bench_plates(e)
+    xi = np.asarray(base.cfg.plate_x_mm())[idx] / base.cfg.beam.span_mm
+    arg = 2 * math.pi * float(p["freq_hz"]) * trel + float(p["phase_rad"])
+    q = float(p["amplitude_mm"]) * np.cos(arg)
+    pos[:, idx, 2] += q[:, None] * np.sin(int(p["mode"]) * math.pi * xi)[None, :]
+
+
 ENTRY = Entry(
     id="mode_shape",
     record_kinds=("forced_harmonic",),
@@ -57,4 +68,5 @@ ENTRY = Entry(
     example={"mode": 2, "freq_hz": 5.3, "amplitude_mm": 0.5, "phase_rad": 0.7},
     draw=draw,
     scored=lambda kind: {"mode": True, "freq_hz": True, "amplitude_mm": False},
+    bench=Bench(stage=1, camera=_camera),
 )

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ._entry import Entry, Param, Report, positive
+from ._entry import Bench, Entry, Param, Report, positive
 
 TAPS = (0.0, 0.25, 0.5, 0.75)  # the four taps' offsets, fractions of the spread (evenly spread)
 
@@ -35,6 +35,12 @@ def draw(b) -> dict:
     return e | {"id": ENTRY.id}
 
 
+def _taps(base, e) -> list[float]:
+    """The four taps evenly over ``tap_spread_s`` after the frame's time."""
+    tap = float(e["parameters"]["tap_spread_s"])
+    return [k * tap / 4 for k in range(4)]
+
+
 ENTRY = Entry(
     id="motion_artefact",
     record_kinds=("forced_harmonic",),
@@ -51,4 +57,5 @@ ENTRY = Entry(
     example={"tap_spread_s": 0.05},
     draw=draw,
     scored=lambda kind: {"tap_spread_s": True},
+    bench=Bench(taps=_taps),
 )

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from ._entry import Entry, Param, Report, positive
+from ._entry import Bench, Entry, Param, Report, positive
 from ._range import columns
 
 
@@ -61,6 +61,39 @@ def draw(b) -> dict:
     return e | {"id": ENTRY.id}
 
 
+def _after_noise(base, e, pos, t_tab, extras):
+    """A fraction of each plate's z samples (at least one) get an error N(0, s²) or ±s."""
+    rng = np.random.default_rng([base.seed, 7002])
+    p = e["parameters"]
+    s = float(p["scale_mm"])
+    count = 0
+    for plate in e["plates"]:
+        n = t_tab.size
+        k = max(1, int(round(float(p["fraction"]) * n)))
+        rows = rng.choice(n, size=k, replace=False)
+        err = s * rng.standard_normal(k) if e["kind"] == "gaussian" else s * rng.choice([-1.0, 1.0], k)
+        pos[rows, plate - 1, 2] += err
+        count += k
+    extras["outlier_count"] = count
+
+
+def _strength(base, e):
+    """RMS √ε s against each series' σ; S = n Σ (rms/σ)²."""
+    p = e["parameters"]
+    sig = base.sigma[np.ix_(np.asarray(e["plates"], int) - 1, ["xyz".index(a) for a in e["axes"]])]
+    rms = math.sqrt(float(p["fraction"])) * float(p["scale_mm"])
+    with np.errstate(divide="ignore"):
+        ratio = rms / sig
+    return float(np.sqrt(np.mean(ratio**2))), float(base.t.size * np.sum(ratio**2))
+
+
+def _truth(base, e, p, out, t_tab, extras):
+    """The realised fraction (the drawn one kept as ``fraction_nominal``)."""
+    n_aff = t_tab.size * len(e["plates"])
+    p["fraction_nominal"] = float(p["fraction"])
+    p["fraction"] = float(extras.get("outlier_count", 0)) / n_aff
+
+
 ENTRY = Entry(
     id="outliers",
     record_kinds=("forced_harmonic", "multi_tone"),
@@ -75,4 +108,5 @@ ENTRY = Entry(
     example={"fraction": 0.01, "scale_mm": 8.0},
     draw=draw,
     scored=lambda kind: {"fraction": True, "scale_mm": True},
+    bench=Bench(after_noise=_after_noise, strength=_strength, truth=_truth),
 )

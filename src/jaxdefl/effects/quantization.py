@@ -10,8 +10,8 @@ import math
 
 import numpy as np
 
-from .._lattice import quantised_readings
-from ._entry import Entry, Param, Reading, Report
+from .._lattice import quantised_readings, smoothed_staircase
+from ._entry import Bench, Entry, Param, Reading, Report
 
 # the benchmark's pixels averaged per reading (log-uniform) and their noise before rounding σ_d / q
 PIXELS_RANGE = (20.0, 200.0)
@@ -89,6 +89,39 @@ def draw(b) -> dict:
     return e
 
 
+def _pixel_dither(base, e, j: int) -> float:
+    """σ_d (mm) of plate j's pixels before rounding: ``dither_mm``, default σ√P (the whole noise)."""
+    p = e["parameters"]
+    if "dither_mm" in p:
+        return float(p["dither_mm"])
+    return float(base.sigma[j, 2]) * math.sqrt(int(p.get("pixels", 1)))
+
+
+def _readings(base, e, pos, noise, scale):
+    """Each plate's z as a disparity camera reads it (`quantised_readings`): the draw of the
+    recording without quantisation (`CleanRecording.eps`, frame-common and line-of-sight parts
+    included) split before and after the rounding with a stream of the recording's seed and the
+    plate, so that a control and a quantised case differ by the rounding alone."""
+    p = e["parameters"]
+    q, o, n_px = float(p["step_mm"]), float(p["offset_mm"]), int(p.get("pixels", 1))
+    for j in np.asarray(e["plates"], int) - 1:
+        sig_f = base.sigma[j, 2] * scale[:, j, 2]
+        rng = np.random.default_rng([base.seed, 7004, j])
+        pos[:, j, 2] = quantised_readings(
+            pos[:, j, 2], noise[:, j, 2], sig_f, base.eps[:, j, 2], q, o, n_px, _pixel_dither(base, e, j), rng
+        )
+        noise[:, j, 2] = 0.0
+
+
+def _mean_reading(base, e, pos):
+    """The staircase smoothed by the pixels' noise (the rest of the rounding is noise)."""
+    q, o = float(e["parameters"]["step_mm"]), float(e["parameters"]["offset_mm"])
+    pos = pos.copy()
+    for j in np.asarray(e["plates"], int) - 1:
+        pos[:, j, 2] = smoothed_staircase(pos[:, j, 2], q, o, _pixel_dither(base, e, j))
+    return pos
+
+
 ENTRY = Entry(
     id="quantization",
     meaning="depth measured in steps (structured-light disparity quantisation, a logger's ADC)",
@@ -119,4 +152,5 @@ ENTRY = Entry(
     example={"step_mm": 1.5, "offset_mm": 0.4, "dither_mm": 0.3},
     draw=draw,
     scored=lambda kind: {"step_mm": True},
+    bench=Bench(readings=_readings, mean_reading=_mean_reading),
 )

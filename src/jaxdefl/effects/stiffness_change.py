@@ -9,7 +9,19 @@ import math
 
 import numpy as np
 
-from ._entry import WHEN, Entry, Motion, Param, Report, active, check_when, elapsed, relative
+from ._entry import (
+    WHEN,
+    Bench,
+    Entry,
+    Motion,
+    Param,
+    Report,
+    active,
+    bench_load,
+    check_when,
+    elapsed,
+    relative,
+)
 
 
 def inject(e, m: Motion):
@@ -54,6 +66,10 @@ def draw(b) -> dict:
     return b.sized(e, "stiffness_change", (0.0, 0.3))
 
 
+def _truth(base, e, p, out, t_tab, extras):
+    out["t_start"] = float(t_tab[0]) + float(p["t_s"])
+
+
 ENTRY = Entry(
     id="stiffness_change",
     record_kinds=("forced_harmonic",),
@@ -74,4 +90,5 @@ ENTRY = Entry(
     example={"t_s": 120.0, "stiffness_change": -0.0005},
     draw=draw,
     scored=lambda kind: {"stiffness_change": True, "t_s": True},
+    bench=Bench(load=bench_load, truth=_truth),
 )

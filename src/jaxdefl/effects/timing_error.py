@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from ._entry import Entry, Param, Report
+from ._entry import Bench, Entry, Param, Report
 
 
 def inject(e, trel):
@@ -25,6 +25,12 @@ def draw(b) -> dict:
     return b.sized(e, "rate_ppm", (20.0, 200.0))
 
 
+def _clock(base, e, t):
+    """t_cam = t_true + offset + rate·(t_true − t_first)."""
+    p = e["parameters"]
+    return t + float(p.get("offset_s", 0.0)) + float(p.get("rate_ppm", 0.0)) * 1e-6 * (t - base.t_first)
+
+
 ENTRY = Entry(
     id="timing_error",
     record_kinds=("forced_harmonic",),
@@ -39,4 +45,5 @@ ENTRY = Entry(
     example={"offset_s": 0.01},
     draw=draw,
     scored=lambda kind: {"offset_s": True} if kind == "offset" else {"rate_ppm": True},
+    bench=Bench(clock=_clock),
 )

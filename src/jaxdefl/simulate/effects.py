@@ -69,8 +69,10 @@ drawn apart from the series' noise: with σ = 1 mm and ≤ 5.2 mm of motion, the
 is ≥ 4.5 mm for P ≥ 20 and washes out every step that fits the motion, while P of 1-2 leaves
 readings on the lattice itself (a plate whose motion spans less than a step reads constant).
 
-Each id's draw and the parameters it scores are its vocabulary module's (`jaxdefl.effects.<id>`:
-``draw``, ``scored``); `draw_effect` hands them the recording and the sizing (`Draw`).
+Each id's draw, its rendering into a recording and the parameters it scores are its vocabulary
+module's (`jaxdefl.effects.<id>`: ``draw``, ``bench``, ``scored``; the table above summarises
+them): `draw_effect` hands the draw the recording and the sizing (`Draw`), `make_recording` calls
+the rendering's hooks stage by stage (`jaxdefl.effects.Bench`). This module spells no id.
 
 Public surface: `EFFECT_IDS`, `RecordingSpec`, `CleanRecording`, `Draw`, `random_spec`, `draw_effect`,
 `make_recording`, `make_case`, `primary_parameters`, `effect_strength`, `best_evidence`.
@@ -87,10 +89,9 @@ from typing import Any, Literal
 import numpy as np
 import pandas as pd
 
-from .._lattice import quantised_readings, smoothed_staircase
 from ..effects import EFFECT_IDS, REGISTRY, ids_where
 from .config import SimConfig, config_from_dict
-from .injection import make_spec, motion_modulations, shake_displacement
+from .injection import make_spec, motion_modulations
 from .lds import frame_clock, truth_table
 from .writer import simulate_trajectories
 
@@ -372,80 +373,52 @@ class CleanRecording:
 # rendering: effects -> camera table and LDS
 
 
-def _by_id(effects: Sequence[Mapping], eid: str) -> Mapping | None:
-    found = [e for e in effects if e["id"] == eid]
-    return found[0] if found else None
+def _bench(e: Mapping):
+    """How the benchmark renders a drawn effect: its vocabulary entry's (`jaxdefl.effects.Bench`)."""
+    return REGISTRY[e["id"]].bench
+
+
+def _hooked(effects: Sequence[Mapping], hook: str) -> list[tuple[Callable, Mapping]]:
+    """(hook, effect) of the effects that have ``hook``, by the entries' ``stage`` (then the
+    effects' order)."""
+    found = [(getattr(_bench(e), hook), e) for e in effects if getattr(_bench(e), hook) is not None]
+    return sorted(found, key=lambda fe: _bench(fe[1]).stage)
 
 
 def _modulations(base: CleanRecording, effects: Sequence[Mapping]):
-    """AM gain g(t) and FM phase Δφ(t) functions of true epoch time (None when absent): the
-    simulator's registry injections (`jaxdefl.simulate.injection`), the linear kinds about t_mid;
-    a stiffness change is in both (its amplitude factor in g, its frequency's phase in Δφ)."""
-    specs = []
-    for eid in ("amplitude_modulation", "frequency_modulation", "stiffness_change"):
-        e = _by_id(effects, eid)
-        if e is not None:
-            params = {k: float(v) for k, v in e["parameters"].items()}
-            if e["kind"] == "linear":
-                params["t_ref_s"] = base.t_mid - base.t_first
-            specs.append(make_spec(eid, params))
-    ids = {sp.id for sp in specs}
+    """AM gain g(t) and FM phase Δφ(t) functions of true epoch time (None when absent): the load's
+    modulations (``Bench.load``) as the simulator's registry injects them
+    (`jaxdefl.simulate.injection`), in rank order."""
+    specs = [make_spec(e["id"], load(base, e)) for load, e in _hooked(_by_rank(effects), "load")]
+    if not specs:
+        return None, None
     gain, shift, _ = motion_modulations(tuple(specs), base.t_first, base.f0)
-    am = gain if ids & {"amplitude_modulation", "stiffness_change"} else None
-    fm = shift if ids & {"frequency_modulation", "stiffness_change"} else None
-    return am, fm
+    return gain, shift
+
+
+def _by_rank(effects: Sequence[Mapping]) -> list[Mapping]:
+    return sorted(effects, key=lambda e: REGISTRY[e["id"]].rank)
 
 
 def _camera_clean(base: CleanRecording, effects: Sequence[Mapping]) -> tuple[np.ndarray, np.ndarray]:
-    """(table times, clean camera positions (frame, plate, axis)) before noise and quantisation."""
+    """(table times, clean camera positions (frame, plate, axis)) before noise and quantisation:
+    the beam's motion (the load's modulations) read over the camera's taps, the table's clock,
+    then the camera's additive terms and its saturation (``Bench``)."""
     am, fm = _modulations(base, effects)
     t = base.t
-    e = _by_id(effects, "motion_artefact")
-    if e is not None:
-        tap = float(e["parameters"]["tap_spread_s"])
-        pos = sum(base.motion(t + k * tap / 4, am, fm) for k in range(4)) / 4.0
+    offsets = [0.0]
+    for taps, e in _hooked(effects, "taps"):
+        offsets = [a + b for a in offsets for b in taps(base, e)]
+    if offsets != [0.0]:
+        pos = sum(base.motion(t + d, am, fm) for d in offsets) / float(len(offsets))
     else:
         pos = base.motion(t, am, fm)
-    e = _by_id(effects, "timing_error")
     t_tab = t
-    if e is not None:
-        p = e["parameters"]
-        t_tab = t + float(p.get("offset_s", 0.0)) + float(p.get("rate_ppm", 0.0)) * 1e-6 * (t - base.t_first)
+    for clock, e in _hooked(effects, "clock"):
+        t_tab = clock(base, e, t_tab)
     trel = t_tab - t_tab[0]
-    w = base.omega
-    for e in effects:
-        p = e["parameters"]
-        idx = np.asarray(e.get("plates", []), int) - 1
-        if e["id"] == "harmonic_distortion":
-            k, a, psi = int(p["order"]), float(p["amplitude_mm"]), float(p["phase_rad"])
-            pos[:, idx, 2] += (a * np.cos(k * w * trel - psi))[:, None]
-        elif e["id"] == "drift":
-            pos[:, idx, 2] += (float(p["amplitude_mm"]) * np.exp(-trel / float(p["tau_s"])))[:, None]
-        elif e["id"] == "level_jump":
-            pos[:, idx, 2] += (float(p["size_mm"]) * (trel >= float(p["t_jump_s"])))[:, None]
-        elif e["id"] == "camera_shake":
-            shake = shake_displacement(make_spec("camera_shake", dict(p)), trel, base.seed)
-            for a in e["axes"]:
-                pos[:, idx, _AXES.index(a)] += shake[:, None]
-        elif e["id"] == "extra_periodic":
-            c = np.cos(2 * math.pi * float(p["freq_hz"]) * trel + float(p["phase_rad"]))
-            for a, amps in _plate_amplitudes(e).items():
-                pos[:, idx, _AXES.index(a)] += c[:, None] * amps[None, :]
-    e = _by_id(effects, "mode_shape")
-    if e is not None:
-        p = e["parameters"]
-        idx = np.asarray(e["plates"], int) - 1
-        xi = np.asarray(base.cfg.plate_x_mm())[idx] / base.cfg.beam.span_mm
-        arg = 2 * math.pi * float(p["freq_hz"]) * trel + float(p["phase_rad"])
-        q = float(p["amplitude_mm"]) * np.cos(arg)
-        pos[:, idx, 2] += q[:, None] * np.sin(int(p["mode"]) * math.pi * xi)[None, :]
-    e = _by_id(effects, "clipping")  # last: the reading saturates, whatever moved the plate
-    if e is not None:
-        side, c = float(e["parameters"]["side"]), float(e["parameters"]["level"])
-        for j in np.asarray(e["plates"], int) - 1:
-            off = base.static[j, 2] + base.shape[j] * base.cfg.loading.mean_mm
-            bound = c * base.amp0 * abs(base.shape[j])
-            pos[:, j, 2] = off + side * np.minimum(side * (pos[:, j, 2] - off), bound)
+    for camera, e in _hooked(effects, "camera"):
+        camera(base, e, pos, trel)
     return t_tab, pos
 
 
@@ -454,67 +427,15 @@ def _render(base: CleanRecording, effects: Sequence[Mapping]) -> tuple[np.ndarra
     t_tab, pos = _camera_clean(base, effects)
     extras: dict[str, Any] = {}
     scale = np.ones_like(base.eps)
-    e = _by_id(effects, "heteroscedastic_noise")
-    if e is not None:
-        idx = np.asarray(e["plates"], int) - 1
-        scale[:, idx, 2] = 1.0 + float(e["parameters"]["modulation"]) * _het_u(base, e, t_tab)[:, None]
+    for noise_scale, e in _hooked(effects, "noise_scale"):
+        noise_scale(base, e, t_tab, scale)
     noise = base.sigma[None] * scale * base.eps
-    e = _by_id(effects, "quantization")
-    if e is not None:  # the pixels' noise is the series' noise: rounded, not added again
-        for j in np.asarray(e["plates"], int) - 1:
-            sig_f = base.sigma[j, 2] * scale[:, j, 2]
-            pos[:, j, 2] = _quantised_readings(base, e, j, pos[:, j, 2], sig_f, noise[:, j, 2])
-            noise[:, j, 2] = 0.0
+    for readings, e in _hooked(effects, "readings"):  # the pixels' noise is the series' noise
+        readings(base, e, pos, noise, scale)
     pos = pos + noise
-    e = _by_id(effects, "outliers")
-    if e is not None:
-        rng = np.random.default_rng([base.seed, 7002])
-        p = e["parameters"]
-        s = float(p["scale_mm"])
-        count = 0
-        for plate in e["plates"]:
-            n = t_tab.size
-            k = max(1, int(round(float(p["fraction"]) * n)))
-            rows = rng.choice(n, size=k, replace=False)
-            err = s * rng.standard_normal(k) if e["kind"] == "gaussian" else s * rng.choice([-1.0, 1.0], k)
-            pos[rows, plate - 1, 2] += err
-            count += k
-        extras["outlier_count"] = count
+    for after_noise, e in _hooked(effects, "after_noise"):
+        after_noise(base, e, pos, t_tab, extras)
     return t_tab, pos, extras
-
-
-def _pixel_dither(base: CleanRecording, e: Mapping, j: int) -> float:
-    """σ_d (mm) of plate j's pixels before rounding: ``dither_mm``, default σ√P (the whole noise)."""
-    p = e["parameters"]
-    if "dither_mm" in p:
-        return float(p["dither_mm"])
-    return float(base.sigma[j, 2]) * math.sqrt(int(p.get("pixels", 1)))
-
-
-def _quantised_readings(
-    base: CleanRecording, e: Mapping, j: int, z_clean: np.ndarray, sig_f: np.ndarray, noise: np.ndarray
-) -> np.ndarray:
-    """(frame,) plate j's z as a disparity camera reads it (`jaxdefl._lattice.quantised_readings`):
-    ``noise`` = σ_f ε is the draw of the recording without quantisation (σ_f ``sig_f``, the
-    frame's level, ε the recording's own draw `CleanRecording.eps`, frame-common and
-    line-of-sight parts included), split before and after the rounding with a stream of the
-    recording's seed and the plate, so that a control and a quantised case differ by the
-    rounding alone."""
-    p = e["parameters"]
-    q, o, n_px = float(p["step_mm"]), float(p["offset_mm"]), int(p.get("pixels", 1))
-    if n_px < 1:
-        raise ValueError(f"quantization: pixels must be >= 1, got {n_px}")
-    rng = np.random.default_rng([base.seed, 7004, j])
-    eps = base.eps[:, j, 2]
-    return quantised_readings(z_clean, noise, sig_f, eps, q, o, n_px, _pixel_dither(base, e, j), rng)
-
-
-def _het_u(base: CleanRecording, e: Mapping, t_tab: np.ndarray) -> np.ndarray:
-    if e["kind"] == "phase":
-        trel = t_tab - t_tab[0]
-        return np.cos(base.omega * trel - base.phase - float(e["parameters"]["phase_rad"]))
-    mid = 0.5 * (t_tab[0] + t_tab[-1])
-    return (t_tab - mid) / (0.5 * (t_tab[-1] - t_tab[0]))
 
 
 def _lds(base: CleanRecording, effects: Sequence[Mapping]) -> pd.DataFrame | None:
@@ -572,7 +493,7 @@ def _effect_delta(base: CleanRecording, e: Mapping) -> tuple[np.ndarray, np.ndar
     ``e`` less the reading without it); for the reference-tied effects, against the truth at the
     table's own timestamps (what a reference would show)."""
     t_tab, pos = _camera_clean(base, [e])
-    clean = base.motion(t_tab) if e["id"] == "timing_error" else _camera_clean(base, [])[1]
+    clean = base.motion(t_tab) if e["id"] in NEEDS_REFERENCE else _camera_clean(base, [])[1]
     return t_tab, _mean_reading(base, e, pos) - clean
 
 
@@ -592,10 +513,11 @@ def best_evidence(base: CleanRecording, e: Mapping) -> float:
     plates and axes as drawn (frame-common and line-of-sight shares). On independent noise it is
     `effect_strength`'s S; an effect alike on the plates carries less evidence under frame-common
     noise (the common noise looks like it), one on a single plate more (the other plates measure
-    the common noise). Noise-structure effects keep `effect_strength`'s S."""
+    the common noise). Noise-structure effects (their own ``Bench.strength``) keep
+    `effect_strength`'s S."""
     eid = e["id"]
     spec = base.spec
-    if eid in ("heteroscedastic_noise", "outliers") or (spec.frame_common <= 0 and spec.line_of_sight <= 0):
+    if _bench(e).strength is not None or (spec.frame_common <= 0 and spec.line_of_sight <= 0):
         return effect_strength(base, e)[1]
     t_tab, delta = _effect_delta(base, e)
     keep = np.zeros(delta.shape[1:], bool)
@@ -612,15 +534,10 @@ def best_evidence(base: CleanRecording, e: Mapping) -> float:
 
 def _mean_reading(base: CleanRecording, e: Mapping, pos: np.ndarray) -> np.ndarray:
     """(frame, plate, axis) the camera's mean reading of the clean positions ``pos``: ``pos``
-    itself but for quantization, whose deterministic part is the staircase smoothed by the pixels'
-    noise (the rest of the rounding is noise)."""
-    if e["id"] != "quantization":
-        return pos
-    q, o = float(e["parameters"]["step_mm"]), float(e["parameters"]["offset_mm"])
-    pos = pos.copy()
-    for j in np.asarray(e["plates"], int) - 1:
-        pos[:, j, 2] = smoothed_staircase(pos[:, j, 2], q, o, _pixel_dither(base, e, j))
-    return pos
+    itself but where the effect says otherwise (``Bench.mean_reading``: a lattice's deterministic
+    part is its staircase smoothed by the pixels' noise, the rest of the rounding is noise)."""
+    mean_reading = _bench(e).mean_reading
+    return pos if mean_reading is None else mean_reading(base, e, pos)
 
 
 def _series_mask(e: Mapping) -> tuple[np.ndarray, list[int]]:
@@ -630,21 +547,15 @@ def _series_mask(e: Mapping) -> tuple[np.ndarray, list[int]]:
 
 
 def effect_strength(base: CleanRecording, e: Mapping) -> tuple[float, float]:
-    """(pooled RMS ratio r, likelihood signal S) of one effect on the series it touches."""
-    eid, p = e["id"], e["parameters"]
+    """(pooled RMS ratio r, likelihood signal S) of one effect on the series it touches: of its
+    mean reading's difference after what the nominal model absorbs, or its own
+    (``Bench.strength``: a noise structure)."""
+    eid = e["id"]
+    if _bench(e).strength is not None:
+        return _bench(e).strength(base, e)
     idx, axes = _series_mask(e)
     n = base.t.size
     sig = base.sigma[np.ix_(idx, axes)]  # (plate, axis)
-    if eid == "heteroscedastic_noise":
-        u = _het_u(base, e, base.t)
-        v = np.log1p(float(p["modulation"]) * u)
-        s = 2.0 * n * np.var(v) * sig.size
-        return float(p["modulation"]), float(s)
-    if eid == "outliers":
-        rms = math.sqrt(float(p["fraction"])) * float(p["scale_mm"])
-        with np.errstate(divide="ignore"):
-            ratio = rms / sig
-        return float(np.sqrt(np.mean(ratio**2))), float(n * np.sum(ratio**2))
     if eid in NEEDS_REFERENCE:  # visible against the LDS only: on its plates, z
         idx, axes = np.asarray(base.spec.lds_plates, int) - 1, [2]
         sig = base.sigma[np.ix_(idx, axes)]
@@ -871,14 +782,6 @@ def _clip_level(base: CleanRecording, e: dict, target: float, signal_min: float,
     return e
 
 
-def _plate_amplitudes(e: Mapping) -> dict[str, np.ndarray]:
-    """Per-plate amplitudes (mm) of extra_periodic by axis: ``amplitude_mm`` times the plate factors
-    (``plate_factors`` {axis: [per plate]}; default 1 on z); amplitude_mm is the median over z."""
-    a = float(e["parameters"]["amplitude_mm"])
-    factors = e.get("plate_factors") or {"z": [1.0] * len(e["plates"])}
-    return {ax: a * np.asarray(f, float) for ax, f in factors.items()}
-
-
 # ---------------------------------------------------------------------------------------------
 # primary parameters (what the benchmark scores)
 
@@ -909,26 +812,11 @@ def _truth_entry(base: CleanRecording, t_tab: np.ndarray, e: Mapping, extras: Ma
         "t_start": t0,
         "t_end": t1,
     }
-    if eid == "harmonic_distortion":
-        p["order"] = int(p["order"])
-    if eid == "drift":
-        out["t_end"] = min(t1, t0 + 3.0 * float(p["tau_s"]))
-    if eid == "level_jump":
-        out["t_start"] = out["t_end"] = t0 + float(p["t_jump_s"])
-    if eid == "stiffness_change":
-        out["t_start"] = t0 + float(p["t_s"])
-    if eid == "extra_periodic":
-        amps = _plate_amplitudes(e)
-        out["plate_amplitudes_mm"] = {k: [round(float(v), 6) for v in a] for k, a in amps.items()}
-        p["amplitude_mm"] = float(np.median(amps["z"]))
-    if eid == "outliers":
-        n_aff = t_tab.size * len(e["plates"])
-        p["fraction_nominal"] = float(p["fraction"])
-        p["fraction"] = float(extras.get("outlier_count", 0)) / n_aff
+    truth = _bench(e).truth
+    if truth is not None:  # its parameters as realised, its times and bands
+        truth(base, e, p, out, t_tab, extras)
     if eid in NEEDS_REFERENCE:
         out["detectable_plates"] = [int(v) for v in base.spec.lds_plates]
-    if eid == "frequency_modulation" or eid == "amplitude_modulation":
-        out["band_hz"] = [base.f0 - 0.1, base.f0 + 0.1]
     out["parameters"] = {k: (int(v) if isinstance(v, (int, np.integer)) else float(v)) for k, v in p.items()}
     r, s = effect_strength(base, e)
     out["rms_ratio"], out["signal"] = round(r, 4), round(s, 1)
