@@ -37,7 +37,7 @@ __all__ = [
 ]
 
 LEVELS = ("range", "timestamps", "motion", "plate", "measurement", "sampling")
-FRAME_LEVELS = ("range", "timestamps", "motion")  # what rendered frames can show
+FRAME_LEVELS = ("range", "timestamps", "motion", "sampling")  # what rendered frames can show
 
 
 @dataclass(frozen=True)

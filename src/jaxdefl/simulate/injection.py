@@ -17,10 +17,10 @@ and a measurement effect that takes them to those plates' centroids.
 A scheduled effect (``t_s``) acts from ``t_s`` to the end, or for ``duration_s`` when > 0.
 Levels: ``range`` and ``timestamps`` are the camera's (frames), ``motion`` moves the beam (so
 the LDS, the trajectories and the frames), ``plate`` one plate's motion (trajectories, LDS),
-``sampling`` the instants a camera's reading averages the true positions over (`sampled`) and
-``measurement`` a camera's centroids and their noise (`measurement_faults`): these two act where
-trajectories are measured without frames (the live camera, reconcile's twin), not in rendered
-frames.
+``sampling`` the instants a camera's reading averages the true positions over (`sampled`:
+frames, each of a ToF camera's taps; the live camera; reconcile's twin) and ``measurement`` a
+camera's centroids and their noise (`measurement_faults`: where trajectories are measured
+without frames, the live camera and reconcile's twin).
 """
 
 from __future__ import annotations

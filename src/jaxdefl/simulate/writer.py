@@ -22,7 +22,7 @@ from .._resources import MEMORY_BUDGET_BYTES, check_disk, check_memory
 from .._signals import check_interrupt
 from ..io.output import Outputs
 from .config import SimConfig, load_config
-from .injection import FRAME_LEVELS, mode_displacement, range_offset, stamp_times
+from .injection import FRAME_LEVELS, mode_displacement, range_offset, sampling_offsets, stamp_times
 from .lds import LDS_BLOCK_S, frame_clock, lds_block, truth_table
 from .multicam import camera_clock, camera_poses, camera_seed, label_origin_x, multicam_outputs
 from .scene import kinematics, pixel_model
@@ -167,7 +167,12 @@ class Renderer:
     def render(self, frame_index: np.ndarray, t_frame: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         h, w = self.intr.height, self.intr.width
         taps = tap_times(self.cfg, t_frame)
-        defl, dx, dy = kinematics(self.cfg, taps)
+        offs = sampling_offsets(self.cfg.effects, np.asarray(t_frame, np.float64) - self.cfg.t0_s)
+        if offs is None:
+            defl, dx, dy = kinematics(self.cfg, taps)
+        else:  # each tap reads the mean of the motion over the sampling effects' instants
+            parts = [kinematics(self.cfg, taps + offs[:, k, None]) for k in range(offs.shape[1])]
+            defl, dx, dy = (sum(x) / len(parts) for x in zip(*parts, strict=True))
         if self.kind == "range":
             from .tof import render_tof
 
