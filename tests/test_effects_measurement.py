@@ -104,3 +104,27 @@ def test_a_noise_level_reported_over_the_record_is_simulated_as_its_detector_par
     measurement_faults((spec,), np.array([0.0, 150.0, 300.0]), xyz, noise)
     np.testing.assert_allclose(noise[:, :2, 2], [[1.25, 1.25], [1.0, 1.0], [0.75, 0.75]])
     assert np.all(noise[:, 2:] == 1.0)
+
+
+@pytest.mark.parametrize("share", [0.0, 0.15])
+def test_a_lattice_reported_with_its_rounding_s_share_of_the_noise_keeps_the_reading_s_noise(share):
+    """``rounded_noise_share`` λ (the diagnosis' noise model, σ² ((1 − λ) + λ v/v̄)): over
+    depths spread across many steps, the reading's variance about its mean staircase is σ² within
+    a few per cent, the rounding λσ² of it (its excess where the steps fall mid-way between two
+    levels over where they fall on one, as `dithered_round_var` profiles it)."""
+    n, sigma, q, dither = 60000, 1.0, 2.0, 0.4
+    rng = np.random.default_rng(5)
+    z = rng.uniform(1000.0, 1040.0, n)
+    xyz = np.zeros((n, 1, 3))
+    xyz[:, 0, 2] = z
+    noise = sigma * rng.standard_normal((n, 1, 3))
+    params = {"step_mm": q, "offset_mm": 0.0, "dither_mm": dither, "rounded_noise_share": share}
+    measurement_faults((make_spec("quantization", params),), np.arange(n) / 30.0, xyz, noise, sigma=sigma)
+    r = xyz[:, 0, 2] + noise[:, 0, 2] - smoothed_staircase(z, q, 0.0, dither)
+    assert abs(r.var() / sigma**2 - 1.0) < 0.05
+    x = z / q - np.round(z / q)  # the depth's place between two levels
+    v = dithered_round_var(x, dither / q)
+    hi, lo = v > np.quantile(v, 0.8), v < np.quantile(v, 0.2)
+    excess = (r[hi].var() - r[lo].var()) / (q * q * (v[hi].mean() - v[lo].mean()))  # ∝ 1/P
+    v_bar = float(np.mean(dithered_round_var(np.arange(64) / 64.0, dither / q)))
+    assert abs(excess * q * q * v_bar - share * sigma**2) < 0.05, excess

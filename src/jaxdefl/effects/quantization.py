@@ -10,7 +10,7 @@ import math
 
 import numpy as np
 
-from .._lattice import quantised_readings, smoothed_staircase
+from .._lattice import dithered_round_var, quantised_readings, smoothed_staircase
 from ._entry import Bench, Entry, Param, Reading, Report
 
 # the benchmark's pixels averaged per reading (log-uniform) and their noise before rounding σ_d / q
@@ -21,9 +21,12 @@ DITHER_RATIO_RANGE = (0.12, 0.25)
 def inject(e, r: Reading) -> None:
     """Plate by plate, z rounded with its noise: the reading's noise σ is split into the pixels'
     part before the rounding and the rest after it (`quantised_readings`); σ_d (``dither_mm``)
-    defaults to σ√P (the whole noise before the rounding), P (``pixels``) to the fewest readings
-    whose mean noise σ_d/√P fits in σ (1 without ``dither_mm``). σ is the reading's (its
-    median over the frames), or the drawn noise's RMS where the reading does not say."""
+    defaults to σ√P (the whole noise before the rounding), P (``pixels``) to `_pixels`. With
+    ``rounded_noise_share`` λ (and no ``pixels``), σ is the reading's whole noise, the rounding's
+    part included: the pixels' rounded mean spreads by q² v̄/P ≈ λσ² about its staircase and the
+    noise drawn is scaled to leave σ² in all (as the diagnosis' noise model has it). σ is the
+    reading's (its median over the frames), or the drawn noise's RMS where the reading does not
+    say."""
     given = dict(e.parameters)
     q, o = e.p("step_mm"), e.p("offset_mm")
     salt = int(round(abs(float(r.t_rel[0])) * 1e3)) if r.t_rel.size else 0  # a block's own stream
@@ -33,19 +36,51 @@ def inject(e, r: Reading) -> None:
         if sig_f is None:
             sig_f = np.full(noise.shape, math.sqrt(float(np.mean(noise * noise))) if noise.size else 0.0)
         sigma = float(np.median(sig_f)) if sig_f.size else 0.0
-        if "pixels" in given:
-            n_px = int(round(e.p("pixels")))
-        elif "dither_mm" in given and sigma > 0:
-            n_px = max(1, math.ceil((e.p("dither_mm") / sigma) ** 2 - 1e-9))
-        else:
-            n_px = 1
+        n_px = _pixels(e, sigma)
         dither = e.p("dither_mm") if "dither_mm" in given else sigma * math.sqrt(n_px)
         with np.errstate(divide="ignore", invalid="ignore"):
             eps = np.where(sig_f > 0, noise / sig_f, 0.0)
+        if "rounded_noise_share" in given and "pixels" not in given and sigma > 0:
+            # the noise drawn: σ² less what the pixels' rounded mean adds, q² v̄/P (about λσ²),
+            # over the σ_d²/P of it that the pixels' mean takes from the noise drawn
+            added = (q * q * _mean_rounded_var(e) - dither * dither) / n_px
+            keep = math.sqrt(max(1.0 - added / (sigma * sigma), 0.0))
+            noise, sig_f = noise * keep, sig_f * keep
         rng = np.random.default_rng([int(r.seed), 7005, int(r.plates[col]), salt])
         z = r.xyz[:, col, 2]
         r.xyz[:, col, 2] = quantised_readings(z, noise, sig_f, eps, q, o, n_px, dither, rng)
         r.noise[:, col, 2] = 0.0
+
+
+PIXELS_MAX = 100  # the most readings a centroid averages here (its rounding noise ≤ q²/400 then)
+
+
+def _pixels(e, sigma: float) -> int:
+    """P: ``pixels`` when given; else the fewest readings whose mean noise σ_d/√P fits in the
+    reading's σ (in its (1 − λ)σ² with ``rounded_noise_share`` λ), and with λ as many as leave
+    the rounding λ of the noise's variance, q² v̄/P = λ σ² (v̄ `_mean_rounded_var`, P the nearest
+    whole count; λ = 0: `PIXELS_MAX`); at most `PIXELS_MAX` (a step
+    too small for λσ² leaves the rounding less, a dither too large for the rest is the whole
+    noise before the rounding)."""
+    given = dict(e.parameters)
+    if "pixels" in given:
+        return int(round(e.p("pixels")))
+    if "dither_mm" not in given or not sigma > 0:
+        return 1
+    q, dither = e.p("step_mm"), e.p("dither_mm")
+    share = e.p("rounded_noise_share") if "rounded_noise_share" in given else 0.0
+    rest = sigma * math.sqrt(max(1.0 - share, 1e-12))
+    fewest = min(max(1, math.ceil((dither / rest) ** 2 - 1e-9)), PIXELS_MAX)
+    if "rounded_noise_share" not in given:
+        return fewest
+    want = PIXELS_MAX if share <= 0 else round(q * q * _mean_rounded_var(e) / (share * sigma * sigma))
+    return int(min(max(want, fewest), PIXELS_MAX))
+
+
+def _mean_rounded_var(e) -> float:
+    """v̄: the variance of one reading rounded after a noise ``dither_mm`` (steps², over a step's
+    places, `dithered_round_var`)."""
+    return float(np.mean(dithered_round_var(np.arange(64) / 64.0, e.p("dither_mm") / e.p("step_mm"))))
 
 
 def check(e, bad):
@@ -56,16 +91,19 @@ def check(e, bad):
         raise bad("pixels", "a whole count >= 1")
     if "dither_mm" in given and not e.p("dither_mm") >= 0:
         raise bad("dither_mm", "a noise >= 0 mm")
+    if "rounded_noise_share" in given and not 0 <= e.p("rounded_noise_share") <= 1:
+        raise bad("rounded_noise_share", "a share of the noise's variance in [0, 1]")
 
 
 def from_diagnosis(r: Report) -> tuple[dict, tuple[int, ...]]:
-    """The step, its levels and the noise before the rounding as reported (the pixels: the
-    fewest that carry it, `inject`); on its plates, or every plate when seen on at least half
-    of them (one camera, one lattice)."""
+    """The step, its levels, the noise before the rounding and the rounding's share of the noise
+    as reported (the pixels that leave it that share, `_pixels`); on its plates, or every plate
+    when seen on at least half of them (one camera, one lattice)."""
     p = r.p
     out = {"step_mm": p["step_mm"], "offset_mm": p.get("offset_mm") or 0.0}
-    if p.get("dither_mm") is not None:
-        out["dither_mm"] = p["dither_mm"]
+    for name in ("dither_mm", "rounded_noise_share"):
+        if p.get(name) is not None:
+            out[name] = p[name]
     return out, () if r.whole else r.plates
 
 
@@ -140,7 +178,13 @@ ENTRY = Entry(
         ),
         Param(
             "pixels",
-            "readings averaged per centroid; optional: the fewest that carry dither_mm",
+            "readings averaged per centroid; optional: from rounded_noise_share, else the fewest that "
+            "carry dither_mm",
+            optional=True,
+        ),
+        Param(
+            "rounded_noise_share",
+            "of the reading's noise variance, the rounding's (as the diagnosis reports it); optional",
             optional=True,
         ),
     ),
