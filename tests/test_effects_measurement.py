@@ -128,3 +128,41 @@ def test_a_lattice_reported_with_its_rounding_s_share_of_the_noise_keeps_the_rea
     excess = (r[hi].var() - r[lo].var()) / (q * q * (v[hi].mean() - v[lo].mean()))  # ∝ 1/P
     v_bar = float(np.mean(dithered_round_var(np.arange(64) / 64.0, dither / q)))
     assert abs(excess * q * q * v_bar - share * sigma**2) < 0.05, excess
+
+
+@pytest.mark.parametrize(
+    "table, match",
+    [
+        ({"id": "quantization", "step_mm": 0.0}, r"effect\[1\]\.step_mm': expected a step > 0 mm, got 0"),
+        ({"id": "quantization", "step_mm": 1.0, "pixels": 2.5}, r"\.pixels': expected a whole count >= 1"),
+        (
+            {"id": "quantization", "step_mm": 1.0, "dither_mm": -0.1},
+            r"\.dither_mm': expected a noise >= 0 mm",
+        ),
+        (
+            {"id": "quantization", "step_mm": 1.0, "rounded_noise_share": 1.5},
+            r"\.rounded_noise_share': expected a share of the noise's variance in \[0, 1\]",
+        ),
+        (
+            {"id": "quantization", "step_mm": 1.0, "plates": [12]},
+            r"\.plates': expected a list of plate numbers",
+        ),
+        ({"id": "heteroscedastic_noise", "modulation": -0.2}, r"\.modulation': expected a modulation >= 0"),
+        ({"id": "heteroscedastic_noise", "modulation": 1.0}, r"\.modulation': expected a modulation < 1"),
+        ({"id": "heteroscedastic_noise"}, r"\.modulation': expected a modulation or a rate_per_s != 0"),
+        ({"id": "motion_artefact", "tap_spread_s": 0.0}, r"\.tap_spread_s': expected a spread > 0 s"),
+        ({"id": "motion_artefact"}, r"\.tap_spread_s': motion_artefact needs tap_spread_s"),
+    ],
+)
+def test_a_bad_table_of_a_measurement_or_sampling_effect_is_one_line_naming_its_key(table, match):
+    from jaxdefl._errors import ConfigError
+    from jaxdefl.simulate.injection import parse_effects
+
+    with pytest.raises(ConfigError, match=match):
+        parse_effects("cfg.toml", [table], 11)
+
+
+def test_a_noise_level_with_the_motion_needs_the_motion_s_angle():
+    spec = make_spec("heteroscedastic_noise", {"modulation": 0.2})
+    with pytest.raises(ValueError, match="the motion's phase is needed"):
+        measurement_faults((spec,), np.zeros(3), np.zeros((3, 2, 3)), np.ones((3, 2, 3)))
