@@ -264,6 +264,14 @@ def diagnose(
     effects: Annotated[
         str | None, typer.Option(help="Restrict the library to these effect ids, comma separated.")
     ] = None,
+    alpha: Annotated[
+        float,
+        typer.Option(
+            "--alpha",
+            help="Family-wise false-alarm level of the named effects: a record of the nominal model "
+            "gets any effect named with at most this probability.",
+        ),
+    ] = _settings.DiagnoseSettings.alpha,
     figures: Annotated[
         bool, typer.Option("--figures/--no-figures", help="Write a figure per effect.")
     ] = True,

@@ -35,7 +35,7 @@ from .._errors import InputError
 from .._numerics import DELTA_BIC_MAX
 from .._signals import check_interrupt
 from ..effects import quantization
-from ..settings import DiagnoseSettings
+from ..settings import ALPHA_NAMED, DiagnoseSettings
 from ._base import Context, Proposal, State, loglik, rms_equivalent
 from ._context import build_context
 from ._correlation import FrameCorrelation, frame_correlation, gls_gain
@@ -61,7 +61,6 @@ __all__ = [
 ]
 
 ALPHA = 0.01  # the residual tests' level (`Diagnosis.unexplained`)
-ALPHA_NAMED = 0.05  # family-wise false-alarm rate of a record's named effects
 MAX_EFFECTS = 8
 FINALISTS = 2  # effects refined before BIC chooses one in a round
 # Residual RMS below which a table is taken for noise-free (0.1 µm: far below any range camera's
@@ -156,6 +155,7 @@ class Diagnosis:
     # holds, and the named effects within the configured sizes (kept in the model, not missing)
     sensor_jumps: list[dict] = field(default_factory=list)
     configured: list[tuple[Accepted, str]] = field(default_factory=list)
+    alpha: float = ALPHA_NAMED  # the family-wise level named effects were accepted at
 
     # --- summaries --------------------------------------------------------------------------
     def _summary(self, states: list[State], tests: list[dict]) -> dict:
@@ -313,6 +313,7 @@ class Diagnosis:
                     "frame_rate_hz": ctx.frame_rate_hz,
                     "modulation_mhz": ctx.modulation_mhz,
                     "reference_plates": sorted(ctx.reference_harmonic),
+                    "alpha": self.alpha,
                 },
                 "record_kind": self.record.kind if self.record is not None else "forced_harmonic",
                 "record": self.record.to_json() if self.record is not None else None,
@@ -782,7 +783,7 @@ def run_diagnosis(
     open_world = settings.open_world and not noise_free
     bases: dict = {}  # the open world's spline bases, for this search
     rounds: list[list[dict]] = []
-    calib = Calibration(max(len(usable), 1))
+    calib = Calibration(max(len(usable), 1), alpha=settings.alpha)
     dropped: list[Dropped] = []
     # Proposals of every effect, with the states they were made on. After an effect is accepted
     # the others are re-scored on the new states by re-applying their change (`_rebase`), and
@@ -1001,6 +1002,7 @@ def run_diagnosis(
         dropped=dropped,
         sensor_jumps=sensor_jumps,
         configured=configured,
+        alpha=calib.alpha,
     )
 
 

@@ -249,12 +249,13 @@ def _unnamed_advice(u: dict, traj: str, stem: str, reference: str | None) -> str
     )
 
 
-def selection_rule() -> str:
-    """How the search accepts a term, in words, with the levels it uses (`jaxdefl.diagnose`)."""
+def selection_rule(alpha: float = ALPHA_NAMED) -> str:
+    """How the search accepts a term, in words, with the levels it uses (`jaxdefl.diagnose`;
+    ``alpha`` the family-wise level of the named effects, DIAG.json's ``input.alpha``)."""
     return (
         "A named effect is accepted when its likelihood-ratio statistic 2 Δlog L (against AR(1) "
         "noise for mean terms, frame-common noise discounted by its design effect) exceeds the χ² "
-        f"critical value at the family-wise level α = {ALPHA_NAMED:g} split over the effects "
+        f"critical value at the family-wise level α = {alpha:g} split over the effects "
         "screened and the trials of the effect's own scan (Bonferroni: the look-elsewhere effect), "
         "its signature's p-value passes the same level, and the RMS of the series it touches goes "
         "down; BIC only chooses between competing explanations that pass. Structure the named "
@@ -285,7 +286,9 @@ def diagnosis_markdown(d: dict, figures: list[str]) -> str:
         "",
         "The nominal model is the thesis' harmonic (eq. 5.29) per plate and axis plus white noise; "
         "with a reference, the camera's z of a plate with an LDS is expected to move exactly as the LDS "
-        "(only its offset is free). " + selection_rule() + " RMS is the likelihood-equivalent noise σ "
+        "(only its offset is free). "
+        + selection_rule(inp.get("alpha", ALPHA_NAMED))
+        + " RMS is the likelihood-equivalent noise σ "
         "over the series a term touches (the plain residual RMS for mean terms).",
         "",
         "| | RMS (mm) | BIC | whiteness p |",
