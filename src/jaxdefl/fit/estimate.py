@@ -73,6 +73,7 @@ def estimate_windows(
     workers: int | None = None,
     model: SignalModel | None = None,
     timings: dict[str, float] | None = None,
+    refine: bool = False,
 ) -> Estimates:
     """Estimate f0, A and their σ's for every window; failures become statuses.
 
@@ -91,6 +92,8 @@ def estimate_windows(
         timings: if given, ``kernel`` and ``residual`` are increased by the seconds of this
             call spent in the periodogram + fit and in the residual statistics (the call's wall
             time split in the proportion of the blocks' thread times).
+        refine: the harmonic fit's estimates converged further at no extra pass (see
+            `jaxdefl.fit.harmonic.fit_harmonics`); `estimate_table` asks it for whole records.
     """
     t_call = time.perf_counter()
     if model is not None and model.is_default:
@@ -131,7 +134,7 @@ def estimate_windows(
             np.where(insignificant, Status.NO_SIGNIFICANT_PEAK, Status.CONVERGED),
         )
         if model is None:
-            f = fit_harmonics(w, p.freq_hz, rows=rows[go], weights=weights)
+            f = fit_harmonics(w, p.freq_hz, rows=rows[go], weights=weights, refine=refine)
         else:
             search = dict(fmin_hz=fmin_hz, fmax_hz=fmax_hz, oversampling=oversampling)
             f = fit_model(w, p, rows[go], model, weights=weights, **search)
