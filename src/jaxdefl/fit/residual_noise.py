@@ -35,7 +35,7 @@ from scipy import special
 
 from .._shapes import pow2_at_least
 from ..series import Windows
-from ..spectral.lomb import _unique_rows
+from ..series.rows import unique_rows
 
 __all__ = [
     "BAND_MIN_ORDINATES",
@@ -173,7 +173,7 @@ def _chunk(w, residual, f0_hz, rows, g, dt, frames, m_len) -> dict:
     # The pairs depend on the frames present only: the axes of a plate, and the plates where
     # drop-outs hit whole frames, share them, so each distinct frame grid is transformed once.
     fr_all = scipy.fft.rfft(grid, axis=1)
-    frame_sets, inverse = _unique_rows(np.packbits(present, axis=1))
+    frame_sets, inverse = unique_rows(np.packbits(present, axis=1))
     fm = scipy.fft.rfft(np.unpackbits(frame_sets, axis=1, count=m_len).astype(np.float64), axis=1)
     j = np.arange(fr_all.shape[1])
     weight = np.where((j == 0) | (2 * j == m_len), 1.0, 2.0) / m_len
