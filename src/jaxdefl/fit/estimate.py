@@ -18,7 +18,7 @@ from ..spectral import Periodogram, lomb_peaks
 from ..status import STATUSES, Status
 from .harmonic import N_PARAMS, HarmonicFit, fit_harmonics
 from .models import SignalModel, fit_model, model_residual_noise, model_table
-from .residual_noise import ResidualNoise, harmonic_residual, residual_noise
+from .residual_noise import ResidualNoise, residual_noise
 
 __all__ = ["ESTIMATE_COLUMNS", "STATUSES", "Estimates", "estimate_windows"]
 
@@ -134,7 +134,7 @@ def estimate_windows(
             np.where(insignificant, Status.NO_SIGNIFICANT_PEAK, Status.CONVERGED),
         )
         if model is None:
-            f = fit_harmonics(w, p.freq_hz, rows=rows[go], weights=weights, refine=refine)
+            f = fit_harmonics(w, p.freq_hz, rows=rows[go], weights=weights, refine=refine, residual=resid)
         else:
             search = dict(fmin_hz=fmin_hz, fmax_hz=fmax_hz, oversampling=oversampling)
             f = fit_model(w, p, rows[go], model, weights=weights, **search)
@@ -143,8 +143,7 @@ def estimate_windows(
         # Model adequacy and σ's honest under coloured noise (`residual_noise`), on this
         # thread: numpy releases the GIL, so the blocks' statistics run side by side.
         ok = rows[converged]
-        if model is None:
-            resid[ok] = harmonic_residual(w, f.params, rows=ok)
+        if model is None:  # ``resid`` filled by the fit
             noise = residual_noise(w, resid, f.f0_hz, rows=ok)
         else:
             noise = model_residual_noise(w, f, model, rows, resid)

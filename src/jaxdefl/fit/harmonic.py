@@ -104,7 +104,9 @@ def fit_harmonic(t, y, w, omega0, rtol=RTOL, atol=ATOL, max_steps=MAX_STEPS, ref
 
     Returns a dict of scalars: C, D, E (the mean of y added back), omega, A, phase, their
     covariance ``cov`` (param param), sigma_A, sigma_omega, variance factor s0sq, residual σ,
-    n, number of Gauss-Newton steps and ``ok`` (solver converged and numbers finite).
+    n, number of Gauss-Newton steps and ``ok`` (solver converged and numbers finite); and the
+    ``residual`` y - model at the estimates (sample,), 0 where masked, from the same pass (the
+    residual statistics need it: no second evaluation of the model in numpy).
 
     With ``refine``, the estimates take one Newton step more, from sums of the covariance pass
     (no further pass over the samples; `_newton_step`). Gauss-Newton converges linearly here,
@@ -168,12 +170,15 @@ def fit_harmonic(t, y, w, omega0, rtol=RTOL, atol=ATOL, max_steps=MAX_STEPS, ref
     dof = n - N_PARAMS
     s0sq = jnp.sum(w * r**2) / dof
     cov = s0sq * jnp.linalg.inv(jtj)
+    sigma_res = jnp.sqrt(jnp.sum(jnp.where(valid, r, 0.0) ** 2) / dof)  # (5.46)
     if refine:  # one Newton step from the same pass (see the docstring)
-        p = p + _newton_step(p, t, w, r, s, c, jtj, jtr, span)
+        last = _newton_step(p, t, w, r, s, c, jtj, jtr, span)
+        slope = -p[0] * s + p[1] * c
+        r = r - (last[0] * c + last[1] * s + last[2] + t * slope * last[3])  # at p + last, to O(last²)
+        p = p + last
     amp = jnp.hypot(p[0], p[1])
     alpha = jnp.stack([p[0], p[1]]) / amp  # (5.45)
     var_a = alpha @ cov[:2, :2] @ alpha  # (5.44)
-    sigma_res = jnp.sqrt(jnp.sum(jnp.where(valid, r, 0.0) ** 2) / dof)  # (5.46)
     out = dict(
         C=p[0],
         D=p[1],
@@ -188,6 +193,7 @@ def fit_harmonic(t, y, w, omega0, rtol=RTOL, atol=ATOL, max_steps=MAX_STEPS, ref
         sigma_res=sigma_res,
         n=n,
         steps=sol.stats["num_steps"],
+        residual=jnp.where(valid, r, 0.0),
     )
     finite = jnp.all(jnp.isfinite(p)) & jnp.isfinite(var_a) & (var_a >= 0) & (cov[3, 3] >= 0)
     out["ok"] = (sol.result == optx.RESULTS.successful) & finite
@@ -323,6 +329,7 @@ def fit_harmonics(
     atol: float = ATOL,
     max_steps: int = MAX_STEPS,
     refine: bool = False,
+    residual: np.ndarray | None = None,
 ) -> HarmonicFit:
     """Fit the harmonic model to the windows at ``rows`` (default: all), starting at ``freq0_hz``.
 
@@ -334,6 +341,9 @@ def fit_harmonics(
         refine: one more Gauss-Newton step from the covariance pass' sums (see
             `fit_harmonic`): estimates within ~1e-6 σ of the optimum instead of ~1e-2 of the
             convergence rate. Whole records take it; the windows keep the loop's endpoint.
+        residual: an array shaped like ``w.y`` whose rows at ``rows`` get y - model at the
+            estimates (as `jaxdefl.fit.residual_noise.harmonic_residual`, from the fit's own
+            last pass; masked samples anything).
     Returns:
         HarmonicFit with one entry per window of ``w``.
     """
@@ -365,6 +375,9 @@ def fit_harmonics(
         for k in res:
             res[k][rows] = out[k]
         cov[rows] = out["cov"]
+        if residual is not None:
+            width = min(residual.shape[1], out["residual"].shape[1])
+            residual[rows, :width] = out["residual"][:, :width]
         n[rows] = out["n"]
         steps[rows] = out["steps"]
         ok[rows] = out["ok"]
