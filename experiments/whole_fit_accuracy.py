@@ -90,6 +90,7 @@ def distances(df: pd.DataFrame) -> pd.DataFrame:
         p_old[2] = old.fit.offset_mm[i]
         p_new = new.fit.params[i].copy()
         p_new[2] = new.fit.offset_mm[i]
+        row["new_step"] = gn_step_sigma(w.t[i, m], w.y[i, m], p_new)
         for name, p, q in (("new", p_new, ref), ("old", p_old, ref), ("shift", p_new, p_old)):
             row[f"{name}_f0"] = abs(p[3] - q[3]) / (2 * np.pi * sig_f)
             row[f"{name}_A"] = abs(np.hypot(p[0], p[1]) - np.hypot(q[0], q[1])) / sig_a
@@ -123,8 +124,8 @@ def main():
         dist = distances(df)
         cols = ["f0", "A", "offset", "CD"]
         print(
-            f"{name}: {len(dist)} whole records, largest distances in σ (scipy's own remaining "
-            f"Gauss-Newton step: {dist['ref_step'].max():.1e} σ)"
+            f"{name}: {len(dist)} whole records, largest distances in σ (the Gauss-Newton step "
+            f"left, numpy: scipy's {dist['ref_step'].max():.1e} σ, jaxdefl's {dist['new_step'].max():.1e} σ)"
         )
         for who, label in (
             ("new", "refined (jaxdefl) - scipy"),
