@@ -267,3 +267,35 @@ def test_simulate_table_errors(tmp_path):
         (tmp_path / "c.toml").write_text(body)
         with pytest.raises(ConfigError, match=msg):
             load_campaign(tmp_path / "c.toml")
+
+
+def test_csv_text_equals_pandas_to_csv():
+    """The units' and the aggregate's CSV writer gives pandas' text, byte for byte: on estimate
+    tables (NaNs, statuses, ints) and on cells that need quoting or are missing."""
+    from jaxdefl.bulk.store import csv_text
+    from jaxdefl.fit import estimate_table
+    from jaxdefl.io import validate_trajectory
+
+    traj, _ = harmonic_experiment(duration_s=40.0, seed=3)
+    traj = validate_trajectory(traj[traj["plate"].isin([3, 7])])
+    tables = [
+        estimate_table(traj, window_s=20.0).table.assign(day=1, camera="cam2", cycles=32400),
+        estimate_table(traj).table,
+        pd.DataFrame(
+            {
+                "f": [0.1, -0.0, np.nan, np.inf, -np.inf, 1e-300, 123456789012.5, 2.0 / 3.0],
+                "i": np.arange(8, dtype=np.int64) - 3,
+                "u": np.arange(8, dtype=np.uint8),
+                "b": [True, False] * 4,
+                "o": ["a,b", 'say "x"', "two\nlines", "", None, np.nan, 0.1 + 0.2, 7],
+                "s": ["plain"] * 8,
+            }
+        ),
+        pd.DataFrame({"only": ["", "x", ""]}),
+        pd.DataFrame({"str": pd.array(["a", None, "b,c"], dtype="string"), "i": [1, 2, 3]}),
+        pd.DataFrame({"a": pd.Series([], dtype=float), "b": pd.Series([], dtype=object)}),
+        pd.DataFrame({"cat": pd.Categorical(["a", "b"]), "f": [1.5, np.nan]}),  # pandas' own path
+    ]
+    for df in tables:
+        assert csv_text(df) == df.to_csv(index=False, float_format="%.10g")
+    assert csv_text(tables[2], float_format="%.3f") == tables[2].to_csv(index=False, float_format="%.3f")

@@ -272,3 +272,26 @@ def test_motion_artefact_response_matches_thesis_fig_6_9(motion_hz, frame_hz, er
     assert 0 < lag < np.pi / 2
     with pytest.raises(ValueError, match=r"tap_offsets: expected four offsets"):
         motion_artefact_response(3.0, 20.0, (0.0, 0.5))
+
+
+@pytest.mark.parametrize("refine", [False, True])
+def test_fit_residual_equals_the_numpy_residual_at_the_estimates(make_table, refine):
+    """The residual the fit hands to the residual statistics (from its own last pass; with
+    ``refine``, moved to the refined estimates to first order) is numpy's y - model at the
+    reported parameters, on every valid sample, drop-outs included."""
+    from jaxdefl.fit import harmonic_residual
+
+    df = validate_trajectory(make_table(n_plates=3, duration_s=120, seed=4, axes=("z", "x")))
+    w = make_windows(df, axes=("z", "x"), window_s=None if refine else 30.0)
+    p = lomb_peaks(w)
+    got = np.full(w.y.shape, np.nan)
+    f = fit_harmonics(w, p.freq_hz, refine=refine, residual=got)
+    assert f.converged.all()
+    want = harmonic_residual(w, f.params)
+    diff = np.abs(np.where(w.mask, got - want, 0.0)) / f.sigma_residual_mm[:, None]
+    assert diff.max() < 1e-9, diff.max()
+    # the numpy residual differs from the model at the loop's endpoint by more than that
+    if refine:
+        loop = fit_harmonics(w, p.freq_hz)
+        moved = np.abs(np.where(w.mask, want - harmonic_residual(w, loop.params), 0.0))
+        assert (moved / f.sigma_residual_mm[:, None]).max() > 1e-8

@@ -13,7 +13,7 @@ from ..fit import ESTIMATE_COLUMNS
 from ..status import Status, UnitStatus
 from ..synthetic import beam_shape
 from .campaign import Campaign, check_plates
-from .store import atomic_write_text
+from .store import atomic_write_text, csv_text
 from .units import read_unit_tables
 
 __all__ = ["fit_profile", "gather", "per_day_table", "to_dataset"]
@@ -22,7 +22,7 @@ _VARS = ESTIMATE_COLUMNS[ESTIMATE_COLUMNS.index("n") :]  # the estimates of each
 
 
 def _write_csv(df: pd.DataFrame, path: Path) -> None:
-    atomic_write_text(path, df.to_csv(index=False, float_format="%.10g"))
+    atomic_write_text(path, csv_text(df, float_format="%.10g"))
 
 
 def to_dataset(est: pd.DataFrame):

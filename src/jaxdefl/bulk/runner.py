@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import importlib
 import os
+import threading
 import time
 from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from pathlib import Path
@@ -23,6 +25,27 @@ __all__ = ["run_campaign"]
 # Units run side by side in-process: a unit's Python stages (reading, windowing, tables) hold
 # the GIL while the other's kernels (XLA, numpy, pyarrow release it) run on the second core.
 UNIT_THREADS = 2
+
+
+# What `gather` imports (matplotlib through the report, xarray and the duck-array libraries it
+# probes, zarr): ~1 s of imports that otherwise run after the last unit, on one core.
+_AGGREGATE_MODULES = ("jaxdefl.report.campaign", "xarray", "zarr", "dask.array")
+
+
+def _import_for_aggregate() -> threading.Thread:
+    """Import the aggregate's libraries on a thread of their own while the units run (Python's
+    import lock makes `gather`'s own imports wait for a module half imported here)."""
+
+    def load():
+        for name in _AGGREGATE_MODULES:
+            try:
+                importlib.import_module(name)
+            except Exception:  # noqa: BLE001 - `gather` imports it again and reports the error
+                pass
+
+    thread = threading.Thread(target=load, name="jaxdefl-imports", daemon=True)
+    thread.start()
+    return thread
 
 
 def _run_in_process(recs, inputs, campaign: Campaign, out: Path, config_hash: str):
@@ -75,6 +98,7 @@ def run_campaign(
 
         recs = ensure_simulated(campaign, out, scheduler=scheduler, progress=progress)
     inputs = [unit_inputs(r) for r in recs]
+    importing = _import_for_aggregate()
     manifests = []
     t0 = time.perf_counter()
     with progress_bar() if progress else NoBar() as bar:
@@ -110,6 +134,7 @@ def run_campaign(
                 if cluster is not None:
                     cluster.close()
     check_interrupt()
+    importing.join()
     manifests.sort(key=lambda m: m["unit"])
     units = pd.DataFrame(
         [

@@ -16,8 +16,13 @@ __all__ = ["NoBar", "check_scheduler", "connect", "progress_bar", "release_memor
 
 def release_memory() -> None:
     """Hand freed memory back to the OS between units, so that the peak does not grow with
-    the number of units (glibc keeps freed blocks of big tables in its arenas otherwise)."""
-    gc.collect()
+    the number of units (glibc keeps freed blocks of big tables in its arenas otherwise).
+
+    The collection is of the young generations: a full one walked the ~150,000 objects of the
+    imported libraries each time (0.1 s holding the GIL, 1.1 s over 11 units, while the other
+    unit's thread waited), for a peak 4 % lower (1.13 against 1.17 GB on issue 27's campaign).
+    """
+    gc.collect(1)
     try:
         ctypes.CDLL("libc.so.6").malloc_trim(0)
     except (OSError, AttributeError):  # not glibc

@@ -14,7 +14,7 @@ import pandas as pd
 from .._errors import JaxdeflError
 from ..status import Status
 from .campaign import Processing, Recording
-from .store import atomic_write_text, digest_path, run_unit
+from .store import atomic_write_text, csv_text, digest_path, run_unit
 
 __all__ = ["estimate_unit", "unit_inputs"]
 
@@ -42,7 +42,7 @@ def _stage(stages: dict[str, float], name: str):
 
 
 def _csv(df: pd.DataFrame) -> str:
-    return df.to_csv(index=False, float_format="%.10g")
+    return csv_text(df, float_format="%.10g")
 
 
 def _correct_motion(df: pd.DataFrame, rec: Recording) -> pd.DataFrame:

@@ -18,7 +18,7 @@ from ..spectral import Periodogram, lomb_peaks
 from ..status import STATUSES, Status
 from .harmonic import N_PARAMS, HarmonicFit, fit_harmonics
 from .models import SignalModel, fit_model, model_residual_noise, model_table
-from .residual_noise import ResidualNoise, harmonic_residual, residual_noise
+from .residual_noise import ResidualNoise, residual_noise
 
 __all__ = ["ESTIMATE_COLUMNS", "STATUSES", "Estimates", "estimate_windows"]
 
@@ -73,6 +73,7 @@ def estimate_windows(
     workers: int | None = None,
     model: SignalModel | None = None,
     timings: dict[str, float] | None = None,
+    refine: bool = False,
 ) -> Estimates:
     """Estimate f0, A and their σ's for every window; failures become statuses.
 
@@ -91,6 +92,8 @@ def estimate_windows(
         timings: if given, ``kernel`` and ``residual`` are increased by the seconds of this
             call spent in the periodogram + fit and in the residual statistics (the call's wall
             time split in the proportion of the blocks' thread times).
+        refine: the harmonic fit's estimates converged further at no extra pass (see
+            `jaxdefl.fit.harmonic.fit_harmonics`); `estimate_table` asks it for whole records.
     """
     t_call = time.perf_counter()
     if model is not None and model.is_default:
@@ -131,7 +134,7 @@ def estimate_windows(
             np.where(insignificant, Status.NO_SIGNIFICANT_PEAK, Status.CONVERGED),
         )
         if model is None:
-            f = fit_harmonics(w, p.freq_hz, rows=rows[go], weights=weights)
+            f = fit_harmonics(w, p.freq_hz, rows=rows[go], weights=weights, refine=refine, residual=resid)
         else:
             search = dict(fmin_hz=fmin_hz, fmax_hz=fmax_hz, oversampling=oversampling)
             f = fit_model(w, p, rows[go], model, weights=weights, **search)
@@ -140,8 +143,7 @@ def estimate_windows(
         # Model adequacy and σ's honest under coloured noise (`residual_noise`), on this
         # thread: numpy releases the GIL, so the blocks' statistics run side by side.
         ok = rows[converged]
-        if model is None:
-            resid[ok] = harmonic_residual(w, f.params, rows=ok)
+        if model is None:  # ``resid`` filled by the fit
             noise = residual_noise(w, resid, f.f0_hz, rows=ok)
         else:
             noise = model_residual_noise(w, f, model, rows, resid)
@@ -188,33 +190,36 @@ def estimate_windows(
         method,
         spectra,
     )
-    tab = w.table.copy()
-    tab["status"] = status
-    tab["f0_hz"] = fit.f0_hz
-    tab["sigma_f0_hz"] = fit.sigma_f0_hz
-    tab["amplitude_mm"] = fit.amplitude_mm
-    tab["sigma_amplitude_mm"] = fit.sigma_amplitude_mm
+    # The table is made in one go: a column added to a frame at a time re-builds its column
+    # index each time (~1 ms with pandas' string index, holding the GIL the other unit waits for).
+    cols = {c: w.table[c] for c in w.table.columns}
+    cols["status"] = status
+    cols["f0_hz"] = fit.f0_hz
+    cols["sigma_f0_hz"] = fit.sigma_f0_hz
+    cols["amplitude_mm"] = fit.amplitude_mm
+    cols["sigma_amplitude_mm"] = fit.sigma_amplitude_mm
     # The fit is centred on the window's data; report the phase at the window's mid time.
-    shift = fit.params[:, 3] * (tab["t_centre"].to_numpy() - tab["t_mid"].to_numpy())
-    tab["phase_rad"] = np.angle(np.exp(1j * (fit.phase_rad + shift)))
-    tab["offset_mm"] = fit.offset_mm
-    tab["sigma_residual_mm"] = fit.sigma_residual_mm
-    tab["peak_fap"] = periodogram.fap
+    shift = fit.params[:, 3] * (w.table["t_centre"].to_numpy() - w.table["t_mid"].to_numpy())
+    cols["phase_rad"] = np.angle(np.exp(1j * (fit.phase_rad + shift)))
+    cols["offset_mm"] = fit.offset_mm
+    cols["sigma_residual_mm"] = fit.sigma_residual_mm
+    cols["peak_fap"] = periodogram.fap
     if model is not None:
         # adequacy and σ's from the whole model's residual (`jaxdefl.fit.models.model_table`)
         noise = _merge_fits(b, noise_parts, ResidualNoise) if noise_parts else None
-        tab, added, noise = model_table(w, tab, fit, model, noise)
+        tab, added, noise = model_table(w, pd.DataFrame(cols, index=w.table.index), fit, model, noise)
         return Estimates(tab[ESTIMATE_COLUMNS + added], w, periodogram, fit, noise)
     # Model adequacy and σ's honest under coloured noise (`residual_noise`): the white-noise σ's
     # (thesis 5.43-5.45) are kept beside; the default ones use the residual's density near f0.
     noise = _merge_fits(b, noise_parts, ResidualNoise)
-    tab["r2"] = noise.r2
-    tab["whiteness_p"] = noise.whiteness_p
-    tab["sigma_amplitude_white_mm"] = fit.sigma_amplitude_mm
-    tab["sigma_f0_white_hz"] = fit.sigma_f0_hz
-    tab["sigma_amplitude_mm"] = fit.sigma_amplitude_mm * np.sqrt(noise.kappa)
-    tab["sigma_f0_hz"] = fit.sigma_f0_hz * np.sqrt(noise.kappa)
-    return Estimates(tab[ESTIMATE_COLUMNS], w, periodogram, fit, noise)
+    cols["r2"] = noise.r2
+    cols["whiteness_p"] = noise.whiteness_p
+    cols["sigma_amplitude_white_mm"] = fit.sigma_amplitude_mm
+    cols["sigma_f0_white_hz"] = fit.sigma_f0_hz
+    cols["sigma_amplitude_mm"] = fit.sigma_amplitude_mm * np.sqrt(noise.kappa)
+    cols["sigma_f0_hz"] = fit.sigma_f0_hz * np.sqrt(noise.kappa)
+    tab = pd.DataFrame({c: cols[c] for c in ESTIMATE_COLUMNS}, index=w.table.index)
+    return Estimates(tab, w, periodogram, fit, noise)
 
 
 def _span(w: Windows) -> np.ndarray:

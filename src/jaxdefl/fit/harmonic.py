@@ -99,12 +99,22 @@ def gauss_newton(residual, n_params: int, rtol: float, atol: float, max_steps: i
     )
 
 
-def fit_harmonic(t, y, w, omega0, rtol=RTOL, atol=ATOL, max_steps=MAX_STEPS):
+def fit_harmonic(t, y, w, omega0, rtol=RTOL, atol=ATOL, max_steps=MAX_STEPS, refine=False):
     """Fit one window. Arrays are (sample,); ``w`` are weights (1/variance, 0 = masked).
 
     Returns a dict of scalars: C, D, E (the mean of y added back), omega, A, phase, their
     covariance ``cov`` (param param), sigma_A, sigma_omega, variance factor s0sq, residual σ,
-    n, number of Gauss-Newton steps and ``ok`` (solver converged and numbers finite).
+    n, number of Gauss-Newton steps and ``ok`` (solver converged and numbers finite); and the
+    ``residual`` y - model at the estimates (sample,), 0 where masked, from the same pass (the
+    residual statistics need it: no second evaluation of the model in numpy).
+
+    With ``refine``, the estimates take one Newton step more, from sums of the covariance pass
+    (no further pass over the samples; `_newton_step`). Gauss-Newton converges linearly here,
+    at about 2σ/(A √n) a step, so the loop's endpoint (its last step below ``rtol`` σ) lies
+    ~1e-2 σ times that rate from the optimum: 1e-4 to 2e-3 σ on whole records; the Newton step
+    takes it to ~1e-5 σ. The covariance, σ0² and the residual σ stay those of the loop's
+    endpoint: the sum of squares is stationary at the optimum, so they move by ~(1e-3)²
+    relative at most.
     """
     valid = w > 0
     sw = jnp.sqrt(w)
@@ -156,14 +166,19 @@ def fit_harmonic(t, y, w, omega0, rtol=RTOL, atol=ATOL, max_steps=MAX_STEPS):
     # Jacobian of the model (5.40, with t_i in every row), covariance (5.42-5.43).
     s, c = sincos(p[3] * t)
     r = yc - (p[0] * c + p[1] * s + p[2])
-    jtj, _ = normal_equations([c, s, jnp.ones_like(t), t * (-p[0] * s + p[1] * c)], w, r)
+    jtj, jtr = normal_equations([c, s, jnp.ones_like(t), t * (-p[0] * s + p[1] * c)], w, r)
     dof = n - N_PARAMS
     s0sq = jnp.sum(w * r**2) / dof
     cov = s0sq * jnp.linalg.inv(jtj)
+    sigma_res = jnp.sqrt(jnp.sum(jnp.where(valid, r, 0.0) ** 2) / dof)  # (5.46)
+    if refine:  # one Newton step from the same pass (see the docstring)
+        last = _newton_step(p, t, w, r, s, c, jtj, jtr, span)
+        slope = -p[0] * s + p[1] * c
+        r = r - (last[0] * c + last[1] * s + last[2] + t * slope * last[3])  # at p + last, to O(last²)
+        p = p + last
     amp = jnp.hypot(p[0], p[1])
     alpha = jnp.stack([p[0], p[1]]) / amp  # (5.45)
     var_a = alpha @ cov[:2, :2] @ alpha  # (5.44)
-    sigma_res = jnp.sqrt(jnp.sum(jnp.where(valid, r, 0.0) ** 2) / dof)  # (5.46)
     out = dict(
         C=p[0],
         D=p[1],
@@ -178,18 +193,44 @@ def fit_harmonic(t, y, w, omega0, rtol=RTOL, atol=ATOL, max_steps=MAX_STEPS):
         sigma_res=sigma_res,
         n=n,
         steps=sol.stats["num_steps"],
+        residual=jnp.where(valid, r, 0.0),
     )
     finite = jnp.all(jnp.isfinite(p)) & jnp.isfinite(var_a) & (var_a >= 0) & (cov[3, 3] >= 0)
     out["ok"] = (sol.result == optx.RESULTS.successful) & finite
     return out
 
 
-@persistent_jit(static_argnames=("rtol", "atol", "max_steps", "group"))
-def _fit_batch(t, y, w, omega0, *, rtol, atol, max_steps, group):
+def _newton_step(p, t, w, r, s, c, jtj, jtr, span):
+    """Newton's step on ½ Σ w r² at ``p``, from the Gauss-Newton sums ``jtj``, ``jtr`` and the
+    second derivatives of the model (only those with ω are not 0): H = JᵀWJ − Σ w r ∂²f.
+
+    Newton converges quadratically where Gauss-Newton converges linearly (at a rate that nears
+    1 as the amplitude nears the noise), so one step from the loop's endpoint reaches the
+    optimum to ~1e-6 σ even on weak records. Where H is not positive definite, or the step
+    would be longer than a quarter cycle over the window, the Gauss-Newton step is taken, or
+    none.
+    """
+    wrt = w * r * t
+    k03 = -jnp.sum(wrt * s)  # Σ w r ∂²f/∂C∂ω
+    k13 = jnp.sum(wrt * c)  # Σ w r ∂²f/∂D∂ω
+    k33 = -jnp.sum(wrt * t * (p[0] * c + p[1] * s))  # Σ w r ∂²f/∂ω²
+    k = jnp.zeros((N_PARAMS, N_PARAMS)).at[0, 3].set(k03).at[3, 0].set(k03)
+    k = k.at[1, 3].set(k13).at[3, 1].set(k13).at[3, 3].set(k33)
+    hess = jtj - k
+    chol = jnp.linalg.cholesky(hess)
+    newton = jax.scipy.linalg.cho_solve((chol, True), jtr)
+    gn = jnp.linalg.solve(jtj, jtr)
+    step = jnp.where(jnp.all(jnp.isfinite(newton)), newton, gn)
+    small = jnp.all(jnp.isfinite(step)) & (jnp.abs(step[3]) * span < 0.5 * jnp.pi)
+    return jnp.where(small, step, 0.0)
+
+
+@persistent_jit(static_argnames=("rtol", "atol", "max_steps", "group", "refine"))
+def _fit_batch(t, y, w, omega0, *, rtol, atol, max_steps, group, refine=False):
     """`fit_harmonic` over the leading axis, vmapped in groups of ``group`` windows."""
 
     def one(args):
-        return fit_harmonic(*args, rtol, atol, max_steps)
+        return fit_harmonic(*args, rtol, atol, max_steps, refine)
 
     return jax.lax.map(one, (t, y, w, omega0), batch_size=group)
 
@@ -287,6 +328,8 @@ def fit_harmonics(
     rtol: float = RTOL,
     atol: float = ATOL,
     max_steps: int = MAX_STEPS,
+    refine: bool = False,
+    residual: np.ndarray | None = None,
 ) -> HarmonicFit:
     """Fit the harmonic model to the windows at ``rows`` (default: all), starting at ``freq0_hz``.
 
@@ -295,6 +338,12 @@ def fit_harmonics(
         freq0_hz: (window,) start frequency, e.g. `Periodogram.freq_hz`.
         rows: windows to fit; the others come back NaN and not converged.
         weights: optional (window, sample) weights, 1/σ² per sample (default 1).
+        refine: one more Gauss-Newton step from the covariance pass' sums (see
+            `fit_harmonic`): estimates within ~1e-6 σ of the optimum instead of ~1e-2 of the
+            convergence rate. Whole records take it; the windows keep the loop's endpoint.
+        residual: an array shaped like ``w.y`` whose rows at ``rows`` get y - model at the
+            estimates (as `jaxdefl.fit.residual_noise.harmonic_residual`, from the fit's own
+            last pass; masked samples anything).
     Returns:
         HarmonicFit with one entry per window of ``w``.
     """
@@ -321,11 +370,14 @@ def fit_harmonics(
     steps = np.zeros(b, np.int64)
     ok = np.zeros(b, bool)
     if rows.size:
-        fit_batch = partial(_fit_batch, rtol=rtol, atol=atol, max_steps=max_steps)
+        fit_batch = partial(_fit_batch, rtol=rtol, atol=atol, max_steps=max_steps, refine=refine)
         out = batch_windows(fit_batch, w, rows, weights, 2 * np.pi * np.asarray(freq0_hz))
         for k in res:
             res[k][rows] = out[k]
         cov[rows] = out["cov"]
+        if residual is not None:
+            width = min(residual.shape[1], out["residual"].shape[1])
+            residual[rows, :width] = out["residual"][:, :width]
         n[rows] = out["n"]
         steps[rows] = out["steps"]
         ok[rows] = out["ok"]

@@ -35,10 +35,16 @@ from scipy import special
 
 from .._shapes import pow2_at_least
 from ..series import Windows
+from ..series.rows import unique_rows
 
 __all__ = [
-    "BAND_MIN_ORDINATES", "LJUNG_BOX_MAX_LAG", "WHITENESS_P_MIN", "ResidualNoise", "frame_positions",
-    "harmonic_residual", "residual_noise",
+    "BAND_MIN_ORDINATES",
+    "LJUNG_BOX_MAX_LAG",
+    "WHITENESS_P_MIN",
+    "ResidualNoise",
+    "frame_positions",
+    "harmonic_residual",
+    "residual_noise",
 ]
 
 LJUNG_BOX_MAX_LAG = 20
@@ -157,20 +163,23 @@ def _chunk(w, residual, f0_hz, rows, g, dt, frames, m_len) -> dict:
     bi = np.arange(rows.size)[:, None]
     cell = np.where(m, g, m_len - 1)
     grid = np.zeros((rows.size, m_len))
-    mgrid = np.zeros((rows.size, m_len))
+    present = np.zeros((rows.size, m_len), bool)
     grid[bi, cell] = rc
-    mgrid[bi, cell] = m
+    present[bi, cell] = m
     n_lag = np.minimum(LJUNG_BOX_MAX_LAG, np.maximum(1, n // 5)).astype(int)
     # Lag products on the frame grid (a missing frame is a zero), Σ r_k r_{k+h} and the pairs,
     # from the power spectra: the grid is longer than the frames plus the lags, so the circular
     # autocorrelation is the plain one; its first lags are one matrix product with cosines.
+    # The pairs depend on the frames present only: the axes of a plate, and the plates where
+    # drop-outs hit whole frames, share them, so each distinct frame grid is transformed once.
     fr_all = scipy.fft.rfft(grid, axis=1)
-    fm = scipy.fft.rfft(mgrid, axis=1)
+    frame_sets, inverse = unique_rows(np.packbits(present, axis=1))
+    fm = scipy.fft.rfft(np.unpackbits(frame_sets, axis=1, count=m_len).astype(np.float64), axis=1)
     j = np.arange(fr_all.shape[1])
     weight = np.where((j == 0) | (2 * j == m_len), 1.0, 2.0) / m_len
     cosines = weight[:, None] * np.cos(2 * np.pi * np.outer(j, np.arange(LJUNG_BOX_MAX_LAG + 1)) / m_len)
     acov = (fr_all.real**2 + fr_all.imag**2) @ cosines
-    pairs = np.rint((fm.real**2 + fm.imag**2) @ cosines)
+    pairs = np.rint((fm.real**2 + fm.imag**2) @ cosines)[inverse.ravel()]
 
     # Ljung-Box with the pairs each lag actually has (drop-outs remove some).
     h = np.arange(1, LJUNG_BOX_MAX_LAG + 1)

@@ -45,7 +45,8 @@ def estimate_table(
 
     ``clocks`` shares the series' frame clocks between calls on the same table (see
     `jaxdefl.series.make_windows`); ``timings`` gets the seconds of ``windowing`` added, and
-    those of `estimate_windows`.
+    those of `estimate_windows`. Whole records (no ``window_s``) take the harmonic fit's refined
+    endpoint (``refine`` of `estimate_windows`): within ~1e-6 σ of the least-squares optimum.
 
     Raises:
         ConfigError: a false-alarm limit outside (0, 1], bad window settings or axes.
@@ -66,4 +67,5 @@ def estimate_table(
         on_block=on_block,
         model=model,
         timings=timings,
+        refine=window_s is None,
     )

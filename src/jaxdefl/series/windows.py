@@ -239,6 +239,23 @@ def _window_clocks(dt: float, k: np.ndarray, r: np.ndarray, valid: np.ndarray):
     return dt_w, np.where(valid, k, 0), usable & (exact | (std <= SNAP_MAX * dt))
 
 
+def _series_rows(df: pd.DataFrame):
+    """Row numbers of every segment (in order of appearance) and, within it, of every plate
+    (in increasing order), each in table order: ``df.groupby("segment", sort=False)`` then
+    ``groupby("plate")`` as (segment, rows, [(plate, rows), ...]), without a frame per group."""
+    codes, segments = pd.factorize(df["segment"], sort=False)  # missing: -1, left out
+    plate = df["plate"].to_numpy()
+    for i, seg in enumerate(segments):
+        rows = np.flatnonzero(codes == i)
+        p = plate[rows]
+        keep = ~pd.isna(p)
+        rows, p = rows[keep], p[keep]
+        order = np.argsort(p, kind="stable")
+        values, starts = np.unique(p[order], return_index=True)
+        parts = np.split(rows[order], starts[1:])
+        yield seg, rows, list(zip(values.tolist(), parts, strict=True))
+
+
 def make_windows(
     df: pd.DataFrame,
     axes: tuple[str, ...] = ("z", "x", "y"),
@@ -281,11 +298,12 @@ def make_windows(
         )
     blocks = []
     last = (None, None)  # plates of a frame share their stamps: one clock fit for them all
-    for seg, g in df.groupby("segment", sort=False):
-        bounds = np.array(_bounds(g["t"].to_numpy(), window_s, step_s))
+    columns = {c: df[c].to_numpy() for c in ("t", *axes)}
+    for seg, seg_rows, plates in _series_rows(df):
+        bounds = np.array(_bounds(columns["t"][seg_rows], window_s, step_s))
         a, b = bounds[:, 0], bounds[:, 1]
-        for plate, gp in g.groupby("plate", sort=True):
-            t_all = gp["t"].to_numpy()
+        for plate, rows in plates:
+            t_all = columns["t"][rows]
             # One clock for the whole series (all axes share the timestamps). A window takes
             # it when its stamps scatter about it (a constant offset aside: a logger restart
             # keeps its own exact grid) by at most SNAP_MAX of a frame; else its own clock is
@@ -315,7 +333,7 @@ def make_windows(
             )
             shared = None  # the windows' clocks where no value is missing, shared by the axes
             for axis in axes:
-                v = gp[axis].to_numpy()
+                v = columns[axis][rows]
                 ok = np.isfinite(v)
                 pos, valid = _positions(lo, hi, ok)
                 if ok.all() and shared is not None:

@@ -29,6 +29,7 @@ from .._jax import persistent_jit
 from .._shapes import bucket, chunk_rows, pow2_at_least
 from .._sincos import sincos
 from ..series import Windows
+from ..series.rows import unique_rows
 from ..series.windows import MAX_BATCH_BYTES
 from .fap import false_alarm_probability, n_independent
 
@@ -292,23 +293,6 @@ def _dense_grid(w: Windows, rows: np.ndarray, length: int):
     return dense_h[:, :length], dense_m[:, :length], n, var
 
 
-def _unique_rows(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Distinct rows of the uint8 array ``a`` (row, byte) and the index of each row among them.
-
-    Rows are told apart by a 64-bit hash (a sort of one number per row, not of whole rows);
-    `np.unique` on the rows decides if two distinct rows ever share a hash.
-    """
-    words = np.zeros((a.shape[0], -(-a.shape[1] // 8) * 8), np.uint8)
-    words[:, : a.shape[1]] = a
-    words = words.view(np.uint64)
-    mult = np.random.default_rng(0).integers(1, 2**63, words.shape[1], dtype=np.uint64) | np.uint64(1)
-    key = (words * mult).sum(axis=1, dtype=np.uint64)
-    _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
-    if not np.array_equal(a[first][inverse], a):
-        return np.unique(a, axis=0, return_inverse=True)
-    return a[first], inverse.ravel()
-
-
 def _peaks_grid(w: Windows, rows, out, fmin, fmax, oversampling, keep, search_dtype):
     dt = float(np.mean(w.dt[rows]))
     length = bucket(int(w.k[rows].max()) + 1)  # few distinct shapes: few compilations
@@ -353,7 +337,7 @@ def _peaks_grid(w: Windows, rows, out, fmin, fmax, oversampling, keep, search_dt
             continue
         # Frame drop-outs hit every plate and axis of a frame alike: windows of the same span
         # share their mask, so its FFT (the tau sums) is computed once per distinct mask.
-        uniq, inverse = _unique_rows(np.packbits(m, axis=1))
+        uniq, inverse = unique_rows(np.packbits(m, axis=1))
         u_pad = pow2_at_least(uniq.shape[0])
         masks = np.unpackbits(uniq, axis=1, count=length).astype(np.float64)
         masks = np.concatenate([masks, np.zeros((u_pad - masks.shape[0], length))])
