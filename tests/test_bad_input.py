@@ -476,7 +476,7 @@ def test_interrupts_at_random_moments_of_every_command(work, sig):
         [*FIT, "--window", "20", "--posterior", "2"],
         [*FIT, "--window", "10", "--posterior", "2"],
         ["EST.csv", "EST.json", "EST_reference.csv", "EST_comparison.csv", "EST_uncertainty.csv"],
-        delays=sorted(rng.uniform(0.3, 10.0, 3 if few else 5)),
+        delays=sorted(rng.uniform(0.3, 10.0, 2 if few else 3)),
         sig=sig,
     )
     _check_interrupt(
@@ -484,7 +484,7 @@ def test_interrupts_at_random_moments_of_every_command(work, sig):
         ["diagnose", "traj.csv", "--out", "D.json", "--effects", "drift", "--no-figures"],
         ["diagnose", "traj.csv", "--out", "D.json"],
         ["D.json", "D.md"],
-        delays=sorted(rng.uniform(0.3, 12.0, 2 if few else 4)),
+        delays=sorted(rng.uniform(0.3, 12.0, 1 if few else 3)),
         sig=sig,
     )
     # extract: a small simulated recording
@@ -497,7 +497,7 @@ def test_interrupts_at_random_moments_of_every_command(work, sig):
         ["extract", "sim/recording.zarr", "--out", "T.csv", "--realtime"],
         ["extract", "sim/recording.zarr", "--out", "T.csv"],
         ["T.csv"],
-        delays=sorted(rng.uniform(0.3, 8.0, 2 if few else 4)),
+        delays=sorted(rng.uniform(0.3, 8.0, 1 if few else 3)),
         sig=sig,
     )
     _check_interrupt(
@@ -505,7 +505,7 @@ def test_interrupts_at_random_moments_of_every_command(work, sig):
         ["simulate", str(cfg), "--out", "sim2", "--duration", "10", "--session", "day1"],
         ["simulate", str(cfg), "--out", "sim2", "--duration", "20", "--session", "day1"],
         ["sim2/truth.csv", "sim2/lds.csv", "sim2/config.json"],
-        delays=sorted(rng.uniform(0.3, 8.0, 2 if few else 3)),
+        delays=sorted(rng.uniform(0.3, 8.0, 1 if few else 2)),
         sig=sig,
     )
 
