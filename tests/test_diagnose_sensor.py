@@ -64,14 +64,16 @@ def test_the_chain_null_keeps_what_exceeds_the_twins_and_moves_the_rest():
     )
     diag = {
         "effects": [
-            {"id": "outliers", "lr": 15_000.0, "plates": [7], "axes": ["x"]},  # 180 s: ~19,000 nominal
-            {"id": "drift", "lr": 40.0, "plates": [1], "axes": ["z"]},  # the twins never name a drift
-            {"id": "level_jump", "lr": 25.0},
-        ]
-    }
+            {"id": "outliers", "lr": 15_000.0, "plates": [7], "axes": ["x"], "relevance": {"minor": True}},
+            {"id": "drift", "lr": 40.0, "plates": [1], "axes": ["z"], "relevance": {"minor": True}},
+            {"id": "level_jump", "lr": 25.0, "relevance": {"minor": False}},
+        ],
+        "minor": ["outliers", "drift"],
+    }  # 180 s: outliers ~19,000 nominal; the twins never name a drift
     out = apply_chain_null(diag, null, 180.0)
     assert [e["id"] for e in out["effects"]] == ["drift", "level_jump"]
     assert [e["id"] for e in out["nominal_physics"]] == ["outliers"]
+    assert out["minor"] == ["drift"]  # the "minor" heading lists only what is still named
     assert out["effects"][0]["null_lr_95"] == 0.0  # power kept where the chain shows nothing
     # the band is a high quantile of the twins' evidence at this length, growing with the record
     band = out["nominal_physics"][0]["null_lr_95"]

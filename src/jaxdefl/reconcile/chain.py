@@ -223,6 +223,8 @@ def apply_chain_null(diag: dict, null: ChainNull, duration_s: float) -> dict:
             )
     out = dict(diag)
     out["effects"] = kept
+    if "minor" in diag:  # the ids under the report's "minor" heading: of what is still named
+        out["minor"] = [e["id"] for e in kept if (e.get("relevance") or {}).get("minor")]
     out["nominal_physics"] = [*diag.get("nominal_physics", []), *nominal]
     out["chain_null"] = {
         "twins": null.k,
