@@ -118,6 +118,9 @@ def _code_fingerprint() -> str:
     return _fingerprint
 
 
+_FIRST_CALL = threading.RLock()
+
+
 class _PersistentJit:
     """A `jax.jit` kernel whose traced form (`jax.export.Exported`) is kept on disk per argument
     shapes, dtypes and static arguments; called exactly as the jitted function, in a `float64()`
@@ -127,7 +130,6 @@ class _PersistentJit:
         self.jitted = jax.jit(fun, static_argnames=static_argnames)
         self.name = f"{fun.__module__}.{fun.__qualname__}"
         self._loaded: dict = {}
-        self._lock = threading.Lock()
         self.__doc__ = fun.__doc__
         self.__wrapped__ = fun
 
@@ -145,10 +147,16 @@ class _PersistentJit:
         )
         fn = self._loaded.get(key)
         if fn is None:
-            with self._lock:  # blocks on threads: one trace or load per key
+            # one thread at a time loads a kernel and makes its first call, which compiles it or
+            # reads JAX's compilation cache: two threads reading that cache at once crashed a
+            # process (a segmentation fault in `compilation_cache.get_executable_and_time`)
+            with _FIRST_CALL:
                 fn = self._loaded.get(key)
                 if fn is None:
-                    fn = self._loaded[key] = self._load(key, args, static)
+                    fn = self._load(key, args, static)
+                    out = fn(*args)
+                    self._loaded[key] = fn
+                    return out
         return fn(*args)
 
     def _load(self, key, args, static):
