@@ -25,8 +25,8 @@ from jaxdefl.simulate.centroids import plate_pixel_masks
 from jaxdefl.simulate.config import config_from_dict
 from jaxdefl.simulate.scene import beam_shape, intrinsics, midspan_amplitude_mm
 
-# one worker runs the module (`./dev test` distributes with --dist loadgroup): its fixture
-# simulates a 180-s Kinect recording, which each worker would otherwise simulate again
+# with `pytest --dist loadgroup` one worker runs the module: its fixture simulates a 180-s
+# Kinect recording, which each worker would otherwise simulate again
 pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("extract_sim")]
 
 CASES = {"tof": ("configs/exp2_tof_3hz.toml", 120.0), "kinect": ("configs/exp2_kinect_3hz.toml", 180.0)}
