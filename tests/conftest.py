@@ -51,3 +51,16 @@ def docstring_ids(tree: ast.AST) -> set[int]:
         and isinstance(n.body[0], ast.Expr)
         and isinstance(n.body[0].value, ast.Constant)
     }
+
+
+def pytest_collection_modifyitems(config, items):
+    """Modules with slow tests run first, each module's tests kept together and in order.
+
+    pytest-xdist hands the workers consecutive tests in collection order and the last ones in
+    small batches: with the slow modules at the end (alphabetical order put the coverage and
+    reconcile tests there), one worker ran a minute-long test while the other sat idle. Fast
+    modules last fill both workers to the end. The order is deterministic (xdist's workers must
+    collect alike) and changes only where tests run, not what they check.
+    """
+    slow = {item.nodeid.split("::")[0] for item in items if item.get_closest_marker("slow")}
+    items.sort(key=lambda item: item.nodeid.split("::")[0] not in slow)  # stable: order kept within

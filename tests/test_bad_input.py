@@ -416,11 +416,11 @@ def _whole_and_new(after: dict, ref: dict, name: str) -> bool:
 def _check_interrupt(work: Path, old_args, args, outputs: list[str], delays, sig=signal.SIGINT):
     """``old_args`` make the previous outputs; ``args`` is interrupted after each delay.
 
-    After every attempt the outputs are all the previous ones byte for byte, or all new and
-    whole (equal to an uninterrupted run's); the exit code is 128 + signal (or death by the
-    signal itself, before the CLI installed its handler, with nothing written); 0 only when the
-    command had already finished."""
-    expected = 128 + int(sig)
+    ``delays`` are seconds, each sent ``sig``, or (seconds, signal) pairs: one uninterrupted
+    reference run then serves several signals. After every attempt the outputs are all the
+    previous ones byte for byte, or all new and whole (equal to an uninterrupted run's); the
+    exit code is 128 + signal (or death by the signal itself, before the CLI installed its
+    handler, with nothing written); 0 only when the command had already finished."""
     ref_dir = Path(tempfile.mkdtemp(dir=work.parent, prefix=work.name + "-ref-"))
     shutil.copytree(work, ref_dir, dirs_exist_ok=True)
     code, err, _ = _interrupt(args, ref_dir, None)  # never sent: an uninterrupted run
@@ -430,6 +430,8 @@ def _check_interrupt(work: Path, old_args, args, outputs: list[str], delays, sig
     assert code == 0, err
     baseline = snapshot(work)
     for delay in delays:
+        delay, sig = delay if isinstance(delay, tuple) else (delay, sig)
+        expected = 128 + int(sig)
         _restore(work, baseline, outputs)
         code, err, sent = _interrupt(args, work, delay, sig)
         after = snapshot(work)
@@ -466,26 +468,28 @@ def test_sigint_during_fit_never_half_commits(work):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
-def test_interrupts_at_random_moments_of_every_command(work, sig):
-    rng = np.random.default_rng(int(sig))
-    # SIGTERM takes the same handler as SIGINT: fewer moments for it keep the suite's time.
-    few = sig == signal.SIGTERM
+def test_interrupts_at_random_moments_of_every_command(work):
+    # SIGINT and SIGTERM take the same handler: each command's random moments alternate between
+    # them, against one uninterrupted reference run (two runs of every command per signal before)
+    rng = np.random.default_rng(2)
+
+    def moments(lo: float, hi: float, k: int) -> list[tuple[float, int]]:
+        sigs = (signal.SIGINT, signal.SIGTERM)
+        return [(float(d), sigs[i % 2]) for i, d in enumerate(sorted(rng.uniform(lo, hi, k)))]
+
     _check_interrupt(
         work,
         [*FIT, "--window", "20", "--posterior", "2"],
         [*FIT, "--window", "10", "--posterior", "2"],
         ["EST.csv", "EST.json", "EST_reference.csv", "EST_comparison.csv", "EST_uncertainty.csv"],
-        delays=sorted(rng.uniform(0.3, 10.0, 2 if few else 3)),
-        sig=sig,
+        delays=moments(0.3, 10.0, 4),
     )
     _check_interrupt(
         work,
         ["diagnose", "traj.csv", "--out", "D.json", "--effects", "drift", "--no-figures"],
         ["diagnose", "traj.csv", "--out", "D.json"],
         ["D.json", "D.md"],
-        delays=sorted(rng.uniform(0.3, 12.0, 1 if few else 3)),
-        sig=sig,
+        delays=moments(0.3, 12.0, 3),
     )
     # extract: a small simulated recording
     from jaxdefl.simulate import simulate_to_dir
@@ -497,16 +501,14 @@ def test_interrupts_at_random_moments_of_every_command(work, sig):
         ["extract", "sim/recording.zarr", "--out", "T.csv", "--realtime"],
         ["extract", "sim/recording.zarr", "--out", "T.csv"],
         ["T.csv"],
-        delays=sorted(rng.uniform(0.3, 8.0, 1 if few else 3)),
-        sig=sig,
+        delays=moments(0.3, 8.0, 3),
     )
     _check_interrupt(
         work,
         ["simulate", str(cfg), "--out", "sim2", "--duration", "10", "--session", "day1"],
         ["simulate", str(cfg), "--out", "sim2", "--duration", "20", "--session", "day1"],
         ["sim2/truth.csv", "sim2/lds.csv", "sim2/config.json"],
-        delays=sorted(rng.uniform(0.3, 8.0, 1 if few else 2)),
-        sig=sig,
+        delays=moments(0.3, 8.0, 2),
     )
 
 

@@ -35,13 +35,16 @@ CASES = {"tof": ("configs/exp2_tof_3hz.toml", 120.0), "kinect": ("configs/exp2_k
 def _reference(cfg, rec) -> pd.DataFrame:
     k = intrinsics(cfg)
     masks = plate_pixel_masks(cfg)
+    ray = {}  # a range pixel's z is its range over its ray's length
+    for p, idx in masks.items():
+        v, u = np.divmod(idx, k.width)
+        xr, yr = (u - k.cx) / k.fx, (v - k.cy) / k.fy
+        ray[p] = np.sqrt(xr * xr + yr * yr + 1) if rec.kind == "range" else 1.0
     rows = []
     for ch in rec.chunks(256):
-        flat = ch.frames.reshape(len(ch.t), -1).astype(np.float64)
+        flat = ch.frames.reshape(len(ch.t), -1)  # only the plates' pixels are made float64
         for p, idx in masks.items():
-            v, u = np.divmod(idx, k.width)
-            xr, yr = (u - k.cx) / k.fx, (v - k.cy) / k.fy
-            z = flat[:, idx] / (np.sqrt(xr * xr + yr * yr + 1) if rec.kind == "range" else 1.0)
+            z = flat[:, idx].astype(np.float64) / ray[p]
             rows.append(pd.DataFrame({"t": ch.t, "plate": p, "z": np.nanmean(z, 1)}))
     return pd.concat(rows, ignore_index=True), {p: len(i) for p, i in masks.items()}
 
@@ -59,7 +62,15 @@ def simulated(request, tmp_path_factory):
     ref, npix = _reference(cfg, rec)
     full = max(npix.values())
     visible = [p for p in cfg.camera.plates if npix.get(p, 0) >= 0.5 * full]
-    return request.param, cfg, rec, truth, ref, visible
+    return request.param, cfg, rec, truth, ref, visible, {}
+
+
+def _extracted(simulated, realtime: bool) -> pd.DataFrame:
+    """The recording's extraction (kept with the fixture: the two tests share the real-time one)."""
+    rec, done = simulated[2], simulated[-1]
+    if realtime not in done:
+        done[realtime] = extract_recording(rec, realtime=realtime, chunk_frames=128, progress=False)
+    return done[realtime]
 
 
 def _merge(a, b):
@@ -71,8 +82,8 @@ def _merge(a, b):
 
 @pytest.mark.parametrize("realtime", [False, True])
 def test_plates_found_and_centroid_noise(simulated, realtime):
-    name, cfg, rec, truth, ref, visible = simulated
-    df = extract_recording(rec, realtime=realtime, chunk_frames=128, progress=False)
+    name, cfg, rec, truth, ref, visible, _ = simulated
+    df = _extracted(simulated, realtime)
     assert set(visible) <= set(df.plate.unique())
     # never a plate that is not there: only plates in view, each once per frame
     assert not df.duplicated(["t", "plate"]).any()
@@ -89,8 +100,8 @@ def test_plates_found_and_centroid_noise(simulated, realtime):
 def test_fitted_deflection(simulated):
     from jaxdefl.fit import estimate_table
 
-    name, cfg, rec, truth, ref, visible = simulated
-    df = extract_recording(rec, realtime=True, chunk_frames=256, progress=False)
+    name, cfg, rec, truth, ref, visible, _ = simulated
+    df = _extracted(simulated, True)
     est = estimate_table(df[df.plate.isin(visible)], axes=("z",)).table
     t_mid = 0.5 * (df.t.min() + df.t.max())
     cycles = cfg.recording.cycles_at_start + cfg.loading.frequency_hz * (t_mid - cfg.t0_s)
