@@ -71,14 +71,19 @@ def plot_level(rec, level: str):
     family = [r.get("null_family", r["null_95"]) for r in rows]
     ax.bar(x - 0.2, before, 0.4, label="simulation as set up", color="tab:red")
     ax.bar(x + 0.2, after, 0.4, label="with the named effects", color="tab:blue")
-    for xi, n, fam in zip(x, null, family, strict=True):
+    after_band = [r.get("after_family", f) for r, f in zip(rows, family, strict=True)]
+    for xi, n, fam, fa in zip(x, null, family, after_band, strict=True):
         ax.hlines(n, xi - 0.45, xi + 0.45, colors="k", linestyles="--")
         ax.hlines(fam, xi - 0.45, xi + 0.45, colors="k", linestyles=":")
+        if fa != fam:
+            ax.hlines(fa, xi, xi + 0.45, colors="tab:blue", linestyles=":")
     ax.plot([], [], "k--", label="null band (95 %)")
     ax.plot([], [], "k:", label="family band (the verdict's)")
+    if any(fa != fam for fa, fam in zip(after_band, family, strict=True)):
+        ax.plot([], [], ":", color="tab:blue", label="family band after (reconciled model's)")
     ax.set_xticks(x, [r["metric"] for r in rows], rotation=20)
     ax.set_yscale("symlog", linthresh=1e-3)
-    values = np.array([v for v in before + after + null + family if v is not None], float)
+    values = np.array([v for v in before + after + null + family + after_band if v is not None], float)
     top = float(np.nanmax(values[np.isfinite(values)])) if np.isfinite(values).any() else 1.0
     ax.set_ylim(0.0, max(top, 1e-3) * 3.0)  # headroom: half a decade above the tallest bar
     ax.set_xlim(-0.6, len(rows) - 0.4)
@@ -264,15 +269,19 @@ def reconcile_markdown(rec, d: dict, figures: list[str], recording: str, config:
         "the diagnosis names (`jaxdefl diagnose`). The verdict reads the family band, the "
         "1 − 0.05/8 percentile of the same distances: a recording is judged on 8 metrics at once, "
         "and at each one's 95th percentile a recording of the simulated model itself would lie "
-        "outside one of them a third of the time. " + selection_rule(),
+        "outside one of them a third of the time. *After* is read against the reconciled "
+        "simulation's own family band (the same percentile of the distances between its repeated "
+        "renders: a line or a modulation scatters its statistic more than noise alone). " + selection_rule(),
         "",
-        "| level | metric | what it measures | before | after | null 95 % | family band | verdict |",
-        "|---|---|---|---|---|---|---|---|",
+        "| level | metric | what it measures | before | after | null 95 % | family band | band after "
+        "| verdict |",
+        "|---|---|---|---|---|---|---|---|---|",
     ]
     for r in found.rows:
+        fam = r.get("null_family", r["null_95"])
         lines.append(
             f"| {r['level']} | {r['metric']} | {_MEANING.get(r['metric'], '')} | {r['before']:.4g} | "
-            f"{r['after']:.4g} | {r['null_95']:.4g} | {r.get('null_family', r['null_95']):.4g} | "
+            f"{r['after']:.4g} | {r['null_95']:.4g} | {fam:.4g} | {r.get('after_family', fam):.4g} | "
             f"{r['verdict']} |"
         )
     lines += _frames_lines(rec)
