@@ -686,10 +686,9 @@ def _rivals(ctx, states, accepted, dropped, corr, n_total, usable, notes):
     `Entry.footprint`: a warm-up and a level jump are both a slow change of the mean, and a small
     step fits a 2-minute record's ramp nearly as well as the ramp does). All the accepted
     instances of an effect are taken out together; each usable rival is proposed afresh on what
-    they leave; the effect keeps its name only when its best instance's ΔBIC there is lower than
-    every rival proposal's by `RIVAL_DELTA_BIC`. Otherwise it is dropped (the unnamed search
-    then models the structure) and the report says which ids it cannot tell apart. Returns
-    (states, accepted)."""
+    they leave; the effect keeps its name only when its ΔBIC is lower than every rival's by
+    `RIVAL_DELTA_BIC`. Otherwise it is dropped (the unnamed search then models the structure)
+    and the report says which ids it cannot tell apart. Returns (states, accepted)."""
     for eid in list(dict.fromkeys(a.proposal.effect for a in accepted)):
         mark = REGISTRY[eid].footprint if eid in REGISTRY else None
         rivals = [r for r in usable if r != eid and r in REGISTRY and mark and REGISTRY[r].footprint == mark]
@@ -699,10 +698,18 @@ def _rivals(ctx, states, accepted, dropped, corr, n_total, usable, notes):
         base = states
         for a in group:
             base = _without(base, a)
-        # instance against proposal, each on what the group leaves: a proposal is one instance
-        # (one axis, say), and a group's instances on a plate's three axes share one noise (the
-        # line of sight), so their sum would be discounted once but pay every instance's parameters
-        d_named = min(_score(ctx, base, _rebase(a.proposal, a.before, base), n_total, corr)[0] for a in group)
+        named = list(base)
+        for a in group:
+            for i, st in _rebase(a.proposal, a.before, named).states.items():
+                named[i] = st
+        series = sorted({i for a in group for i in a.proposal.series})
+        both = dataclasses.replace(
+            group[0].proposal,
+            series=series,
+            states={i: named[i] for i in series},
+            n_params=sum(a.proposal.n_params for a in group),
+        )
+        d_named = _score(ctx, base, both, n_total, corr)[0]
         fits = [(r, _best_rival(ctx, base, usable[r], corr, n_total)) for r in rivals]
         close = [(r, d) for r, d in fits if d < d_named + RIVAL_DELTA_BIC]
         if not close:
