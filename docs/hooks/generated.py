@@ -177,12 +177,10 @@ def effect_reference() -> str:
         "Every id `jaxdefl diagnose` can name (the `id` of an entry of `effects` in DIAG.json): the "
         "sensors that can produce it (on a record of another kind the diagnosis does not name it), "
         "whether the structure itself can make it (else only a measurement does), and whether "
-        "`jaxdefl reconcile` can simulate it as reported. Ids the simulator does not inject are marked. "
-        "Ids of one footprint are rivals: one is named only where it fits the residual better than "
-        "each other by a ΔBIC of 6, else the structure is left unnamed (see the diagnose guide).",
+        "`jaxdefl reconcile` can simulate it as reported. Ids the simulator does not inject are marked.",
         "",
-        "| id | meaning | sensors | structural | needs an LDS | simulated | footprint |",
-        "| --- | --- | --- | --- | --- | --- | --- |",
+        "| id | meaning | sensors | structural | needs an LDS | simulated |",
+        "| --- | --- | --- | --- | --- | --- |",
     ]
     for eid in EFFECT_IDS:
         entry = REGISTRY[eid]
@@ -190,8 +188,7 @@ def effect_reference() -> str:
         sensors = "any" if set(entry.sensors) == set(SENSORS) else ", ".join(entry.sensors)
         out.append(
             f"| `{eid}` | {_cell(entry.meaning)} | {sensors} "
-            f"| {'yes' if entry.structural else 'no'} | {'yes' if entry.needs_reference else 'no'} | {sim} "
-            f"| {entry.footprint or ''} |"
+            f"| {'yes' if entry.structural else 'no'} | {'yes' if entry.needs_reference else 'no'} | {sim} |"
         )
     only = [eid for eid in EFFECT_IDS if not REGISTRY[eid].injectable]
     if only:

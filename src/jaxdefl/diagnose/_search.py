@@ -34,7 +34,7 @@ from threadpoolctl import threadpool_limits
 from .._errors import InputError
 from .._numerics import DELTA_BIC_MAX
 from .._signals import check_interrupt
-from ..effects import REGISTRY, quantization
+from ..effects import quantization
 from ..settings import ALPHA_NAMED, DiagnoseSettings
 from ._base import Context, Proposal, State, loglik, rms_equivalent
 from ._context import build_context
@@ -48,10 +48,6 @@ from .unnamed import MAX_TERMS, UnnamedTerm, apply_term, best_term, colored_gain
 # see the open world's competition in `run_diagnosis`: 2 let a level jump claim an exponential
 # warm-up it explained 84 % of (held-out benchmark), and a step can only tie a generic step
 GENERIC_FIRST_RATIO = 1.1
-# A named effect must beat each rival (an id of the same footprint, `Entry.footprint`) by this
-# much ΔBIC on the same residual: 6 is a Bayes factor of about 20 (Kass & Raftery's "strong"),
-# so that the name is wrong at most about 1 time in 20 where the two shapes are alike
-RIVAL_DELTA_BIC = 6.0
 
 __all__ = [
     "Diagnosis",
@@ -665,69 +661,6 @@ def _flexible_alternative(ctx, states, accepted, dropped, terms, calib, corr, n_
     return states, accepted, terms
 
 
-def _best_rival(ctx, base, effect, corr, n_total):
-    """The lowest ΔBIC of ``effect`` proposed afresh on ``base`` (refined where its screening is
-    coarse), passing its own test or not: what the rival shape explains of the same residual."""
-    best = math.inf
-    for p in effect.propose(ctx, base):
-        if not p.series:
-            continue
-        d = _score(ctx, base, p, n_total, corr)[0]
-        if p.refine is not None:
-            q = p.refine()
-            if q is not None:
-                d = min(d, _score(ctx, base, q, n_total, corr)[0])
-        best = min(best, d)
-    return best
-
-
-def _rivals(ctx, states, accepted, dropped, corr, n_total, usable, notes):
-    """A name is specific only where the data tell it from its rivals (ids of the same
-    `Entry.footprint`: a warm-up and a level jump are both a slow change of the mean, and a small
-    step fits a 2-minute record's ramp nearly as well as the ramp does). All the accepted
-    instances of an effect are taken out together; each usable rival is proposed afresh on what
-    they leave; the effect keeps its name only when its ΔBIC is lower than every rival's by
-    `RIVAL_DELTA_BIC`. Otherwise it is dropped (the unnamed search then models the structure)
-    and the report says which ids it cannot tell apart. Returns (states, accepted)."""
-    for eid in list(dict.fromkeys(a.proposal.effect for a in accepted)):
-        mark = REGISTRY[eid].footprint if eid in REGISTRY else None
-        rivals = [r for r in usable if r != eid and r in REGISTRY and mark and REGISTRY[r].footprint == mark]
-        if not rivals:
-            continue
-        group = [a for a in accepted if a.proposal.effect == eid]
-        base = states
-        for a in group:
-            base = _without(base, a)
-        named = list(base)
-        for a in group:
-            for i, st in _rebase(a.proposal, a.before, named).states.items():
-                named[i] = st
-        series = sorted({i for a in group for i in a.proposal.series})
-        both = dataclasses.replace(
-            group[0].proposal,
-            series=series,
-            states={i: named[i] for i in series},
-            n_params=sum(a.proposal.n_params for a in group),
-        )
-        d_named = _score(ctx, base, both, n_total, corr)[0]
-        fits = [(r, _best_rival(ctx, base, usable[r], corr, n_total)) for r in rivals]
-        close = [(r, d) for r, d in fits if d < d_named + RIVAL_DELTA_BIC]
-        if not close:
-            continue
-        rival, d_rival = min(close, key=lambda x: x[1])
-        why = (
-            f"cannot be told from {rival} on this record (both a {mark}): ΔBIC {d_named:.1f} "
-            f"against {d_rival:.1f}, where a name needs a margin of {RIVAL_DELTA_BIC:g} (odds of "
-            "about 20 to 1)"
-        )
-        for a in group:
-            dropped.append(Dropped(eid, why, a.lr, a.lr_critical, f"unnamed ({eid} or {rival})"))
-        notes.append(f"{eid} {why}: the structure is left unnamed")
-        accepted = [x for x in accepted if x.proposal.effect != eid]
-        states = base
-    return states, accepted
-
-
 # One BLAS thread: the diagnosis' products are many small GEMMs and dots over one series, where
 # OpenBLAS's threads cost more to wake than they save and, on cores shared with other jobs, spin
 # against them (measured: the whole search twice as slow, drift's screening five times). JAX's
@@ -988,8 +921,6 @@ def run_diagnosis(
         states, accepted, terms = _flexible_alternative(
             ctx, states, accepted, dropped, terms, calib, corr, n_total, library, bases
         )
-    if accepted:
-        states, accepted = _rivals(ctx, states, accepted, dropped, corr, n_total, usable, notes)
     open_states = states
     if open_world and not noise_free:
         terms, open_states = search_unnamed(ctx, states, corr, MAX_TERMS, check_interrupt, bases, prior=terms)

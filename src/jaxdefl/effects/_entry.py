@@ -277,11 +277,6 @@ class Entry:
             within 25 % of their true values, by the drawn kind
             (`jaxdefl.simulate.effects.primary_parameters`).
         bench: how the concealed benchmark renders its draw (`Bench`).
-        footprint: the shape the effect leaves on a record's residual where several ids can
-            leave the same one (a warm-up and a level jump: a slow change of the mean). Ids that
-            share a footprint are rivals: the diagnosis names one only when it explains the
-            residual clearly better than each of the others (`jaxdefl.diagnose` RIVAL_DELTA_BIC),
-            else it leaves the structure unnamed and says which ids it cannot tell apart.
     """
 
     id: str
@@ -305,7 +300,6 @@ class Entry:
     draw: Callable[[Any], dict] | None = None
     scored: Callable[[str], dict[str, bool]] | None = None
     bench: Bench = field(default_factory=Bench)
-    footprint: str | None = None
 
     @property
     def injectable(self) -> bool:

@@ -64,5 +64,4 @@ ENTRY = Entry(
     draw=draw,
     scored=lambda kind: {"amplitude_mm": True, "tau_s": True},
     bench=Bench(camera=_camera, truth=_truth),
-    footprint="slow change of the mean",
 )

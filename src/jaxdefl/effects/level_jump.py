@@ -56,5 +56,4 @@ ENTRY = Entry(
     draw=draw,
     scored=lambda kind: {"size_mm": True},
     bench=Bench(camera=_camera, truth=_truth),
-    footprint="slow change of the mean",
 )
