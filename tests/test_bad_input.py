@@ -482,14 +482,14 @@ def test_interrupts_at_random_moments_of_every_command(work):
         [*FIT, "--window", "20", "--posterior", "2"],
         [*FIT, "--window", "10", "--posterior", "2"],
         ["EST.csv", "EST.json", "EST_reference.csv", "EST_comparison.csv", "EST_uncertainty.csv"],
-        delays=moments(0.3, 10.0, 4),
+        delays=moments(0.3, 10.0, 3),
     )
     _check_interrupt(
         work,
         ["diagnose", "traj.csv", "--out", "D.json", "--effects", "drift", "--no-figures"],
         ["diagnose", "traj.csv", "--out", "D.json"],
         ["D.json", "D.md"],
-        delays=moments(0.3, 12.0, 3),
+        delays=moments(0.3, 12.0, 2),
     )
     # extract: a small simulated recording
     from jaxdefl.simulate import simulate_to_dir
@@ -501,7 +501,7 @@ def test_interrupts_at_random_moments_of_every_command(work):
         ["extract", "sim/recording.zarr", "--out", "T.csv", "--realtime"],
         ["extract", "sim/recording.zarr", "--out", "T.csv"],
         ["T.csv"],
-        delays=moments(0.3, 8.0, 3),
+        delays=moments(0.3, 8.0, 2),
     )
     _check_interrupt(
         work,

@@ -248,7 +248,7 @@ def test_reconcile_cli_on_frames_with_a_camera_warm_up(tmp_path):
     against the config without it names the drift, sizes it in range, and the re-simulated
     trajectories come back inside the null band; reconciled.toml runs in jaxdefl simulate."""
     plain = tmp_path / "plain.toml"
-    plain.write_text("[recording]\nduration_s = 120.0\n")
+    plain.write_text("[recording]\nduration_s = 90.0\n")
     warm = tmp_path / "warm.toml"
     warm.write_text(plain.read_text() + '\n[[effect]]\nid = "drift"\namplitude_mm = 1.8\ntau_s = 40.0\n')
     run = [sys.executable, "-m", "jaxdefl"]
