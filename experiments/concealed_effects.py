@@ -135,11 +135,18 @@ def _resolve(diagnose: str | Callable) -> Callable:
 
 
 def _blind_call(
-    diagnose: Callable, traj: pd.DataFrame, lds: pd.DataFrame | None, hints: Mapping, held_out: str | None = None
+    diagnose: Callable,
+    traj: pd.DataFrame,
+    lds: pd.DataFrame | None,
+    hints: Mapping,
+    held_out: str | None = None,
+    alpha: float | None = None,
 ) -> dict:
     """The diagnosing call: the tables and a user's hints, nothing from the truth (with a held-out
     effect, the registry without it)."""
-    extra = {"effects": tuple(e for e in EFFECT_IDS if e != held_out)} if held_out else {}
+    extra: dict = {"effects": tuple(e for e in EFFECT_IDS if e != held_out)} if held_out else {}
+    if alpha is not None:  # the family-wise level of the named effects (`diagnose --alpha`)
+        extra["alpha"] = alpha
     return diagnose(
         traj,
         reference=lds,

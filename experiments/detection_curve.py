@@ -143,7 +143,7 @@ def run_one(job: dict, diagnose: str = DIAGNOSE) -> dict:
     hints = {"sensor": rec["sensor"], "frame_rate_hz": rec["frame_rate_hz"]}
     t0 = time.perf_counter()
     try:
-        diag, error = _blind_call(_resolve(diagnose), traj, lds, hints), ""
+        diag, error = _blind_call(_resolve(diagnose), traj, lds, hints, alpha=job.get("alpha")), ""
     except Exception as err:  # a failure is a result of the benchmark
         diag, error = None, f"{type(err).__name__}: {err}"
     return {"job": job, "truth": truth, "diag": _jsonable(diag), "seconds": time.perf_counter() - t0, "error": error}
@@ -279,6 +279,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=31)
     ap.add_argument("--workers", type=int, default=1)
     ap.add_argument("--out", type=Path, default=Path("detection_curve_out"))
+    ap.add_argument(
+        "--alpha", type=float, default=None, help="diagnose's family-wise level (default: `diagnose --alpha`'s)"
+    )
     args = ap.parse_args(argv)
     jobs = []  # the controls first: a false-alarm rate needs them all, a curve can be partial
     for r in range(args.controls):
@@ -290,6 +293,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             for r in range(args.reps):
                 seed = args.seed * 1_000_000 + k * 10_000 + j * 100 + r
                 jobs.append({"effect": eid, "signal": float(s), "seed": seed, "minutes": args.minutes})
+    if args.alpha is not None:
+        for j in jobs:
+            j["alpha"] = args.alpha
     res_dir = args.out / "results"
     res_dir.mkdir(parents=True, exist_ok=True)
 
