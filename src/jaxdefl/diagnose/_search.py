@@ -34,7 +34,7 @@ from threadpoolctl import threadpool_limits
 from .._errors import InputError
 from .._numerics import DELTA_BIC_MAX
 from .._signals import check_interrupt
-from ..effects import quantization
+from ..effects import REGISTRY, quantization
 from ..settings import ALPHA_NAMED, DiagnoseSettings
 from ._base import Context, Proposal, State, loglik, rms_equivalent
 from ._context import build_context
@@ -48,6 +48,11 @@ from .unnamed import MAX_TERMS, UnnamedTerm, apply_term, best_term, colored_gain
 # see the open world's competition in `run_diagnosis`: 2 let a level jump claim an exponential
 # warm-up it explained 84 % of (held-out benchmark), and a step can only tie a generic step
 GENERIC_FIRST_RATIO = 1.1
+# A named effect whose rival (an id of a shared `Entry.footprint`) fits the same residual within
+# this ΔBIC is reported as not told apart from it (6: a Bayes factor of about 20, Kass & Raftery's
+# "strong"). Reported, not acted on: as a rule that withholds the name it cost most of a warm-up's
+# detection on 3-minute records (docs/benchmarks.md, "Rivals: tried and left out").
+RIVAL_MARGIN = 6.0
 
 __all__ = [
     "Diagnosis",
@@ -81,6 +86,8 @@ class Accepted:
     before: dict[int, State]
     lr: float = math.nan
     lr_critical: float = math.nan
+    # rivals of a shared footprint fitted to the same residual (`_rival_margins`)
+    rivals: list[dict] = field(default_factory=list)
 
 
 @dataclass
@@ -271,6 +278,8 @@ class Diagnosis:
                     "explanation": p.explanation,
                     "detail": _jsonable(p.detail),
                     "relevance": rel,
+                    "rivals": a.rivals,
+                    "not_told_from": [r["id"] for r in a.rivals if r["margin"] < RIVAL_MARGIN],
                 }
             )
         # A later effect may refit an earlier one's parameters at no cost (a clock offset and a
@@ -661,6 +670,53 @@ def _flexible_alternative(ctx, states, accepted, dropped, terms, calib, corr, n_
     return states, accepted, terms
 
 
+def _best_rival(ctx, base, effect, corr, n_total) -> float:
+    """The lowest ΔBIC of ``effect`` proposed afresh on ``base`` (refined where its screening is
+    coarse), passing its own test or not: what the rival's shape explains of the same residual."""
+    best = math.inf
+    for p in effect.propose(ctx, base):
+        if not p.series:
+            continue
+        d = _score(ctx, base, p, n_total, corr)[0]
+        if p.refine is not None:
+            q = p.refine()
+            if q is not None:
+                d = min(d, _score(ctx, base, q, n_total, corr)[0])
+        best = min(best, d)
+    return best
+
+
+def _rival_margins(ctx, states, accepted, usable, corr, n_total) -> None:
+    """Each named effect against its rivals (usable ids sharing an `Entry.footprint` tag: a
+    warm-up and a level jump are both a slow change of the mean). The effect's instances are
+    taken out together; each rival is proposed afresh on what they leave; the margin is the
+    rival's ΔBIC there minus the effect's best instance's (rebased onto the same residual):
+    positive when the named shape fits better. Sets ``Accepted.rivals`` (most similar first)."""
+    for eid in dict.fromkeys(a.proposal.effect for a in accepted):
+        tags = set(REGISTRY[eid].footprint) if eid in REGISTRY else set()
+        rivals = [r for r in usable if r != eid and r in REGISTRY and tags & set(REGISTRY[r].footprint)]
+        if not rivals:
+            continue
+        group = [a for a in accepted if a.proposal.effect == eid]
+        base = states
+        for a in group:
+            base = _without(base, a)
+        # instance against proposal, each on what the group leaves: a proposal is one instance
+        # (one axis, say), and a plate's three axes share one noise (the line of sight), so a
+        # group's sum would be discounted once but pay every instance's parameters
+        d_named = min(_score(ctx, base, _rebase(a.proposal, a.before, base), n_total, corr)[0] for a in group)
+        found = []
+        for r in rivals:
+            check_interrupt()
+            d = _best_rival(ctx, base, usable[r], corr, n_total)
+            if math.isfinite(d) and math.isfinite(d_named):
+                shared = sorted(tags & set(REGISTRY[r].footprint))
+                found.append({"id": r, "delta_bic": d, "margin": d - d_named, "footprint": shared})
+        found.sort(key=lambda x: x["margin"])
+        for a in group:
+            a.rivals = found
+
+
 # One BLAS thread: the diagnosis' products are many small GEMMs and dots over one series, where
 # OpenBLAS's threads cost more to wake than they save and, on cores shared with other jobs, spin
 # against them (measured: the whole search twice as slow, drift's screening five times). JAX's
@@ -965,6 +1021,8 @@ def run_diagnosis(
         if why is not None:
             configured.append((a, why))
     accepted = [a for a in accepted if all(a is not c for c, _ in configured)]
+    if accepted:
+        _rival_margins(ctx, states, accepted, usable, corr, n_total)
     if (
         any(a.proposal.effect == quantization.ENTRY.id for a, _ in configured)
         and record.resolution is not None

@@ -277,6 +277,12 @@ class Entry:
             within 25 % of their true values, by the drawn kind
             (`jaxdefl.simulate.effects.primary_parameters`).
         bench: how the concealed benchmark renders its draw (`Bench`).
+        footprint: the shapes the effect leaves on a record's residual that other ids can leave
+            too (a warm-up and a level jump: a slow change of the mean; a crack and a drift of the
+            loading frequency: a change of the frequency). Ids sharing one are rivals: the
+            diagnosis fits each rival of a named effect to the same residual and reports the
+            ΔBIC margin (`jaxdefl.diagnose` RIVAL_MARGIN), so that a name the record cannot tell
+            from another is said to be so.
     """
 
     id: str
@@ -300,6 +306,7 @@ class Entry:
     draw: Callable[[Any], dict] | None = None
     scored: Callable[[str], dict[str, bool]] | None = None
     bench: Bench = field(default_factory=Bench)
+    footprint: tuple[str, ...] = ()
 
     @property
     def injectable(self) -> bool:

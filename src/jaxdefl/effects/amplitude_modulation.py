@@ -65,4 +65,5 @@ ENTRY = Entry(
         {"relative_rate_per_s": True} if kind == "linear" else {"depth": False, "freq_hz": True}
     ),
     bench=Bench(load=bench_load, truth=_truth),
+    footprint=("a change of the amplitude",),
 )

@@ -94,4 +94,5 @@ ENTRY = Entry(
     draw=draw,
     scored=lambda kind: {"rms_mm": False},
     bench=Bench(camera=_camera),
+    footprint=("a slow change of the mean",),
 )

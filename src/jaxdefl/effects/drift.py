@@ -64,4 +64,5 @@ ENTRY = Entry(
     draw=draw,
     scored=lambda kind: {"amplitude_mm": True, "tau_s": True},
     bench=Bench(camera=_camera, truth=_truth),
+    footprint=("a slow change of the mean",),
 )

@@ -66,4 +66,5 @@ ENTRY = Entry(
         {"drift_hz_per_s": True} if kind == "linear" else {"depth_rad": False, "freq_hz": True}
     ),
     bench=Bench(load=bench_load, truth=_truth),
+    footprint=("a change of the loading frequency",),
 )

@@ -56,4 +56,5 @@ ENTRY = Entry(
     draw=draw,
     scored=lambda kind: {"size_mm": True},
     bench=Bench(camera=_camera, truth=_truth),
+    footprint=("a slow change of the mean",),
 )

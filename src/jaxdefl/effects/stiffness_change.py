@@ -91,4 +91,5 @@ ENTRY = Entry(
     draw=draw,
     scored=lambda kind: {"stiffness_change": True, "t_s": True},
     bench=Bench(load=bench_load, truth=_truth),
+    footprint=("a change of the loading frequency", "a change of the amplitude"),
 )

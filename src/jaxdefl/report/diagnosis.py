@@ -96,6 +96,12 @@ def _value(params: dict, name: str):
     return v.get("value") if isinstance(v, dict) else v
 
 
+def _named_with_rivals(e: dict) -> str:
+    """An effect's id, with the rivals the record does not tell it from (`or level_jump`)."""
+    rivals = " or ".join(f"`{r}`" for r in e.get("not_told_from") or [])
+    return f"`{e['id']}`" + (f" (or {rivals})" if rivals else "")
+
+
 @dataclass(frozen=True)
 class Findings:
     """What a diagnosis found, as its report shows it: the summary sentence, the advice and the
@@ -153,7 +159,7 @@ class Findings:
             n = len(self.named)
             parts.append(
                 f"**{n} effect{'s' if n > 1 else ''} located**: "
-                + ", ".join(f"`{e['id']}`" for e in self.named)
+                + ", ".join(_named_with_rivals(e) for e in self.named)
             )
         else:
             parts.append("**No named effect**")
@@ -323,6 +329,13 @@ def diagnosis_markdown(d: dict, figures: list[str]) -> str:
             f"{e['rms_before_mm']:.4f} → {e['rms_after_mm']:.4f} mm",
             "- parameters: " + "; ".join(f"{name} = {_fmt_param(v)}" for name, v in e["parameters"].items()),
         ]
+        if close := [r for r in e.get("rivals", []) if r["id"] in e.get("not_told_from", [])]:
+            lines.append(
+                "- **not told apart** from "
+                + ", ".join(f"`{r['id']}` (ΔBIC margin {r['margin']:.1f})" for r in close)
+                + f" on this record: the same residual fits both within 6 ({close[0]['footprint'][0]}); "
+                "the name is the better fit, not an established one"
+            )
         if fig := next((f for f in figures if f.endswith(f"_{e['id']}.png") and f not in shown), None):
             shown.add(fig)  # figures follow the search's acceptances: matched by the effect's id
             lines += ["", f"![{e['id']}]({fig})"]
@@ -332,7 +345,7 @@ def diagnosis_markdown(d: dict, figures: list[str]) -> str:
         for e in found.minor:
             r = e["relevance"]
             lines.append(
-                f"- `{e['id']}`: {r['residual_share']:.1%} of the residual on its series, "
+                f"- {_named_with_rivals(e)}: {r['residual_share']:.1%} of the residual on its series, "
                 f"{r['size_vs_motion']:.2%} of the motion"
             )
         lines.append("")
