@@ -177,10 +177,13 @@ def effect_reference() -> str:
         "Every id `jaxdefl diagnose` can name (the `id` of an entry of `effects` in DIAG.json): the "
         "sensors that can produce it (on a record of another kind the diagnosis does not name it), "
         "whether the structure itself can make it (else only a measurement does), and whether "
-        "`jaxdefl reconcile` can simulate it as reported. Ids the simulator does not inject are marked.",
+        "`jaxdefl reconcile` can simulate it as reported. Ids the simulator does not inject are marked. "
+        "Ids sharing a footprint are rivals: each rival of a named effect is fitted to the same "
+        "residual, and DIAG.json's `rivals` and `not_told_from` say how far apart they are (see the "
+        "diagnose guide).",
         "",
-        "| id | meaning | sensors | structural | needs an LDS | simulated |",
-        "| --- | --- | --- | --- | --- | --- |",
+        "| id | meaning | sensors | structural | needs an LDS | simulated | footprint |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
     ]
     for eid in EFFECT_IDS:
         entry = REGISTRY[eid]
@@ -188,7 +191,8 @@ def effect_reference() -> str:
         sensors = "any" if set(entry.sensors) == set(SENSORS) else ", ".join(entry.sensors)
         out.append(
             f"| `{eid}` | {_cell(entry.meaning)} | {sensors} "
-            f"| {'yes' if entry.structural else 'no'} | {'yes' if entry.needs_reference else 'no'} | {sim} |"
+            f"| {'yes' if entry.structural else 'no'} | {'yes' if entry.needs_reference else 'no'} | {sim} "
+            f"| {'; '.join(entry.footprint)} |"
         )
     only = [eid for eid in EFFECT_IDS if not REGISTRY[eid].injectable]
     if only:
