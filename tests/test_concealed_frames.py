@@ -23,7 +23,9 @@ ROOT = Path(__file__).resolve().parents[1]
 @pytest.fixture(scope="module")
 def bench():
     sys.path.insert(0, str(ROOT / "experiments"))
-    spec = importlib.util.spec_from_file_location("concealed_frames", ROOT / "experiments" / "concealed_frames.py")
+    spec = importlib.util.spec_from_file_location(
+        "concealed_frames", ROOT / "experiments" / "concealed_frames.py"
+    )
     mod = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(mod)
     return mod
@@ -79,3 +81,43 @@ def test_evidence_is_the_known_form_noncentrality(bench, rho):
     control, effect, d = _tables(rng, n_p, n, 0.8, common)
     s_indep, s_cov = bench.evidence(effect, control)
     assert s_cov < 0.3 * s_indep
+
+
+def test_a_growth_keeps_its_evidence_and_a_frequency_change_has_none():
+    """`reconcile_frames.growth_evidence`: an amplitude growing linearly in phase with the motion
+    is not what the nominal fit absorbs (its frequency change is the quadrature t-term), so its S
+    is Σ Δ² / σ² of the growth less its mean; a change of the frequency alone carries none."""
+    sys.path.insert(0, str(ROOT / "experiments"))
+    spec = importlib.util.spec_from_file_location(
+        "reconcile_frames", ROOT / "experiments" / "reconcile_frames.py"
+    )
+    rf = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(rf)
+    f0 = 3.068
+    rng = np.random.default_rng(4)
+    n, plates = 2400, np.arange(1, 6)
+    t = np.arange(n) / 20.0
+    tc = t - t.mean()
+    arg = 2 * math.pi * f0 * t + 0.7
+
+    def table(extra):
+        rows = []
+        for p in plates:
+            z = 2.0 * np.sin(arg) + extra(p) + rng.standard_normal(n)
+            rows.append(
+                pd.DataFrame(
+                    {"t": t, "plate": p, "x": rng.standard_normal(n), "y": rng.standard_normal(n), "z": z}
+                )
+            )
+        return pd.concat(rows, ignore_index=True)
+
+    control = table(lambda p: 0.0)
+    base = control.copy()
+    growth = 0.2 * tc / np.ptp(tc)  # 10 % of 2 mm over the record
+    grown = base.assign(
+        z=base.z + growth[np.tile(np.arange(n), len(plates))] * np.tile(np.sin(arg), len(plates))
+    )
+    expect = len(plates) * float(np.sum((growth * np.sin(arg)) ** 2))
+    assert rf.growth_evidence(grown, control) == pytest.approx(expect, rel=0.1)
+    chirp = base.assign(z=base.z + np.tile(growth * np.cos(arg), len(plates)))  # as large, in quadrature
+    assert rf.growth_evidence(chirp, control) < 0.02 * expect

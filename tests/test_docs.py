@@ -22,6 +22,7 @@ from conftest import harmonic_table
 from jaxdefl._effect_ids import EFFECT_IDS
 from jaxdefl.cli import main
 from jaxdefl.fit import ESTIMATE_COLUMNS, STATUSES
+from jaxdefl.reconcile.clock import CLOCK_METRICS
 from jaxdefl.reconcile.frames import FRAME_METRICS
 from jaxdefl.reconcile.metrics import METRICS
 from jaxdefl.status import Status
@@ -62,8 +63,8 @@ def test_schema_vocabularies_are_the_codes():
     assert est["properties"]["status"]["enum"] == [s for s in STATUSES if s != Status.ABSENT]
     assert diag["$defs"]["effect_id"]["enum"] == list(EFFECT_IDS)
     levels = rec["properties"]["levels"]["items"]["properties"]
-    assert levels["metric"]["enum"] == [*METRICS, *FRAME_METRICS]
-    assert set(levels["level"]["enum"]) == {*METRICS.values(), "frames"}
+    assert levels["metric"]["enum"] == [*METRICS, *FRAME_METRICS, *CLOCK_METRICS]
+    assert set(levels["level"]["enum"]) == {*METRICS.values(), "frames", "clock"}
 
 
 def test_a_row_outside_the_contract_is_refused():
@@ -161,7 +162,7 @@ def test_a_reconciliation_follows_the_reconcile_schema(tmp_path):
     assert main(args) == 0
     d = json.loads((out / "reconcile.json").read_text())
     assert _errors(_schema("reconcile"), d) == []
-    assert {r["metric"] for r in d["levels"]} == set(METRICS)
+    assert {r["metric"] for r in d["levels"]} == {*METRICS, *CLOCK_METRICS}
     assert any(e["simulated"] and e["injected"]["id"] == e["id"] for e in d["effects"]), d["effects"]
 
 

@@ -287,6 +287,9 @@ def test_reconcile_cli_on_frames_with_a_camera_warm_up(tmp_path):
     frames = {x["metric"]: x for x in d["levels"] if x["level"] == "frames"}
     assert set(frames) == {"range_noise", "valid_share"} and (out / "frames.png").exists()
     assert frames["range_noise"]["before"] <= frames["range_noise"]["null_95"], frames
+    # the clock level: the recording's stamps are the configured camera's clock
+    clock = next(x for x in d["levels"] if x["level"] == "clock")
+    assert clock["metric"] == "clock_jitter" and clock["verdict"] == "agreed already", clock
     again = subprocess.run(
         [*run, "simulate", str(out / "reconciled.toml"), "--out", str(tmp_path / "again"), "--duration", "2"],
         capture_output=True,

@@ -896,6 +896,10 @@ def reconcile_file(
             rec.levels[:0] = frame_levels(
                 open_recording(recording, timestamps=frames_policy), cfg, rec.f0_hz, shown, seed=seed
             )
+    # the clock level: the recording's stamps against the configured camera's clock
+    from .reconcile.clock import clock_levels
+
+    rec.levels.extend(clock_levels(df["t"].to_numpy(), cfg, seed=seed))
     base = Path(config).read_text()
     toml = (
         base.rstrip("\n")

@@ -9,7 +9,7 @@ simulation with the named physics comes back inside the null band.
    (`jaxdefl.reconcile.metrics`, `compare`): *before*.
 3. The null band: ``n_null`` further simulations of the same model, each compared as if it were
    the recording; ``null_95`` is the 95th percentile of those distances, ``null_family`` their
-   1 − 0.05/8 percentile (the band the verdicts use: a recording is judged on 8 metrics at once,
+   1 − 0.05/9 percentile (the band the verdicts use: a recording is judged on 9 metrics at once,
    `metrics.FAMILY`).
 4. The named effects that the simulator can inject become ``[[effect]]`` specs (range effects'
    sizes, lines' and harmonics' mid-span amplitudes and phases refitted to the recording as the

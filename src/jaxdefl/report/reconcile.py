@@ -24,6 +24,7 @@ _MEANING = {
     "envelope": "change of the harmonic over ten windows (modulations)",
     "range_noise": "pixels' short-term range noise against their amplitude",
     "valid_share": "share of valid pixel ranges against amplitude",
+    "clock_jitter": "frame stamps' scatter about the frame clock (ms)",
 }
 
 
@@ -54,6 +55,21 @@ def _frames_lines(rec) -> list[str]:
             "`noise_scale`) to the recording's before reading the other levels.",
         ]
     return out
+
+
+def _clock_lines(rec) -> list[str]:
+    """The clock level in words: the recording's stamp scatter and the configured camera's."""
+    row = next((r for r in rec.levels if r["metric"] == "clock_jitter"), None)
+    if row is None or row.get("recording_ms") is None:
+        return []
+    return [
+        "",
+        f"Clock: the recording's frame stamps scatter by {row['recording_ms']:.3g} ms RMS about its "
+        f"frame clock; the configured camera's by {row['simulation_ms']:.3g} ms "
+        f"(`timestamp_jitter_ms` = {row.get('configured_ms', 0.0):g}). The trajectories cannot show a "
+        "jitter of the instants a frame is taken (the simulation renders the recording's own stamps), "
+        "so it is compared here.",
+    ]
 
 
 def plot_level(rec, level: str):
@@ -140,6 +156,13 @@ _ADVICE = {
         "the camera's pixel range noise is not the configured sensor's: set the config's noise "
         "(`modulation_mhz`, `integration_time_ms`, `noise_scale`) first, it changes every other level",
         "jaxdefl reconcile {rec} --config {out}/reconciled.toml --out {out}_2",
+    ),
+    "clock_jitter": (
+        "the frame stamps scatter about the frame clock more (or less) than the configured camera's "
+        "(`timestamp_jitter_ms`): where the frames were taken at their stamps, set the camera's "
+        "`timestamp_jitter_ms` to the recording's; where they were stamped on delivery, take the "
+        "frame clock instead of the stamps",
+        "jaxdefl reconcile {rec} --config {cfg} --timestamps reclock --out {out}_reclock",
     ),
     "valid_share": (
         "the share of valid pixel ranges differs from the simulated camera's (saturation, low "
@@ -267,7 +290,7 @@ def reconcile_markdown(rec, d: dict, figures: list[str], recording: str, config:
         "distance is the recording's against the simulation's statistics; the null band is the "
         "95th percentile of the same distance between repeated simulations. The effects are those "
         "the diagnosis names (`jaxdefl diagnose`). The verdict reads the family band, the "
-        "1 − 0.05/8 percentile of the same distances: a recording is judged on 8 metrics at once, "
+        "1 − 0.05/9 percentile of the same distances: a recording is judged on 9 metrics at once, "
         "and at each one's 95th percentile a recording of the simulated model itself would lie "
         "outside one of them a third of the time. *After* is read against the reconciled "
         "simulation's own family band (the same percentile of the distances between its repeated "
@@ -285,6 +308,7 @@ def reconcile_markdown(rec, d: dict, figures: list[str], recording: str, config:
             f"{r['verdict']} |"
         )
     lines += _frames_lines(rec)
+    lines += _clock_lines(rec)
     lines += ["", "## Physics named by the diagnosis", ""]
     if not found.named:
         lines.append(
