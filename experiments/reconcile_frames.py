@@ -18,9 +18,11 @@ noise (`concealed_frames.simulate_extract`):
   can see it), ``noisier`` (a camera 1.6× noisier than configured), ``growth`` (the amplitude
   grows linearly over the record: a fatigue law steeper than the config's;
   ``amplitude_modulation`` linear is its equivalent name), ``multipath`` (ten times the
-  configured scattering). ``growth`` is sized as the registry effects are, S = 25-225 drawn
+  configured scattering). ``growth`` is sized as the registry effects are, S_cov = 25-225 drawn
   log-uniformly (`growth_evidence`: a pilot growing 3.9 % over the record, S ∝ growth²); the
-  fixed 3.9 % of earlier runs carries S ≈ 5 on these recordings, below any detection;
+  fixed 3.9 % of earlier runs carries S ≈ 5 on these recordings, below any detection. A sized
+  recording whose S is off its target by more than `RESIZE` (the pilot's S was the extraction's
+  own differences more than the effect's) is scaled once more from its own S;
 - ``--controls N`` more controls of their own seeds.
 
 Every recording is reconciled with `jaxdefl.pipeline.reconcile_file` against the unchanged
@@ -89,6 +91,8 @@ OUTSIDE = {
 }
 
 
+# a sized recording whose measured S is off its target by more than this factor is sized again
+RESIZE = (0.6, 1.6)
 GROWTH_UNIT = (2.32, 2.41)  # the pilot's fatigue anchors (mm) over the record's 368 cycles
 
 
@@ -99,18 +103,21 @@ def growth_edit(a1: float) -> tuple[str, str]:
     return old, new.replace(unit, f"amplitude_mm = [2.32, {a1:.6f}]")
 
 
-def growth_evidence(effect: pd.DataFrame, control: pd.DataFrame) -> float:
-    """S (series taken as independent) of an amplitude growth: per plate and axis, the
-    difference from the control less what the nominal model absorbs (offset, the harmonic, and
-    the change of its frequency: t times the quadrature of the control's fitted harmonic), over
-    the control's residual variance. The concealed set's `evidence` takes out both t-terms (its
-    design is the same for every series), and with them the growth itself."""
+def growth_evidence(effect: pd.DataFrame, control: pd.DataFrame) -> tuple[float, float]:
+    """(S, S_cov) of an amplitude growth, as `concealed_frames.evidence` (S: the series taken as
+    independent; S_cov: under the noise's covariance across plates and axes at a frame, the
+    figure the set sizes by), per plate and axis of the difference from the control less what
+    the nominal model absorbs: offset, the harmonic, and the change of its frequency (t times
+    the quadrature of the control's fitted harmonic). The concealed set's `evidence` takes out
+    both t-terms (its design is the same for every series), and with them the growth itself."""
     from concealed_frames import F0
 
     m = control.merge(effect, on=["t", "plate"], suffixes=("_c", "_e"))
-    s = 0.0
+    t = np.sort(m.t.unique())
+    rc_cols, rd_cols, s = [], [], 0.0
     for _, g in m.groupby("plate"):
-        tc = g.t.to_numpy() - g.t.mean()
+        rows = np.searchsorted(t, g.t.to_numpy())
+        tc = g.t.to_numpy() - t.mean()
         w = 2 * math.pi * F0 * tc
         base = np.column_stack([np.ones_like(tc), np.cos(w), np.sin(w)])
         for ax in ("x", "y", "z"):
@@ -121,7 +128,15 @@ def growth_evidence(effect: pd.DataFrame, control: pd.DataFrame) -> float:
             rc = c - x @ np.linalg.lstsq(x, c, rcond=None)[0]
             rd = d - x @ np.linalg.lstsq(x, d, rcond=None)[0]
             s += float(np.sum(rd**2) / np.var(rc))
-    return s
+            full_c, full_d = np.full(len(t), np.nan), np.full(len(t), np.nan)
+            full_c[rows], full_d[rows] = rc, rd
+            rc_cols.append(full_c)
+            rd_cols.append(full_d)
+    rc, rd = np.column_stack(rc_cols), np.column_stack(rd_cols)
+    ok = np.isfinite(rc).all(axis=1)
+    cov = np.cov(rc[ok], rowvar=False)
+    s_cov = float(np.einsum("ti,ij,tj->", rd[ok], np.linalg.inv(cov), rd[ok]))
+    return s, s_cov * len(t) / max(ok.sum(), 1)
 
 
 def write_config(work: Path, name: str, edit: tuple[str, str] | None) -> Path:
@@ -251,9 +266,15 @@ def main(argv=None):
                 t0 = time.perf_counter()
                 pilot = simulate_extract(work, f"{eid}_pilot", seed, args.seconds, {"id": eid, **unit})
                 s1 = evidence(pilot, control)[1]
-                eff = {"id": eid, **unit, SIZE[eid]: unit[SIZE[eid]] * math.sqrt(target / s1)}
-                df = simulate_extract(work, eid, seed, args.seconds, eff)
+                size = unit[SIZE[eid]] * math.sqrt(target / s1)
+                df = simulate_extract(work, eid, seed, args.seconds, {"id": eid, **unit, SIZE[eid]: size})
                 signal = evidence(df, control)[1]
+                if not RESIZE[0] <= signal / target <= RESIZE[1]:
+                    # the pilot's S was the extraction's own differences more than the effect's
+                    # (a small unit): scaled once more from the sized recording's S
+                    size *= math.sqrt(target / max(signal, 1e-9))
+                    df = simulate_extract(work, eid, seed, args.seconds, {"id": eid, **unit, SIZE[eid]: size})
+                    signal = evidence(df, control)[1]
 
                 def effect_verdict(d, s, eid=eid):
                     carrier = next(r for r in d["levels"] if r["metric"] == CARRIER[eid])
@@ -284,13 +305,19 @@ def main(argv=None):
                     pilot_cfg = write_config(work, "growth_pilot", edit)
                     pz = simulate_with(work, "growth_pilot", seed, args.seconds, pilot_cfg)
                     pilot = extract_recording(open_recording(pz), realtime=True, progress=False)
-                    s1 = growth_evidence(pilot, control)
-                    a1 = GROWTH_UNIT[0] + (GROWTH_UNIT[1] - GROWTH_UNIT[0]) * math.sqrt(target / s1)
-                    edit = growth_edit(a1)
+                    s1 = growth_evidence(pilot, control)[1]
+                    growth = (GROWTH_UNIT[1] - GROWTH_UNIT[0]) * math.sqrt(target / s1)
+                    edit = growth_edit(GROWTH_UNIT[0] + growth)
                 zarr = simulate_with(work, kind, seed, args.seconds, write_config(work, kind, edit))
                 if kind == "growth":
                     df = extract_recording(open_recording(zarr), realtime=True, progress=False)
-                    signal = growth_evidence(df, control)
+                    signal = growth_evidence(df, control)[1]
+                    if not RESIZE[0] <= signal / target <= RESIZE[1]:  # as the registry effects
+                        growth *= math.sqrt(target / max(signal, 1e-9))
+                        edit = growth_edit(GROWTH_UNIT[0] + growth)
+                        zarr = simulate_with(work, kind, seed, args.seconds, write_config(work, kind, edit))
+                        df = extract_recording(open_recording(zarr), realtime=True, progress=False)
+                        signal = growth_evidence(df, control)[1]
 
                 def outside_verdict(d, s, equivalent=equivalent):
                     false = [n for n in s["names"].split(",") if n and n != equivalent]
