@@ -50,10 +50,11 @@ from .unnamed import MAX_TERMS, UnnamedTerm, apply_term, best_term, colored_gain
 GENERIC_FIRST_RATIO = 1.1
 # A named effect whose rival (an id of a shared `Entry.footprint`) fits the same residual within
 # this ΔBIC is reported as not told apart from it (6: a Bayes factor of about 20, Kass & Raftery's
-# "strong"). The same holds for the fit alone (2 Δlog L, the parameters not counted): a name that
-# wins only by having fewer parameters is the simpler description, not one the data establish
-# (a small crack's new frequency and a frequency drift fit a 3-minute record alike, and the drift
-# is one parameter cheaper). Reported, not acted on: as a rule that withholds the name it cost most
+# "strong"), and within it by AIC (a parameter costs 2 instead of BIC's ln n: what an extra
+# parameter gains on noise alone, twice): a name told apart by BIC alone wins by its parameter
+# count, a prior's verdict, not the data's (a small crack's new frequency and a frequency drift
+# fit a 3-minute record alike, and the drift is one parameter cheaper: ln n ≈ 10.5 of BIC's
+# margin). Reported, not acted on: as a rule that withholds the name it cost most
 # of a warm-up's detection on 3-minute records (docs/benchmarks.md, "Rivals: tried and left out").
 RIVAL_MARGIN = 6.0
 
@@ -283,7 +284,7 @@ class Diagnosis:
                     "relevance": rel,
                     "rivals": a.rivals,
                     "not_told_from": [
-                        r["id"] for r in a.rivals if min(r["margin"], r["fit_margin"]) < RIVAL_MARGIN
+                        r["id"] for r in a.rivals if min(r["margin"], r["aic_margin"]) < RIVAL_MARGIN
                     ],
                 }
             )
@@ -697,9 +698,8 @@ def _rival_margins(ctx, states, accepted, usable, corr, n_total) -> None:
     warm-up and a level jump are both a slow change of the mean). The effect's instances are
     taken out together; each rival is proposed afresh on what they leave; the margin is the
     rival's ΔBIC there minus the effect's best instance's (rebased onto the same residual):
-    positive when the named shape fits better; ``fit_margin`` the same without the parameters'
-    cost (the difference of 2 Δlog L: positive when the named shape fits the data better, not
-    only more cheaply). Sets ``Accepted.rivals`` (most similar first)."""
+    positive when the named shape fits better; ``aic_margin`` the same with AIC's cost of a
+    parameter (2) for BIC's (ln n). Sets ``Accepted.rivals`` (most similar first)."""
     for eid in dict.fromkeys(a.proposal.effect for a in accepted):
         tags = set(REGISTRY[eid].footprint) if eid in REGISTRY else set()
         rivals = [r for r in usable if r != eid and r in REGISTRY and tags & set(REGISTRY[r].footprint)]
@@ -724,8 +724,8 @@ def _rival_margins(ctx, states, accepted, usable, corr, n_total) -> None:
             if math.isfinite(d) and math.isfinite(d_named):
                 shared = sorted(tags & set(REGISTRY[r].footprint))
                 margin = d - d_named
-                fit = margin - (k - k_named) * math.log(n_total)
-                found.append({"id": r, "delta_bic": d, "margin": margin, "fit_margin": fit, "footprint": shared})
+                aic = margin - (k - k_named) * (math.log(n_total) - 2.0)
+                found.append({"id": r, "delta_bic": d, "margin": margin, "aic_margin": aic, "footprint": shared})
         found.sort(key=lambda x: x["margin"])
         for a in group:
             a.rivals = found
