@@ -50,8 +50,12 @@ from .unnamed import MAX_TERMS, UnnamedTerm, apply_term, best_term, colored_gain
 GENERIC_FIRST_RATIO = 1.1
 # A named effect whose rival (an id of a shared `Entry.footprint`) fits the same residual within
 # this ΔBIC is reported as not told apart from it (6: a Bayes factor of about 20, Kass & Raftery's
-# "strong"). Reported, not acted on: as a rule that withholds the name it cost most of a warm-up's
-# detection on 3-minute records (docs/benchmarks.md, "Rivals: tried and left out").
+# "strong"), and within it by AIC (a parameter costs 2 instead of BIC's ln n: what an extra
+# parameter gains on noise alone, twice): a name told apart by BIC alone wins by its parameter
+# count, a prior's verdict, not the data's (a small crack's new frequency and a frequency drift
+# fit a 3-minute record alike, and the drift is one parameter cheaper: ln n ≈ 10.5 of BIC's
+# margin). Reported, not acted on: as a rule that withholds the name it cost most
+# of a warm-up's detection on 3-minute records (docs/benchmarks.md, "Rivals: tried and left out").
 RIVAL_MARGIN = 6.0
 
 __all__ = [
@@ -279,7 +283,9 @@ class Diagnosis:
                     "detail": _jsonable(p.detail),
                     "relevance": rel,
                     "rivals": a.rivals,
-                    "not_told_from": [r["id"] for r in a.rivals if r["margin"] < RIVAL_MARGIN],
+                    "not_told_from": [
+                        r["id"] for r in a.rivals if min(r["margin"], r["aic_margin"]) < RIVAL_MARGIN
+                    ],
                 }
             )
         # A later effect may refit an earlier one's parameters at no cost (a clock offset and a
@@ -670,20 +676,21 @@ def _flexible_alternative(ctx, states, accepted, dropped, terms, calib, corr, n_
     return states, accepted, terms
 
 
-def _best_rival(ctx, base, effect, corr, n_total) -> float:
-    """The lowest ΔBIC of ``effect`` proposed afresh on ``base`` (refined where its screening is
-    coarse), passing its own test or not: what the rival's shape explains of the same residual."""
-    best = math.inf
+def _best_rival(ctx, base, effect, corr, n_total) -> tuple[float, int]:
+    """(ΔBIC, parameters) of ``effect``'s best proposal afresh on ``base`` (refined where its
+    screening is coarse), passing its own test or not: what the rival's shape explains of the
+    same residual."""
+    best, k = math.inf, 0
     for p in effect.propose(ctx, base):
         if not p.series:
             continue
-        d = _score(ctx, base, p, n_total, corr)[0]
-        if p.refine is not None:
-            q = p.refine()
-            if q is not None:
-                d = min(d, _score(ctx, base, q, n_total, corr)[0])
-        best = min(best, d)
-    return best
+        for q in (p, p.refine() if p.refine is not None else None):
+            if q is None:
+                continue
+            d = _score(ctx, base, q, n_total, corr)[0]
+            if d < best:
+                best, k = d, int(q.n_params)
+    return best, k
 
 
 def _rival_margins(ctx, states, accepted, usable, corr, n_total) -> None:
@@ -691,7 +698,8 @@ def _rival_margins(ctx, states, accepted, usable, corr, n_total) -> None:
     warm-up and a level jump are both a slow change of the mean). The effect's instances are
     taken out together; each rival is proposed afresh on what they leave; the margin is the
     rival's ΔBIC there minus the effect's best instance's (rebased onto the same residual):
-    positive when the named shape fits better. Sets ``Accepted.rivals`` (most similar first)."""
+    positive when the named shape fits better; ``aic_margin`` the same with AIC's cost of a
+    parameter (2) for BIC's (ln n). Sets ``Accepted.rivals`` (most similar first)."""
     for eid in dict.fromkeys(a.proposal.effect for a in accepted):
         tags = set(REGISTRY[eid].footprint) if eid in REGISTRY else set()
         rivals = [r for r in usable if r != eid and r in REGISTRY and tags & set(REGISTRY[r].footprint)]
@@ -704,14 +712,20 @@ def _rival_margins(ctx, states, accepted, usable, corr, n_total) -> None:
         # instance against proposal, each on what the group leaves: a proposal is one instance
         # (one axis, say), and a plate's three axes share one noise (the line of sight), so a
         # group's sum would be discounted once but pay every instance's parameters
-        d_named = min(_score(ctx, base, _rebase(a.proposal, a.before, base), n_total, corr)[0] for a in group)
+        scored = []
+        for a in group:
+            q = _rebase(a.proposal, a.before, base)
+            scored.append((_score(ctx, base, q, n_total, corr)[0], int(q.n_params)))
+        d_named, k_named = min(scored)
         found = []
         for r in rivals:
             check_interrupt()
-            d = _best_rival(ctx, base, usable[r], corr, n_total)
+            d, k = _best_rival(ctx, base, usable[r], corr, n_total)
             if math.isfinite(d) and math.isfinite(d_named):
                 shared = sorted(tags & set(REGISTRY[r].footprint))
-                found.append({"id": r, "delta_bic": d, "margin": d - d_named, "footprint": shared})
+                margin = d - d_named
+                aic = margin - (k - k_named) * (math.log(n_total) - 2.0)
+                found.append({"id": r, "delta_bic": d, "margin": margin, "aic_margin": aic, "footprint": shared})
         found.sort(key=lambda x: x["margin"])
         for a in group:
             a.rivals = found

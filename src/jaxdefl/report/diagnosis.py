@@ -332,9 +332,12 @@ def diagnosis_markdown(d: dict, figures: list[str]) -> str:
         if close := [r for r in e.get("rivals", []) if r["id"] in e.get("not_told_from", [])]:
             lines.append(
                 "- **not told apart** from "
-                + ", ".join(f"`{r['id']}` (ΔBIC margin {r['margin']:.1f})" for r in close)
-                + f" on this record: the same residual fits both within 6 ({close[0]['footprint'][0]}); "
-                "the name is the better fit, not an established one"
+                + ", ".join(
+                    f"`{r['id']}` (ΔBIC margin {r['margin']:.1f}, AIC margin {r.get('aic_margin', r['margin']):.1f})"
+                    for r in close
+                )
+                + f" on this record: the same residual fits both within 6 ({close[0]['footprint'][0]}), "
+                "by ΔBIC or by AIC; the name is the better description, not an established one"
             )
         if fig := next((f for f in figures if f.endswith(f"_{e['id']}.png") and f not in shown), None):
             shown.add(fig)  # figures follow the search's acceptances: matched by the effect's id
