@@ -341,6 +341,12 @@ def elapsed(e, t_rel: np.ndarray) -> np.ndarray:
     return np.clip(np.minimum(t_rel, end) - e.p("t_s"), 0.0, None)
 
 
+# a periodic modulation (of the amplitude or the frequency) completes at least this many cycles in
+# a record: fewer is a trend of the envelope, not a periodic one. The detectors' band starts at
+# MODULATION_MIN_CYCLES / duration (`jaxdefl.diagnose.detectors._modulation.modulation_band`) and
+# the benchmark draws no slower one.
+MODULATION_MIN_CYCLES = 2.0
+
 WHEN = (Param("t_s", "s after the recording start"), Param("duration_s", "s (0: to the end)", 0.0))
 PHASE = Param("phase_rad", "rad", 0.0)
 

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from ._entry import Bench, Entry, Motion, Report, bench_load, modulation_params
+from ._entry import MODULATION_MIN_CYCLES, Bench, Entry, Motion, Report, bench_load, modulation_params
 
 
 def inject(e, m: Motion):
@@ -30,13 +30,15 @@ def from_diagnosis(r: Report) -> tuple[dict, tuple[int, ...]]:
 
 
 def draw(b) -> dict:
-    """The benchmark's envelope: linear about the middle or sinusoidal (5-50 mHz), within ±25 %."""
+    """The benchmark's envelope: linear about the middle or sinusoidal (5-50 mHz, and at least
+    `MODULATION_MIN_CYCLES` cycles in the record: the detector's band starts there), within ±25 %."""
     rng = b.rng
     if rng.random() < 0.5:
         e = dict(kind="linear", parameters={"relative_rate_per_s": float(rng.choice([-1.0, 1.0])) * 1e-4})
         key, bound = "relative_rate_per_s", 0.25 / (0.5 * b.base.duration)
     else:
-        pars = {"depth": 0.05, "freq_hz": round(b.loguniform(0.005, 0.05), 5), "phase_rad": b.psi}
+        lo = max(0.005, MODULATION_MIN_CYCLES / b.base.duration)
+        pars = {"depth": 0.05, "freq_hz": round(b.loguniform(lo, max(lo, 0.05)), 5), "phase_rad": b.psi}
         e = dict(kind="sinusoidal", parameters=pars)
         key, bound = "depth", 0.25
     e |= dict(plates=b.everyone, axes=["z", "x"])

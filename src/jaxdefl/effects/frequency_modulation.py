@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from ._entry import Bench, Entry, Motion, Report, bench_load, modulation_params
+from ._entry import MODULATION_MIN_CYCLES, Bench, Entry, Motion, Report, bench_load, modulation_params
 
 
 def inject(e, m: Motion):
@@ -32,13 +32,15 @@ def from_diagnosis(r: Report) -> tuple[dict, tuple[int, ...]]:
 
 def draw(b) -> dict:
     """The benchmark's frequency: a linear drift about the middle or a sinusoidal wobble
-    (5-50 mHz, within 0.5 rad)."""
+    (5-50 mHz, and at least `MODULATION_MIN_CYCLES` cycles in the record: the detector's band starts there;
+    within 0.5 rad)."""
     rng = b.rng
     if rng.random() < 0.5:
         e = dict(kind="linear", parameters={"drift_hz_per_s": float(rng.choice([-1.0, 1.0])) * 1e-7})
         key, bounds = "drift_hz_per_s", (0.0, math.inf)
     else:
-        pars = {"depth_rad": 0.05, "freq_hz": round(b.loguniform(0.005, 0.05), 5), "phase_rad": b.psi}
+        lo = max(0.005, MODULATION_MIN_CYCLES / b.base.duration)
+        pars = {"depth_rad": 0.05, "freq_hz": round(b.loguniform(lo, max(lo, 0.05)), 5), "phase_rad": b.psi}
         e = dict(kind="sinusoidal", parameters=pars)
         key, bounds = "depth_rad", (0.0, 0.5)
     e |= dict(plates=b.everyone, axes=list(b.axes))

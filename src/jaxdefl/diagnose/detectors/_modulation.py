@@ -17,6 +17,7 @@ import math
 import numpy as np
 
 from ..._numerics import P_MAX
+from ...effects._entry import MODULATION_MIN_CYCLES
 from .._base import Context, Detector, Proposal, State
 from .shared_fits import Carriers, chi2_p_value, one_sided, param, scan_p_value
 
@@ -27,8 +28,9 @@ KINDS = 2
 
 
 def modulation_band(ctx: Context) -> tuple[float, float]:
-    """Modulation frequencies scanned: from 2/duration to 0.2 Hz (and well below f0)."""
-    return 2.0 / ctx.duration_s, min(F_MAX_HZ, ctx.f0_hz / 4)
+    """Modulation frequencies scanned: from `MODULATION_MIN_CYCLES` (2) cycles in the record to
+    0.2 Hz (and well below f0)."""
+    return MODULATION_MIN_CYCLES / ctx.duration_s, min(F_MAX_HZ, ctx.f0_hz / 4)
 
 
 class ModulationEffect(Detector):
