@@ -600,24 +600,59 @@ def _backward(ctx, states, accepted, dropped, calib, corr, n_total, usable):
             return states, accepted
 
 
-def _passes_afresh(ctx, states, effect, calib, corr, n_total) -> tuple[bool, float]:
+def _passes_afresh(ctx, states, effect, calib, corr, n_total) -> tuple[bool, float, float]:
     """Does the effect, proposed afresh on ``states`` (refined where its screening is coarse),
-    pass its test? (passes, the best statistic seen)."""
-    best = 0.0
+    pass its test? (passes, the best statistic seen, that proposal's critical value)."""
+    best, crit = 0.0, math.inf
     for p in effect.propose(ctx, states):
         if not p.series:
             continue
-        _, r0, r1, lr = _score(ctx, states, p, n_total, corr)
-        ok = calib.passes(p, lr, r0, r1)
-        if not ok and p.refine is not None:
-            q = p.refine()
-            if q is not None:
-                _, r0, r1, lr2 = _score(ctx, states, q, n_total, corr)
-                ok, lr = calib.passes(q, lr2, r0, r1), max(lr, lr2)
-        best = max(best, lr)
-        if ok:
-            return True, lr
-    return False, best
+        q = p
+        for refined in (False, True):
+            if refined:  # refined only where the screening's proposal fails
+                q = p.refine() if p.refine is not None else None
+                if q is None:
+                    break
+            _, r0, r1, lr = _score(ctx, states, q, n_total, corr)
+            if calib.passes(q, lr, r0, r1):
+                return True, lr, calib.critical(q)
+            if lr > best:
+                best, crit = lr, calib.critical(q)
+    return False, best, crit
+
+
+def _events(ctx, eid: str, group: list[Accepted]) -> int:
+    """How many events the accepted instances of one effect are. A range effect or a knock is
+    seen on a plate's three axes (the centroid moves along its line of sight) and may be named on
+    each: instances on different axes that share at least half of the smaller one's plates and
+    whose locators agree within its resolution (`Entry.locator`: a jump's time) are one event."""
+    loc = REGISTRY[eid].locator if eid in REGISTRY else None
+
+    def where(a):
+        plates = {ctx.series[i].plate for i in a.proposal.series}
+        axes = {ctx.series[i].axis for i in a.proposal.series}
+        x = None
+        if loc is not None:
+            v = a.proposal.parameters.get(loc[0])
+            x = v.get("value") if isinstance(v, dict) else v
+        return plates, axes, x
+
+    events: list[list[tuple]] = []
+    for a in group:
+        w = where(a)
+        for ev in events:
+            if all(
+                not (w[1] & o[1])
+                and len(w[0] & o[0]) >= 0.5 * min(len(w[0]), len(o[0]))
+                and (w[2] is None) == (o[2] is None)
+                and (w[2] is None or abs(w[2] - o[2]) <= loc[1])
+                for o in ev
+            ):
+                ev.append(w)
+                break
+        else:
+            events.append([w])
+    return len(events)
 
 
 def _flexible_alternative(ctx, states, accepted, dropped, terms, calib, corr, n_total, library, bases):
@@ -627,12 +662,17 @@ def _flexible_alternative(ctx, states, accepted, dropped, terms, calib, corr, n_
     and they stay when they explain as much as that term (within GENERIC_FIRST_RATIO, as in the
     forward competition: a warm-up's exponential against a spline) or when the effect, proposed
     afresh given the term, still passes its test. Otherwise the generic term takes their place.
-    Returns (states, accepted, terms)."""
+    One event named on several axes (`_events`: a warm-up on a plate's x, y and z) is one
+    instance here: each met the generic term when it was chosen, and their sum, discounted once
+    for the axes' shared noise, would pay every instance's parameters. Returns (states, accepted,
+    terms)."""
     for eid in list(dict.fromkeys(a.proposal.effect for a in accepted)):
         group = [a for a in accepted if a.proposal.effect == eid]
         # one instance met the best generic term when it was chosen (the forward competition,
         # GENERIC_FIRST_RATIO); several (jumps) never met one generic term together
         if len(group) < 2 or library[eid].noise_structure or len(terms) >= MAX_TERMS:
+            continue
+        if _events(ctx, eid, group) < 2:
             continue
         base = states
         for a in group:
@@ -656,17 +696,22 @@ def _flexible_alternative(ctx, states, accepted, dropped, terms, calib, corr, n_
         if not generic[0] < GENERIC_FIRST_RATIO * d_named:
             continue
         term, alt = apply_term(ctx, base, generic, corr)
-        kept, lr = _passes_afresh(ctx, alt, library[eid], calib, corr, n_total)
+        kept, lr, crit = _passes_afresh(ctx, alt, library[eid], calib, corr, n_total)
         if kept:
             continue
-        for a in group:
+        why = (
+            f"its best statistic is {lr:.1f}, below the critical {crit:.1f}"
+            if lr <= crit
+            else f"its best statistic, {lr:.1f} against the critical {crit:.1f}, fails its signature "
+            "test or does not lower the RMS"
+        )
+        for _a in group:
             dropped.append(
                 Dropped(
                     eid,
-                    f"an unnamed {term.kind} explains the same residual: given it, the effect's best "
-                    f"statistic is {lr:.1f}, below the critical {a.lr_critical:.1f}",
+                    f"an unnamed {term.kind} explains the same residual: given it, {why}",
                     lr,
-                    a.lr_critical,
+                    crit,
                     f"unnamed {term.kind}",
                 )
             )
@@ -725,7 +770,9 @@ def _rival_margins(ctx, states, accepted, usable, corr, n_total) -> None:
                 shared = sorted(tags & set(REGISTRY[r].footprint))
                 margin = d - d_named
                 aic = margin - (k - k_named) * (math.log(n_total) - 2.0)
-                found.append({"id": r, "delta_bic": d, "margin": margin, "aic_margin": aic, "footprint": shared})
+                found.append(
+                    {"id": r, "delta_bic": d, "margin": margin, "aic_margin": aic, "footprint": shared}
+                )
         found.sort(key=lambda x: x["margin"])
         for a in group:
             a.rivals = found
