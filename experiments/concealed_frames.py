@@ -165,15 +165,27 @@ def evidence(effect: pd.DataFrame, control: pd.DataFrame) -> tuple[float, float]
             rc = c - Xg @ np.linalg.lstsq(Xg, c, rcond=None)[0]
             rd = d - Xg @ np.linalg.lstsq(Xg, d, rcond=None)[0]
             s += float(np.sum(rd**2) / np.var(rc))
-            full_c, full_d = np.full(len(t), np.nan), np.full(len(t), np.nan)
-            full_c[rows], full_d[rows] = rc, rd
-            rc_cols.append(full_c)
-            rd_cols.append(full_d)
+            add_series(rc_cols, rd_cols, len(t), rows, rc, rd)
+    return s, covariance_evidence(rc_cols, rd_cols)
+
+
+def add_series(rc_cols: list, rd_cols: list, n_frames: int, rows, rc, rd) -> None:
+    """Append one series' control residual ``rc`` and effect footprint ``rd`` at frame
+    positions ``rows`` as full columns (NaN where the plate was not found)."""
+    full_c, full_d = np.full(n_frames, np.nan), np.full(n_frames, np.nan)
+    full_c[rows], full_d[rows] = rc, rd
+    rc_cols.append(full_c)
+    rd_cols.append(full_d)
+
+
+def covariance_evidence(rc_cols: list, rd_cols: list) -> float:
+    """Σ_t r_tᵀ Σ⁻¹ r_t of the footprint columns under the control residuals' covariance across
+    series (frames where every series was found), scaled to all frames."""
     rc, rd = np.column_stack(rc_cols), np.column_stack(rd_cols)
     ok = np.isfinite(rc).all(axis=1)
     cov = np.cov(rc[ok], rowvar=False)
     s_cov = float(np.einsum("ti,ij,tj->", rd[ok], np.linalg.inv(cov), rd[ok]))
-    return s, s_cov * len(t) / max(ok.sum(), 1)
+    return s_cov * len(rc) / max(ok.sum(), 1)
 
 
 def diagnose_blind(df: pd.DataFrame, held_out: str | None) -> dict:

@@ -60,7 +60,15 @@ import numpy as np
 import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from concealed_frames import CONFIG, SIZE, draw_unit, evidence, simulate_extract  # noqa: E402
+from concealed_frames import (  # noqa: E402
+    CONFIG,
+    SIZE,
+    add_series,
+    covariance_evidence,
+    draw_unit,
+    evidence,
+    simulate_extract,
+)
 
 from jaxdefl.frames import extract_recording  # noqa: E402
 from jaxdefl.io.recording import open_recording  # noqa: E402
@@ -128,15 +136,8 @@ def growth_evidence(effect: pd.DataFrame, control: pd.DataFrame) -> tuple[float,
             rc = c - x @ np.linalg.lstsq(x, c, rcond=None)[0]
             rd = d - x @ np.linalg.lstsq(x, d, rcond=None)[0]
             s += float(np.sum(rd**2) / np.var(rc))
-            full_c, full_d = np.full(len(t), np.nan), np.full(len(t), np.nan)
-            full_c[rows], full_d[rows] = rc, rd
-            rc_cols.append(full_c)
-            rd_cols.append(full_d)
-    rc, rd = np.column_stack(rc_cols), np.column_stack(rd_cols)
-    ok = np.isfinite(rc).all(axis=1)
-    cov = np.cov(rc[ok], rowvar=False)
-    s_cov = float(np.einsum("ti,ij,tj->", rd[ok], np.linalg.inv(cov), rd[ok]))
-    return s, s_cov * len(t) / max(ok.sum(), 1)
+            add_series(rc_cols, rd_cols, len(t), rows, rc, rd)
+    return s, covariance_evidence(rc_cols, rd_cols)
 
 
 def write_config(work: Path, name: str, edit: tuple[str, str] | None) -> Path:
