@@ -655,6 +655,43 @@ def _events(ctx, eid: str, group: list[Accepted]) -> int:
     return len(events)
 
 
+def _repeats(ctx, p: Proposal, accepted: list[Accepted]) -> bool:
+    """Whether ``p`` is an accepted instance again: the same id with a locator (`Entry.locator`:
+    a mode's number, a jump's time, a line's frequency), on an axis and plates it shares, located
+    within the locator's resolution and, for a line or a mode, at the same frequency (within the
+    record's frequency resolution). One mode has one amplitude and phase over the span: two
+    instances of mode 3 at one frequency on overlapping plates, with opposite signs, stood in for
+    one line in the load's shape (frame-level seed 417)."""
+    loc = REGISTRY[p.effect].locator if p.effect in REGISTRY else None
+    if loc is None:
+        return False
+
+    def value(q, name):
+        v = q.parameters.get(name)
+        v = v.get("value") if isinstance(v, dict) else v
+        return None if v is None else float(v)
+
+    plates = {ctx.series[i].plate for i in p.series}
+    axes = {ctx.series[i].axis for i in p.series}
+    df = 1.0 / max(ctx.duration_s, 1e-9)
+    for a in accepted:
+        q = a.proposal
+        if q.effect != p.effect:
+            continue
+        if not (axes & {ctx.series[i].axis for i in q.series}) or not (
+            plates & {ctx.series[i].plate for i in q.series}
+        ):
+            continue
+        x, y = value(p, loc[0]), value(q, loc[0])
+        if x is None or y is None or abs(x - y) > loc[1]:
+            continue
+        f, g = value(p, "freq_hz"), value(q, "freq_hz")
+        if f is not None and g is not None and abs(f - g) > df:
+            continue
+        return True
+    return False
+
+
 def _flexible_alternative(ctx, states, accepted, dropped, terms, calib, corr, n_total, library, bases):
     """A named mean effect must beat its flexible unnamed alternative on the same residual: all
     the accepted instances of an effect (several level jumps) are taken out together, the best
@@ -948,6 +985,8 @@ def run_diagnosis(
             if not current(eid):
                 screen(eid)  # propose again on the current states: the exact proposal
             for p, _ in sorted(cache[eid], key=lambda x: _score(ctx, states, x[0], n_total, corr)[0]):
+                if _repeats(ctx, p, accepted):
+                    continue
                 d, r0, r1, lr = _score(ctx, states, p, n_total, corr)
                 if not calib.passes(p, lr, r0, r1):
                     continue
