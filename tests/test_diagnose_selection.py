@@ -393,3 +393,33 @@ def test_one_event_named_on_several_axes_is_one_instance_for_the_flexible_altern
         d["effects"],
         d["dropped"],
     )
+
+
+def test_an_accepted_instance_is_not_proposed_again():
+    # frame-level seed 417: a line in the load's shape on z was named as two mode-3 instances at
+    # one frequency, on overlapping plates and with opposite signs; one mode has one amplitude
+    from types import SimpleNamespace
+
+    from jaxdefl.diagnose._search import _repeats
+
+    ctx, _, _ = build_context(_line_of_sight_record(seconds=30.0, warmup=(0.0, 1.0)))
+    by = {(s.plate, s.axis): i for i, s in enumerate(ctx.series)}
+
+    def prop(eid, plates, axis, **par):
+        return SimpleNamespace(
+            effect=eid,
+            series=[by[(q, axis)] for q in plates],
+            parameters={k: {"value": v} for k, v in par.items()},
+        )
+
+    mode = prop("mode_shape", [4, 5, 7, 8], "z", mode=3, freq_hz=3.3743)
+    done = [SimpleNamespace(proposal=mode)]
+    assert _repeats(ctx, prop("mode_shape", [5, 6, 7], "z", mode=3, freq_hz=3.3742), done)
+    assert not _repeats(ctx, prop("mode_shape", [5, 6, 7], "z", mode=3, freq_hz=4.2), done)
+    assert not _repeats(ctx, prop("mode_shape", [5, 6, 7], "z", mode=2, freq_hz=3.3742), done)
+    assert not _repeats(ctx, prop("mode_shape", [5, 6, 7], "x", mode=3, freq_hz=3.3742), done)
+    jump = [SimpleNamespace(proposal=prop("level_jump", [1, 2, 3], "z", t_jump_s=10.2))]
+    assert _repeats(ctx, prop("level_jump", [2, 3], "z", t_jump_s=10.6), jump)
+    assert not _repeats(ctx, prop("level_jump", [2, 3], "z", t_jump_s=20.0), jump)
+    warm = [SimpleNamespace(proposal=prop("drift", [1, 2, 3], "z"))]
+    assert not _repeats(ctx, prop("drift", [2, 3], "z"), warm)  # no locator: never a repeat

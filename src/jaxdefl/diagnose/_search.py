@@ -625,7 +625,8 @@ def _events(ctx, eid: str, group: list[Accepted]) -> int:
     """How many events the accepted instances of one effect are. A range effect or a knock is
     seen on a plate's three axes (the centroid moves along its line of sight) and may be named on
     each: instances on different axes that share at least half of the smaller one's plates and
-    whose locators agree within its resolution (`Entry.locator`: a jump's time) are one event."""
+    whose locators agree within half its resolution (`Entry.locator`: a jump's time; as
+    reconcile's `_same_injection`) are one event."""
     loc = REGISTRY[eid].locator if eid in REGISTRY else None
 
     def where(a):
@@ -645,7 +646,7 @@ def _events(ctx, eid: str, group: list[Accepted]) -> int:
                 not (w[1] & o[1])
                 and len(w[0] & o[0]) >= 0.5 * min(len(w[0]), len(o[0]))
                 and (w[2] is None) == (o[2] is None)
-                and (w[2] is None or abs(w[2] - o[2]) <= loc[1])
+                and (w[2] is None or abs(w[2] - o[2]) <= 0.5 * loc[1])
                 for o in ev
             ):
                 ev.append(w)
@@ -658,8 +659,8 @@ def _events(ctx, eid: str, group: list[Accepted]) -> int:
 def _repeats(ctx, p: Proposal, accepted: list[Accepted]) -> bool:
     """Whether ``p`` is an accepted instance again: the same id with a locator (`Entry.locator`:
     a mode's number, a jump's time, a line's frequency), on an axis and plates it shares, located
-    within the locator's resolution and, for a line or a mode, at the same frequency (within the
-    record's frequency resolution). One mode has one amplitude and phase over the span: two
+    within half the locator's resolution and, for a line or a mode, at the same frequency (within
+    the record's frequency resolution). One mode has one amplitude and phase over the span: two
     instances of mode 3 at one frequency on overlapping plates, with opposite signs, stood in for
     one line in the load's shape (frame-level seed 417)."""
     loc = REGISTRY[p.effect].locator if p.effect in REGISTRY else None
@@ -683,7 +684,7 @@ def _repeats(ctx, p: Proposal, accepted: list[Accepted]) -> bool:
         ):
             continue
         x, y = value(p, loc[0]), value(q, loc[0])
-        if x is None or y is None or abs(x - y) > loc[1]:
+        if x is None or y is None or abs(x - y) > 0.5 * loc[1]:
             continue
         f, g = value(p, "freq_hz"), value(q, "freq_hz")
         if f is not None and g is not None and abs(f - g) > df:
